@@ -1,0 +1,82 @@
+"""The `calib` command line: one subcommand per stage, thin wrappers over the library."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import typer
+
+from .. import __version__
+from .. import artifacts as art
+from ..settings import load_settings
+from .common import SETTINGS_FILE, ForceOpt, RunOpt, SettingsOpt, check_run_dir, console, err_console, handle_errors
+from .doe_cmds import ascent_app, bbd_app, pb_app
+
+app = typer.Typer(
+    name="calib",
+    help="Calibrate DEM contact parameters of wet granular material from heap (angle-of-repose) tests.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+app.add_typer(pb_app, name="pb")
+app.add_typer(ascent_app, name="ascent")
+app.add_typer(bbd_app, name="bbd")
+
+
+def _version(value: bool):
+    if value:
+        console.print(f"calib {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit.")):
+    pass
+
+
+@app.command("init")
+@handle_errors
+def init(run: RunOpt, settings: SettingsOpt = None, force: ForceOpt = False):
+    """Create a run directory with its settings (RUN/settings.toml, copied from --settings)."""
+    run = check_run_dir(run)
+    target = run / SETTINGS_FILE
+    text = settings.read_text() if settings is not None else None
+    load_settings([settings] if settings is not None else [])  # validate before touching the run dir
+    if target.exists() and not force and (text is None or target.read_text() == text):
+        console.print(f"[green]✓[/] {run} is initialised ({target})")
+        return
+    if text is None:
+        text = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
+    art.atomic_write_bytes(target, text.encode())
+    console.print(f"[green]✓[/] wrote {target}")
+
+
+def main() -> None:
+    """Console-script entry point: no traceback for anything a user can cause."""
+    try:
+        rv = app(standalone_mode=False)
+    except SystemExit as e:
+        raise
+    except typer.Exit as e:  # pragma: no cover - click converts these
+        sys.exit(e.exit_code)
+    except KeyboardInterrupt:
+        err_console.print("[bold red]interrupted[/]")
+        sys.exit(130)
+    except Exception as e:  # click usage errors and bugs
+        import click
+
+        if isinstance(e, click.exceptions.ClickException):
+            e.show()
+            sys.exit(e.exit_code)
+        if isinstance(e, click.exceptions.Abort):
+            err_console.print("[bold red]interrupted[/]")
+            sys.exit(130)
+        if os.environ.get("CALIB_DEBUG"):
+            raise
+        err_console.print(f"[bold red]internal error:[/] {type(e).__name__}: {e} (set CALIB_DEBUG=1 for a traceback)")
+        sys.exit(70)
+    sys.exit(rv if isinstance(rv, int) else 0)

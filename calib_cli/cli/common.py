@@ -1,0 +1,162 @@
+"""Shared CLI plumbing: options, settings resolution, errors, rich tables."""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Annotated, Callable, Iterable, Optional
+
+import numpy as np
+import pandas as pd
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from .. import artifacts as art
+from ..errors import CalibError
+from ..settings import factor_space, load_settings
+from ..space import ParameterSpace
+
+console = Console()
+err_console = Console(stderr=True)
+
+RunOpt = Annotated[Path, typer.Option("--run", help="Run directory (created if missing).", show_default=False)]
+SettingsOpt = Annotated[
+    Optional[Path],
+    typer.Option("--settings", help="Settings TOML (default: RUN/settings.toml if present, else built-in paper setup)."),
+]
+SettingOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("--setting", "-s", help="Override one setting, e.g. -s pb.alpha=0.1 (repeatable)."),
+]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Rerun even if inputs and settings are unchanged.")]
+ResponsesOpt = Annotated[
+    Optional[Path],
+    typer.Option("--responses", help="CSV/Parquet of responses (factor columns in natural units + repose_angle) "
+                                     "from another engine or a paper, instead of simulated results."),
+]
+
+SETTINGS_FILE = "settings.toml"
+
+
+def handle_errors(fn: Callable) -> Callable:
+    """A user error becomes one red line and exit code 2; Ctrl-C exits 130."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except CalibError as e:
+            err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+        except KeyboardInterrupt:
+            err_console.print("[bold red]interrupted:[/] nothing partial was written to the run directory")
+            raise typer.Exit(130) from None
+
+    return wrapper
+
+
+def resolve_settings(run: Path, settings: Optional[Path], overrides: Optional[Iterable[str]]) -> dict:
+    files = []
+    if settings is not None:
+        files.append(settings)
+    elif (Path(run) / SETTINGS_FILE).is_file():
+        files.append(Path(run) / SETTINGS_FILE)
+    return load_settings(files, overrides or ())
+
+
+def check_run_dir(run: Path) -> Path:
+    run = Path(run)
+    if run.exists() and not run.is_dir():
+        raise CalibError(f"--run {run} exists and is not a directory")
+    return run
+
+
+def skipped(stage: art.Stage) -> None:
+    console.print(f"[green]✓[/] {stage.group} {stage.name}: inputs and settings unchanged, nothing to do "
+                  f"(use --force to rerun)")
+
+
+def space_from_design(path: Path) -> ParameterSpace | None:
+    if not Path(path).is_file():
+        return None
+    prov = art.read_provenance(path)
+    if "space" not in prov:
+        return None
+    return ParameterSpace.from_dicts(prov["space"])
+
+
+def match_to_design(design: pd.DataFrame, results: pd.DataFrame, factors: list[str], response: str,
+                    stage: str | None = None) -> pd.DataFrame:
+    """Mean response (over repeats) of the results at each design run.
+
+    Results written by ``simulate-heap --design`` carry ``design`` and ``run_id``
+    and are matched by them, so that two runs of a design at the same point (a
+    Plackett-Burman design can repeat a point in its factor columns) stay separate
+    replicates; other results are matched by their factor values.
+    """
+    X = design[factors].to_numpy(dtype=float)
+    R = results[factors].to_numpy(dtype=float)
+    yv = results[response].to_numpy(dtype=float)
+    by_id = stage is not None and {"design", "run_id"} <= set(results.columns) and "run_id" in design.columns
+    means, counts = [], []
+    for i, row in enumerate(X):
+        if by_id:
+            hit = ((results["design"] == stage) & (results["run_id"] == design["run_id"].iloc[i])).to_numpy().copy()
+            hit &= np.all(np.isclose(R, row[None, :], rtol=1e-9, atol=1e-12), axis=1)
+        else:
+            hit = np.all(np.isclose(R, row[None, :], rtol=1e-9, atol=1e-12), axis=1)
+        hit &= np.isfinite(yv)
+        counts.append(int(hit.sum()))
+        means.append(float(yv[hit].mean()) if hit.any() else np.nan)
+    out = design.copy()
+    out[response] = means
+    out["n_repeats"] = counts
+    return out
+
+
+def simulated_responses(run: Path, design_path: Path, factors: list[str], response: str) -> pd.DataFrame:
+    """The design's rows with the simulated response from RUN/simulate/results.parquet."""
+    results_path = Path(run) / "simulate" / "results.parquet"
+    hint = (f"run `calib simulate-heap --run {run} --design {design_path}` first, "
+            f"or pass --responses FILE with responses from another engine")
+    if not Path(design_path).is_file():
+        raise CalibError(f"no design at {design_path}; create it first (`design` subcommand) or pass --responses FILE")
+    if not results_path.is_file():
+        raise CalibError(f"no simulated responses in {run}: {hint}")
+    design = art.read_table(design_path, what="design")
+    results = art.read_table(results_path, columns=[*factors, response], what="simulation results")
+    out = match_to_design(design, results, factors, response, stage=Path(design_path).parent.name)
+    missing = int((out["n_repeats"] == 0).sum())
+    if missing:
+        raise CalibError(f"{missing} of {len(out)} design runs have no simulated response: {hint}")
+    return out
+
+
+def fmt(v, digits: int = 5) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(v)
+    if isinstance(v, (float, np.floating)):
+        return f"{v:.{digits}g}" if np.isfinite(v) else ""
+    return str(v)
+
+
+def pvalue(p: float) -> str:
+    return "<0.0001" if p < 1e-4 else f"{p:.4f}"
+
+
+def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None = None) -> Table:
+    formats = formats or {}
+    t = Table(title=title, title_justify="left", header_style="bold")
+    for c in df.columns:
+        t.add_column(str(c), justify="left" if df[c].dtype == object else "right")
+    for _, r in df.iterrows():
+        t.add_row(*[formats.get(c, fmt)(r[c]) for c in df.columns])
+    return t
+
+
+def debug() -> bool:
+    return bool(os.environ.get("CALIB_DEBUG"))

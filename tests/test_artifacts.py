@@ -1,0 +1,104 @@
+import json
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from calib_cli import artifacts as art
+from calib_cli.errors import CalibError
+
+
+def test_write_read_with_provenance(tmp_path):
+    df = pd.DataFrame({"a": [1.0, 2.0], "b": ["x", "y"]})
+    p = tmp_path / "t.parquet"
+    art.write_table(p, df, {"stage": "s", "inputs": {"x": "1"}})
+    pd.testing.assert_frame_equal(art.read_table(p), df)
+    assert art.read_provenance(p)["stage"] == "s"
+    assert [f for f in os.listdir(tmp_path)] == ["t.parquet"]  # no temporary left behind
+
+
+def test_read_table_errors(tmp_path):
+    with pytest.raises(CalibError, match="not found"):
+        art.read_table(tmp_path / "nope.parquet")
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"garbage")
+    with pytest.raises(CalibError, match="not a readable Parquet"):
+        art.read_table(bad)
+    art.write_table(tmp_path / "ok.parquet", pd.DataFrame({"a": [1]}))
+    with pytest.raises(CalibError, match="lacks column"):
+        art.read_table(tmp_path / "ok.parquet", columns=["b"])
+
+
+def test_hash_is_stable_and_order_free():
+    assert art.hash_obj({"a": 1, "b": [1.0, 2]}) == art.hash_obj({"b": [1.0, 2], "a": 1})
+    assert art.hash_obj({"a": 1}) != art.hash_obj({"a": 2})
+
+
+def _stage(tmp_path, settings, inp=None):
+    return art.Stage(tmp_path, "g", "s", inputs={"in": inp} if inp else {}, settings=settings)
+
+
+def test_stage_skip_force_and_invalidation(tmp_path):
+    inp = tmp_path / "in.csv"
+    inp.write_text("a\n1\n")
+    st = _stage(tmp_path, {"k": 1}, inp)
+    assert not st.up_to_date()
+    with st.commit() as out:
+        out.table("o.parquet", pd.DataFrame({"a": [1]}))
+    assert _stage(tmp_path, {"k": 1}, inp).up_to_date()
+    assert not _stage(tmp_path, {"k": 2}, inp).up_to_date()  # settings changed
+    inp.write_text("a\n2\n")
+    assert not _stage(tmp_path, {"k": 1}, inp).up_to_date()  # input changed
+    inp.write_text("a\n1\n")
+    (tmp_path / "g" / "o.parquet").unlink()
+    assert not _stage(tmp_path, {"k": 1}, inp).up_to_date()  # output removed
+
+
+def test_failed_stage_leaves_run_dir_unchanged(tmp_path):
+    st = _stage(tmp_path, {"k": 1})
+    with st.commit() as out:
+        out.table("o.parquet", pd.DataFrame({"a": [1]}))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    st2 = _stage(tmp_path, {"k": 2})
+    with pytest.raises(RuntimeError):
+        with st2.commit() as out:
+            out.table("o.parquet", pd.DataFrame({"a": [2]}))
+            raise RuntimeError("boom")
+    after = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert before == after
+
+
+def test_stale_outputs_removed_and_lock_records_hashes(tmp_path):
+    st = _stage(tmp_path, {"k": 1})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [1]}))
+        out.text("b.txt", "b")
+    st = _stage(tmp_path, {"k": 2})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [2]}))
+    assert not (tmp_path / "g" / "b.txt").exists()
+    lock = json.loads((tmp_path / "g" / "s.lock.json").read_text())
+    assert set(lock["outputs"]) == {"a.parquet"}
+    assert lock["outputs"]["a.parquet"] == art.file_hash(tmp_path / "g" / "a.parquet")
+
+
+def test_read_responses_validation(tmp_path):
+    p = tmp_path / "r.csv"
+    p.write_text("a,repose_angle\n1,30\n2,31\n")
+    assert art.read_responses(p, ["a"], "repose_angle")["repose_angle"].tolist() == [30, 31]
+    p.write_text("a,repose_angle\n1,30\n2,\n")
+    with pytest.raises(CalibError, match="missing or non-numeric.*row 2"):
+        art.read_responses(p, ["a"], "repose_angle")
+    p.write_text("a,angle\n1,30\n")
+    with pytest.raises(CalibError, match="lacks column.*repose_angle"):
+        art.read_responses(p, ["a"], "repose_angle")
+    with pytest.raises(CalibError, match="not found"):
+        art.read_responses(tmp_path / "x.csv", ["a"], "repose_angle")
+    q = tmp_path / "r.parquet"
+    q.write_bytes(b"\x00\x01junk")
+    with pytest.raises(CalibError, match="could not be read"):
+        art.read_responses(q, ["a"], "repose_angle")
+    # Parquet works too
+    art.write_table(q, pd.DataFrame({"a": [1.0, 2.0], "repose_angle": [3.0, np.float64(4)]}))
+    assert len(art.read_responses(q, ["a"], "repose_angle")) == 2

@@ -1,0 +1,156 @@
+"""End-to-end CLI tests of pb / ascent / bbd on the paper's data."""
+
+import shutil
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from calib_cli import artifacts as art
+from calib_cli.cli import app
+from conftest import PAPER, STAGES
+
+runner = CliRunner()
+
+
+def calib(*args):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+def snapshot(d):
+    return {p.relative_to(d): p.read_bytes() for p in d.rglob("*") if p.is_file()}
+
+
+@pytest.fixture
+def run(tmp_path):
+    d = tmp_path / "run"
+    assert calib("init", "--run", d, "--settings", STAGES / "paper.toml").exit_code == 0
+    return d
+
+
+def test_paper_chain_end_to_end(run):
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    r = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv")
+    assert r.exit_code == 0, r.output
+    assert "Going forward" in r.output
+    anova = art.read_table(run / "pb" / "anova.parquet")
+    assert list(anova.columns) == ["source", "sum_sq", "df", "mean_sq", "F", "p_value"]
+    assert round(anova.set_index("source").loc["rolling_friction", "sum_sq"], 2) == 228.81
+    prov = art.read_provenance(run / "pb" / "anova.parquet")
+    assert prov["stage"] == "pb.analyze" and prov["inputs"]["responses"]["hash"] and prov["version"]
+    assert "pb analyze" in prov["command"] or prov["command"]
+
+    assert calib("ascent", "design", "--run", run).exit_code == 0
+    design = art.read_table(run / "ascent" / "design.parquet")
+    assert len(design) == 5 and (design["restitution"] == 0.2).all()
+    r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv")
+    assert r.exit_code == 0, r.output
+    assert "4.26 %" in r.output
+    assert calib("bbd", "design", "--run", run).exit_code == 0
+    d = art.read_table(run / "bbd" / "design.parquet")
+    assert len(d) == 17
+    assert sorted(d["static_friction"].round(9).unique()) == [0.112, 0.275, 0.438]  # Table 6 from the bracket
+    r = calib("bbd", "analyze", "--run", run, "--responses", PAPER / "table7_bbd.csv")
+    assert r.exit_code == 0, r.output
+    fit = art.read_table(run / "bbd" / "fit.parquet").iloc[0]
+    assert round(fit["r2_pred"], 4) == 0.7948 and round(fit["adeq_precision"], 4) == 21.2234
+    coef = art.read_table(run / "bbd" / "coefficients.parquet").set_index("term")["coefficient"]
+    assert round(coef["static_friction^2"], 3) == 1.541
+    assert len(list((run / "bbd").glob("surface_*.png"))) == 3
+
+
+def test_rerun_skips_and_force_reruns(run):
+    args = ("bbd", "analyze", "--run", run, "--responses", PAPER / "table7_bbd.csv")
+    assert calib(*args).exit_code == 0
+    before = snapshot(run)
+    r = calib(*args)
+    assert r.exit_code == 0 and "nothing to do" in r.output
+    assert snapshot(run) == before
+    r = calib(*args, "--force")
+    assert r.exit_code == 0 and "ANOVA" in r.output
+    # a changed setting invalidates the stage
+    r = calib(*args, "-s", "response=repose_angle", "-s", "bbd.alpha=0.01")
+    assert "nothing to do" in r.output  # alpha only affects the printed warning, not the artefacts
+    r = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv")
+    r2 = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv", "-s", "pb.alpha=0.01")
+    assert "nothing to do" not in r2.output and "Going forward" in r2.output
+
+
+@pytest.mark.parametrize("make_bad,needle", [
+    (lambda p: p.write_text(p.read_text().replace("repose_angle", "angle")), "lacks column"),
+    (lambda p: p.write_text(p.read_text().replace("38.44", "nan")), "missing or non-numeric"),
+    (lambda p: p.write_text(p.read_text().replace("0.112,", "0.275,")), None),
+    (lambda p: p.write_bytes(b"\x89PNG\x00\x00garbage\xff\xfe"), None),
+    (lambda p: p.unlink(), "not found"),
+])
+def test_bad_responses_one_line_error_and_run_dir_unchanged(run, tmp_path, make_bad, needle):
+    good = tmp_path / "t7.csv"
+    shutil.copy(PAPER / "table7_bbd.csv", good)
+    assert calib("bbd", "analyze", "--run", run, "--responses", good).exit_code == 0
+    bad = tmp_path / "bad.csv"
+    shutil.copy(good, bad)
+    make_bad(bad)
+    before = snapshot(run)
+    r = calib("bbd", "analyze", "--run", run, "--responses", bad)
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), r.output
+    if needle:
+        assert needle in lines[0]
+    assert snapshot(run) == before
+
+
+def test_single_level_factor_is_an_error(tmp_path):
+    bad = tmp_path / "one.csv"
+    df = pd.read_csv(PAPER / "table3_pb.csv")
+    df["restitution"] = 0.2
+    df.to_csv(bad, index=False)
+    r = calib("pb", "analyze", "--run", tmp_path / "r", "--responses", bad)
+    assert r.exit_code == 2 and "single level" in r.output
+
+
+def test_analyze_without_responses_or_simulations_says_what_to_do(run):
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    r = calib("pb", "analyze", "--run", run)
+    assert r.exit_code == 2
+    assert "simulate-heap" in r.output and "--responses" in r.output
+
+
+def test_simulated_responses_are_matched_to_the_design(run):
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    design = art.read_table(run / "pb" / "design.parquet")
+    # two repeats per design point, as simulate-heap writes them
+    rows = []
+    for seed in (1, 2):
+        res = design.copy()
+        res["seed"] = seed
+        res["design"] = "pb"
+        res["repose_angle"] = 30 + 5 * design["rolling_friction"] / 0.4 + seed * 0.1
+        rows.append(res)
+    art.write_table(run / "simulate" / "results.parquet", pd.concat(rows))
+    r = calib("pb", "analyze", "--run", run)
+    assert r.exit_code == 0, r.output
+    data = art.read_table(run / "pb" / "data.parquet")
+    assert (data["n_repeats"] == 2).all()  # matched by run id: identical design points stay separate runs
+    # without run ids (responses from elsewhere) results are matched by factor values
+    res = pd.concat(rows).drop(columns=["design", "run_id"])
+    art.write_table(run / "simulate" / "results.parquet", res)
+    assert calib("pb", "analyze", "--run", run).exit_code == 0
+    data = art.read_table(run / "pb" / "data.parquet")
+    assert set(data["n_repeats"]) == {2, 4}  # pyDOE3's 12-run design repeats a 4-factor point, as Table 3 does
+
+
+def test_ascent_design_needs_screening(run):
+    r = calib("ascent", "design", "--run", run)
+    assert r.exit_code == 2 and "calib pb analyze" in r.output
+
+
+def test_help_says_what_is_read_and_written():
+    r = calib("bbd", "analyze", "--help")
+    assert "Reads" in r.output and "Writes" in r.output
+    assert calib("--version").exit_code == 0
+
+
+def test_bad_setting_on_command_line(run):
+    r = calib("pb", "design", "--run", run, "-s", "pb.runs=10")
+    assert r.exit_code == 2 and "multiple of 4" in r.output

@@ -1,0 +1,44 @@
+import pytest
+
+from calib_cli.errors import CalibError
+from calib_cli.settings import factor_space, load_settings, parse_overrides
+
+
+def test_defaults_are_the_paper_setup():
+    s = load_settings()
+    sp = factor_space(s, s["pb"]["factors"])
+    assert sp.names == ["static_friction", "rolling_friction", "surface_energy", "restitution"]
+    assert (sp["static_friction"].low, sp["static_friction"].high) == (0.05, 0.5)
+    assert (sp["surface_energy"].unit, sp["surface_energy"].high) == ("J/m2", 2.0)
+    assert s["target"] == 32.07 and s["response"] == "repose_angle"
+
+
+def test_paper_toml_loads(tmp_path):
+    from conftest import STAGES
+
+    s = load_settings([STAGES / "paper.toml"])
+    assert s["ascent"]["method"] == "diagonal" and s["bbd"]["fixed"] == {"restitution": 0.2}
+
+
+def test_overrides_parse_types():
+    assert parse_overrides(["pb.alpha=0.1", "ascent.method=diagonal", "bbd.factors=['a','b']"]) == {
+        "pb": {"alpha": 0.1}, "ascent": {"method": "diagonal"}, "bbd": {"factors": ["a", "b"]}}
+    s = load_settings(overrides=["factors.restitution.low=0.15", "bbd.fixed.restitution=0.2"])
+    assert s["factors"]["restitution"]["low"] == 0.15 and s["factors"]["restitution"]["high"] == 0.4
+
+
+@pytest.mark.parametrize("bad", ["pb.alfa=0.1", "nonsense=1", "pb.alpha=2", "ascent.method=zigzag",
+                                 "ascent.steps=2", "factors.restitution.low=0.9", "noequals"])
+def test_bad_settings_are_one_line_errors(bad):
+    with pytest.raises(CalibError) as e:
+        load_settings(overrides=[bad])
+    assert "\n" not in str(e.value)
+
+
+def test_bad_toml_file(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text("this is = = not toml")
+    with pytest.raises(CalibError, match="not valid TOML"):
+        load_settings([p])
+    with pytest.raises(CalibError, match="not found"):
+        load_settings([tmp_path / "missing.toml"])
