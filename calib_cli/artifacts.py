@@ -180,6 +180,50 @@ def read_responses(path: Path, factors: Sequence[str], response: str,
     return out
 
 
+def write_json(path: Path, obj: Mapping) -> None:
+    atomic_write_bytes(path, json.dumps(_canonical(dict(obj)), indent=2, default=str).encode())
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        raise CalibError(f"{path} is missing or not valid JSON") from None
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise CalibError(f"could not encode {path}")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def write_vtp(path: Path, points: np.ndarray, point_data: Mapping[str, np.ndarray]) -> None:
+    """Particles as VTK XML PolyData (ASCII), for ParaView: points plus per-point arrays."""
+    pts = np.asarray(points, dtype=float)
+    n = len(pts)
+
+    def arr(name, a):
+        a = np.asarray(a, dtype=float)
+        comps = 1 if a.ndim == 1 else a.shape[1]
+        body = " ".join(f"{v:.9g}" for v in a.ravel())
+        nm = f' Name="{name}"' if name else ""
+        return f'<DataArray type="Float64"{nm} NumberOfComponents="{comps}" format="ascii">{body}</DataArray>'
+
+    pd_xml = "".join(arr(k, v) for k, v in point_data.items())
+    verts = " ".join(str(i) for i in range(n))
+    offs = " ".join(str(i + 1) for i in range(n))
+    xml = ('<?xml version="1.0"?>\n<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">'
+           f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" NumberOfStrips="0" '
+           f'NumberOfPolys="0"><PointData Scalars="radius">{pd_xml}</PointData><Points>{arr("", pts)}</Points>'
+           f'<Verts><DataArray type="Int64" Name="connectivity" format="ascii">{verts}</DataArray>'
+           f'<DataArray type="Int64" Name="offsets" format="ascii">{offs}</DataArray></Verts>'
+           '</Piece></PolyData></VTKFile>\n')
+    atomic_write_bytes(path, xml.encode())
+
+
 # ---------------------------------------------------------------- stages
 @dataclass
 class Stage:

@@ -1,0 +1,163 @@
+"""Simulation campaigns: many heap runs, cached, resumable, on a local process pool.
+
+Each run is identified by the hash of everything that determines its result (model,
+parameters, condition, numerics, seed, kernel source). Its artefacts live in
+``RUN/simulate/runs/<hash>/`` and its ``result.json`` is written last, atomically: a
+run with a result is never recomputed, and Ctrl-C loses nothing that finished. The
+index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from . import __version__
+from . import artifacts as art
+from .dem import KERNEL_VERSION, SOURCE_HASH
+from .dem.heap import HeapCondition, Numerics, run_heap, run_key
+from .dem.render import render_side_view
+
+RESULTS = Path("simulate") / "results.parquet"
+RUNS = Path("simulate") / "runs"
+
+
+@dataclass(frozen=True)
+class Request:
+    params: Mapping[str, float]
+    condition: HeapCondition
+    numerics: Numerics
+    seed: int
+    preset: str = ""
+    design: str = ""  # the design stage this run belongs to ("pb", "bbd", ...), if any
+    run_id: int = 0
+    repeat: int = 0
+    model: str = ""
+    condition_id: str = ""
+
+    @property
+    def key(self) -> dict:
+        k = run_key(self.params, self.condition, self.numerics, self.seed, self.model)
+        k["source"] = SOURCE_HASH
+        return k
+
+    @property
+    def hash(self) -> str:
+        return art.hash_obj(self.key)
+
+
+def derive_seed(base: int, run_id: int, repeat: int) -> int:
+    """Independent, reproducible seeds per (design run, repeat): two design runs at the same
+    point (a PB design can repeat one) are separate replicates, not one cached run."""
+    return int(np.random.SeedSequence([int(base), int(run_id), int(repeat)]).generate_state(1)[0] & 0x7FFFFFFF)
+
+
+def _row(req: Request, res) -> dict:
+    a = res.angle
+    ok = res.status == "ok"
+    s = res.system
+    return {
+        "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
+        "seed": req.seed, "preset": req.preset, "condition_id": req.condition_id, "model": req.model,
+        **{k: float(v) for k, v in req.params.items()},
+        **asdict(req.condition),
+        "status": res.status, "message": res.message,
+        "repose_angle": a.angle if ok else np.nan,
+        "angle_coords": a.angle if ok else np.nan,
+        "angle_coords_sd": a.sd if ok else np.nan,
+        "angle_image": np.nan,
+        "heap_height_mm": a.height * 1e3, "base_radius_mm": a.base_radius * 1e3,
+        "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
+        "t_settled": res.t_settled, "t_lift_end": res.t_lift_end, "max_overlap": s.max_overlap,
+        "wall_s": res.wall_s, "particle_steps_per_s": s.n * s.n_steps / max(res.wall_s, 1e-9),
+        "kernel": KERNEL_VERSION, "source": SOURCE_HASH, "version": __version__,
+    }
+
+
+def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dict:
+    """Run one request (or load its cached result) and write its artefacts."""
+    out = Path(run_dir) / RUNS / req.hash
+    done = out / "result.json"
+    if done.is_file():
+        return art.read_json(done)
+    res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
+    p = res.system.particles
+    state = pd.DataFrame({"x": p.pos[:, 0], "y": p.pos[:, 1], "z": p.pos[:, 2], "radius": p.rad,
+                          "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
+                          "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
+    out.mkdir(parents=True, exist_ok=True)
+    row = _row(req, res)
+    art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
+    art.write_table(out / "profile.parquet", pd.DataFrame({"r_m": res.angle.profile_r, "h_m": res.angle.profile_h}))
+    art.write_table(out / "energy.parquet", pd.DataFrame(res.energy, columns=["t", "kinetic_energy", "rim_height"]))
+    view = render_side_view(p.pos, p.rad)
+    art.write_png(out / "side.png", view.image)
+    art.write_vtp(out / "particles.vtp", p.pos, {"radius": p.rad, "velocity": p.vel, "angular_velocity": p.omg})
+    art.write_json(out / "key.json", req.key)
+    art.write_json(done, row)  # last: marks the run complete
+    return row
+
+
+def _execute_in_worker(req: Request, run_dir: str) -> dict:
+    return execute(req, run_dir)
+
+
+def load_results(run_dir: Path) -> pd.DataFrame:
+    path = Path(run_dir) / RESULTS
+    return art.read_table(path, what="simulation results") if path.is_file() else pd.DataFrame()
+
+
+def _save_index(run_dir: Path, rows: list[dict]) -> None:
+    df = pd.DataFrame(rows)
+    keys = ["run_hash", "design", "run_id", "repeat", "condition_id"]
+    df = df.drop_duplicates(subset=keys, keep="last").reset_index(drop=True)
+    art.write_table(Path(run_dir) / RESULTS, df, {"stage": "simulate", "version": __version__})
+
+
+def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
+                 on_done: Callable[[Request, dict], None] | None = None,
+                 on_progress: Callable | None = None) -> pd.DataFrame:
+    """Run every request (cached ones are loaded, not recomputed); return their rows."""
+    requests = list(requests)
+    run_dir = Path(run_dir)
+    (run_dir / RUNS).mkdir(parents=True, exist_ok=True)
+    previous = load_results(run_dir)
+    index = previous.to_dict("records") if len(previous) else []
+    rows: list[dict | None] = [None] * len(requests)
+
+    def finish(i: int, row: dict) -> None:
+        req = requests[i]
+        row = {**row, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
+               "condition_id": req.condition_id}
+        rows[i] = row
+        index.append(row)
+        _save_index(run_dir, index)
+        if on_done:
+            on_done(req, row)
+
+    todo = []
+    for i, req in enumerate(requests):
+        done = run_dir / RUNS / req.hash / "result.json"
+        if done.is_file():
+            finish(i, art.read_json(done))
+        else:
+            todo.append(i)
+    if workers <= 1 or len(todo) <= 1:
+        for i in todo:
+            finish(i, execute(requests[i], str(run_dir), on_progress))
+    else:
+        with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+            futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir)): i for i in todo}
+            try:
+                for f in cf.as_completed(futs):
+                    finish(futs[f], f.result())
+            except BaseException:
+                for f in futs:
+                    f.cancel()
+                raise
+    return pd.DataFrame([r for r in rows if r is not None])

@@ -1,0 +1,248 @@
+"""The heap (angle-of-repose) test of paper section 2.2, scaled by presets.
+
+A vertical cylinder on the floor is filled with polydisperse spheres, they settle,
+the cylinder is lifted at a set speed, the heap forms on the floor, and the run
+ends when the particles are at rest (rms speed below a threshold) or at a time
+limit. The paper's rig is 150 mm x 300 mm, lifted at 300 mm/min; presets scale it
+down for speed (see docs/physics.md for the ranges each preset is valid for).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..errors import CalibError
+from . import KERNEL_VERSION
+from .angle import CoordAngle, repose_angle_coords
+from .materials import Interaction, Material
+from .system import Particles, System, Walls
+
+#: parameters the heap test takes (natural units); wall_* default to the particle values,
+#: except wall_surface_energy (default 0)
+PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution",
+              "wall_static_friction", "wall_rolling_friction", "wall_surface_energy", "wall_restitution")
+PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2}
+
+
+@dataclass(frozen=True)
+class HeapCondition:
+    """Heap-test variables (the columns of a conditions table, SPEC section 6)."""
+
+    particle_d_min_mm: float = 3.0
+    particle_d_max_mm: float = 5.0
+    cylinder_diameter_mm: float = 70.0
+    fill_height_mm: float = 70.0
+    lift_speed_mm_s: float = 50.0
+    floor: str = "default"
+
+    def validate(self) -> None:
+        if not 0 < self.particle_d_min_mm <= self.particle_d_max_mm:
+            raise CalibError(f"particle sizes must satisfy 0 < d_min <= d_max, got {self.particle_d_min_mm}, "
+                             f"{self.particle_d_max_mm} mm")
+        if not self.cylinder_diameter_mm >= 4 * self.particle_d_max_mm:
+            raise CalibError(f"cylinder diameter {self.cylinder_diameter_mm} mm must be at least 4 particle diameters")
+        if not self.fill_height_mm >= 2 * self.particle_d_max_mm:
+            raise CalibError(f"fill height {self.fill_height_mm} mm must be at least 2 particle diameters")
+        if not self.lift_speed_mm_s > 0:
+            raise CalibError(f"lift speed must be positive, got {self.lift_speed_mm_s} mm/s")
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Numerical settings of the heap run (not physics the user calibrates)."""
+
+    shear_modulus: float = 5e6  # Pa, reduced (SPEC 5)
+    poisson: float = 0.25
+    density: float = 2600.0  # kg/m3
+    wall_shear_modulus: float = 5e6
+    safety: float = 0.2  # fraction of the critical step (Rayleigh / JKR contact)
+    packing_fraction: float = 0.6  # of the settled fill, sets the particle count
+    settle_speed: float = 0.01  # m/s: rms speed at which the fill counts as settled
+    settle_drag: float = 10.0  # 1/s: background drag during the fill only (kills the fill's fall)
+    settle_time_max: float = 1.0  # s
+    rest_speed: float = 0.005  # m/s: rms speed at which the heap counts as at rest
+    time_max: float = 6.0  # s, total
+    chunk: int = 400  # steps between checks
+
+
+@dataclass(frozen=True)
+class Preset:
+    condition: HeapCondition
+    numerics: Numerics
+    note: str
+
+
+PRESETS: dict[str, Preset] = {
+    "smoke": Preset(HeapCondition(6.0, 8.0, 50.0, 50.0, 100.0), Numerics(time_max=3.0),
+                    "a few hundred 6-8 mm grains in a 50 mm cylinder: seconds; checks the chain, not the physics"),
+    "default": Preset(HeapCondition(3.0, 5.0, 70.0, 70.0, 50.0), Numerics(),
+                      "the paper's 3-5 mm grains in a 70 mm cylinder filled 70 mm high: a few thousand particles"),
+    "paper": Preset(HeapCondition(3.0, 5.0, 150.0, 150.0, 5.0), Numerics(time_max=45.0),
+                    "the paper's rig: 150 mm cylinder, 3-5 mm grains, lifted at 300 mm/min (about 45,000 particles)"),
+}
+
+
+def get_preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise CalibError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+def interactions(params: Mapping[str, float]) -> tuple[Interaction, Interaction]:
+    """(particle-particle, particle-wall) interactions; wall_* default to the particle values."""
+    unknown = set(params) - set(PARAMETERS)
+    if unknown:
+        raise CalibError(f"unknown heap parameter(s) {sorted(unknown)}; known: {', '.join(PARAMETERS)}")
+    p = {**PARTICLE_DEFAULTS, **{k: float(v) for k, v in params.items() if not k.startswith("wall_")}}
+    # walls share the particles' friction and restitution unless given; they do not stick
+    # (wall surface energy 0) unless given: a wet fill glued to the lifting cylinder is a
+    # separate effect, and would be carried up with it
+    w = {k: float(params.get(f"wall_{k}", 0.0 if k == "surface_energy" else p[k])) for k in PARTICLE_DEFAULTS}
+    pp, pw = Interaction(**p), Interaction(**w)
+    pp.validate("particle-particle parameters")
+    pw.validate("particle-wall parameters")
+    return pp, pw
+
+
+def fill_cylinder(cond: HeapCondition, packing: float, rng: np.random.Generator) -> Particles:
+    """Particles on a jittered hexagonal close-packed lattice inside the cylinder, enough
+    to fill it to the fill height at the given packing fraction once settled.
+    Diameters uniform in [d_min, d_max]."""
+    d_min, d_max = cond.particle_d_min_mm * 1e-3, cond.particle_d_max_mm * 1e-3
+    Rc = cond.cylinder_diameter_mm * 0.5e-3
+    H = cond.fill_height_mm * 1e-3
+    mean_d3 = (d_max**4 - d_min**4) / (4 * (d_max - d_min)) if d_max > d_min else d_max**3
+    n = int(round(packing * math.pi * Rc**2 * H / (math.pi / 6 * mean_d3)))
+    s = d_max * 1.04
+    dz = s * math.sqrt(2.0 / 3.0)
+    layers = []
+    nl = 0
+    while sum(len(l) for l in layers) < n:
+        # ABC stacking: each layer's triangular lattice shifted
+        off = [(0.0, 0.0), (s / 2, s / (2 * math.sqrt(3))), (0.0, s / math.sqrt(3))][nl % 3]
+        rows = np.arange(-Rc / (s * math.sqrt(3) / 2) - 1, Rc / (s * math.sqrt(3) / 2) + 1)
+        pts = [(c * s + (r % 2) * s / 2 + off[0], r * s * math.sqrt(3) / 2 + off[1])
+               for r in rows for c in np.arange(-Rc / s - 1, Rc / s + 1)]
+        p = np.array(pts)
+        p = p[np.hypot(p[:, 0], p[:, 1]) <= Rc - 0.55 * s]
+        if len(p) == 0:
+            raise CalibError("the cylinder is too narrow for one layer of particles")
+        layers.append(np.column_stack([p, np.full(len(p), s / 2 + nl * dz)]))
+        nl += 1
+    pts = np.vstack(layers)[:n]
+    d = rng.uniform(d_min, d_max, n) if d_max > d_min else np.full(n, d_max)
+    pts = pts + rng.uniform(-1, 1, (n, 3)) * ((s - d)[:, None] / 2) * 0.5
+    return Particles(pts, d / 2, vel=rng.normal(0, 0.01, (n, 3)))
+
+
+@dataclass
+class HeapResult:
+    system: System
+    status: str  # ok | column | timeout
+    message: str
+    angle: CoordAngle
+    t_settled: float
+    t_lift_end: float
+    t_end: float
+    wall_s: float
+    params: dict
+    condition: HeapCondition
+    numerics: Numerics
+    seed: int
+    energy: list = field(default_factory=list)  # (t, kinetic energy, rim height)
+
+    @property
+    def n_particles(self) -> int:
+        return self.system.n
+
+    @property
+    def n_steps(self) -> int:
+        return self.system.n_steps
+
+
+def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None, numerics: Numerics | None = None,
+             seed: int = 0, progress: Callable[[float, float, str], None] | None = None) -> HeapResult:
+    """Simulate one heap test and measure its angle from the particle coordinates.
+
+    ``progress(t, t_max, phase)`` is called after each chunk.
+    """
+    cond = condition or PRESETS["default"].condition
+    num = numerics or PRESETS["default"].numerics
+    cond.validate()
+    pp, pw = interactions(params)
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    parts = fill_cylinder(cond, num.packing_fraction, rng)
+    Rc = cond.cylinder_diameter_mm * 0.5e-3
+    vlift = cond.lift_speed_mm_s * 1e-3
+    sysm = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
+                  wall_material=Material(num.wall_shear_modulus, num.poisson, num.density),
+                  pp=pp, floor=pw, cylinder=pw, walls=Walls(True, Rc, vlift, np.inf), safety=num.safety)
+    energy = []
+    d_max = cond.particle_d_max_mm * 1e-3
+
+    def rms_speed():
+        v = parts.vel
+        return float(np.sqrt(np.sum(sysm.mass * np.sum(v * v, axis=1)) / np.sum(sysm.mass)))
+
+    def chunk(phase):
+        sysm.advance(num.chunk)
+        energy.append((sysm.t, sysm.kinetic_energy(), sysm.rim_height))
+        if progress:
+            progress(sysm.t, num.time_max, phase)
+
+    # 1. settle inside the cylinder, with a background drag that only this phase has
+    sysm.drag = num.settle_drag
+    while sysm.t < num.settle_time_max:
+        chunk("settle")
+        if rms_speed() < num.settle_speed and sysm.t > 0.05:
+            break
+    sysm.drag = 0.0
+    t_settled = sysm.t
+    fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
+    # 2. lift until the rim clears the settled fill, then remove the cylinder
+    sysm.walls.lift_start = t_settled
+    sysm.geo[2] = vlift
+    status, message = "ok", ""
+    t_lift_end = np.nan
+    while sysm.t < num.time_max:
+        chunk("lift")
+        if sysm.rim_height > fill_top + d_max:
+            t_lift_end = sysm.t
+            break
+    sysm.geo[3] = 0.0
+    sysm.geo[2] = 0.0
+    # 3. rest
+    while sysm.t < num.time_max:
+        if rms_speed() < num.rest_speed:
+            break
+        chunk("rest")
+    if not np.isfinite(t_lift_end):
+        status, message = "timeout", f"the cylinder had not cleared the particles at t = {sysm.t:.2f} s"
+    elif rms_speed() >= num.rest_speed:
+        status, message = "timeout", (f"not at rest at the time limit {num.time_max:g} s "
+                                      f"(rms speed {rms_speed() * 1e3:.1f} mm/s)")
+    ang = repose_angle_coords(parts.pos, parts.rad)
+    # a cohesive fill can stand as a column after the lift: that is not a heap (issue 3)
+    if ang.height > 0.7 * min(fill_top, cond.fill_height_mm * 1e-3) and ang.base_radius < 1.5 * Rc:
+        status, message = "column", (f"no heap: the fill stood as a column ({ang.height * 1e3:.0f} mm high, "
+                                     f"base radius {ang.base_radius * 1e3:.0f} mm)")
+    elif not np.isfinite(ang.angle):
+        status, message = "no_heap", "no flank could be fitted to the final state"
+    return HeapResult(sysm, status, message, ang, t_settled, t_lift_end, sysm.t, time.perf_counter() - t0,
+                      dict(params), cond, num, seed, energy)
+
+
+def condition_dict(c: HeapCondition) -> dict:
+    return asdict(c)
+
+
+def run_key(params: Mapping, condition: HeapCondition, numerics: Numerics, seed: int, model: str = "") -> dict:
+    """Everything that determines a run's result (its cache key)."""
+    return {"params": {k: float(v) for k, v in sorted(params.items())}, "condition": asdict(condition),
+            "numerics": asdict(numerics), "seed": int(seed), "model": model, "kernel": KERNEL_VERSION}

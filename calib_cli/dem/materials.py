@@ -1,0 +1,70 @@
+"""Materials and interactions -> the packed parameter rows the kernel reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import CalibError
+from .contact import damping_ratio
+
+
+@dataclass(frozen=True)
+class Material:
+    """Elastic solid. The shear modulus is reduced from the real material's, as is common
+    DEM practice, so that the Rayleigh time step is large (SPEC section 5)."""
+
+    shear_modulus: float = 2e6  # Pa
+    poisson: float = 0.25
+    density: float = 2600.0  # kg/m3 (concrete aggregate)
+
+    @property
+    def youngs_modulus(self) -> float:
+        return 2.0 * self.shear_modulus * (1.0 + self.poisson)
+
+    def validate(self, what: str = "material") -> None:
+        if not (self.shear_modulus > 0 and np.isfinite(self.shear_modulus)):
+            raise CalibError(f"{what}: shear modulus must be positive, got {self.shear_modulus}")
+        if not -1.0 < self.poisson < 0.5:
+            raise CalibError(f"{what}: Poisson's ratio must lie in (-1, 0.5), got {self.poisson}")
+        if not (self.density > 0 and np.isfinite(self.density)):
+            raise CalibError(f"{what}: density must be positive, got {self.density}")
+
+
+@dataclass(frozen=True)
+class Interaction:
+    """Contact parameters between two materials (EDEM's 'interaction' table)."""
+
+    static_friction: float = 0.5
+    rolling_friction: float = 0.0
+    restitution: float = 0.5
+    surface_energy: float = 0.0  # J/m2
+
+    def validate(self, what: str = "interaction") -> None:
+        checks = [
+            (self.static_friction >= 0, "static_friction must be >= 0"),
+            (self.rolling_friction >= 0, "rolling_friction must be >= 0"),
+            (0 < self.restitution <= 1, "restitution must lie in (0, 1]"),
+            (self.surface_energy >= 0, "surface_energy must be >= 0"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise CalibError(f"{what}: {msg} (got {self})")
+        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy):
+            if not np.isfinite(v):
+                raise CalibError(f"{what}: parameters must be finite (got {self})")
+
+
+def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
+    """E* and G* of a material pair (Hertz-Mindlin)."""
+    e_inv = (1 - m1.poisson**2) / m1.youngs_modulus + (1 - m2.poisson**2) / m2.youngs_modulus
+    g_inv = (2 * (2 - m1.poisson) * (1 + m1.poisson) / m1.youngs_modulus
+             + 2 * (2 - m2.poisson) * (1 + m2.poisson) / m2.youngs_modulus)
+    return 1.0 / e_inv, 1.0 / g_inv
+
+
+def param_row(m1: Material, m2: Material, it: Interaction) -> np.ndarray:
+    Es, Gs = effective_moduli(m1, m2)
+    return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
+                     it.surface_energy], dtype=np.float64)

@@ -1,0 +1,51 @@
+"""Heap-profile geometry shared by the image path and the particle-coordinate path.
+
+A flank is the part of the top profile h(r) between the toe and the apex; its angle is
+``atan(|dh/dr|)`` of a robust straight-line fit (Huber IRLS, statsmodels RLM) over a
+height band that excludes the rounded apex and the toe (default 15-85 % of the
+heap height), as the paper's Fig. 3 does with a tangent to the contour.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import statsmodels.api as sm
+
+DEFAULT_BAND = (0.15, 0.85)
+
+
+@dataclass(frozen=True)
+class FlankFit:
+    angle: float  # deg, positive
+    slope: float  # dh/dr
+    intercept: float
+    rmse: float  # of the fitted points, in the profile's units
+    n: int
+
+    @property
+    def ok(self) -> bool:
+        return self.n >= 3 and math.isfinite(self.angle)
+
+
+NO_FIT = FlankFit(float("nan"), float("nan"), float("nan"), float("nan"), 0)
+
+
+def fit_flank(r: np.ndarray, h: np.ndarray, height: float, band=DEFAULT_BAND, base: float = 0.0) -> FlankFit:
+    """Robust line fit of h(r) over points with base + band[0]*height <= h <= base + band[1]*height."""
+    r = np.asarray(r, dtype=float)
+    h = np.asarray(h, dtype=float)
+    lo, hi = base + band[0] * height, base + band[1] * height
+    m = np.isfinite(r) & np.isfinite(h) & (h >= lo) & (h <= hi)
+    if m.sum() < 3 or np.ptp(r[m]) <= 0:
+        return NO_FIT
+    X = sm.add_constant(r[m])
+    try:
+        res = sm.RLM(h[m], X, M=sm.robust.norms.HuberT()).fit()
+        c0, c1 = float(res.params[0]), float(res.params[1])
+    except (ValueError, np.linalg.LinAlgError):
+        c1, c0 = np.polyfit(r[m], h[m], 1)
+    resid = h[m] - (c0 + c1 * r[m])
+    return FlankFit(math.degrees(math.atan(abs(c1))), c1, c0, float(np.sqrt(np.mean(resid**2))), int(m.sum()))
