@@ -30,7 +30,9 @@ class CoordAngle:
 
 def top_profile(pos, rad, center=(0.0, 0.0), sectors: int = 8, bin_width: float | None = None,
                 r_max: float | None = None):
-    """h[sector, bin]: the highest particle top per azimuthal sector and radial bin (NaN if empty)."""
+    """Surface points per azimuthal sector and radial bin: the highest particle top (z + R)
+    and that particle's own radius r (not the bin centre, which biases a steep flank of few
+    grains low). Returns (r[sector, bin], h[sector, bin]), NaN where a bin is empty."""
     x = pos[:, 0] - center[0]
     y = pos[:, 1] - center[1]
     r = np.hypot(x, y)
@@ -40,13 +42,21 @@ def top_profile(pos, rad, center=(0.0, 0.0), sectors: int = 8, bin_width: float 
     nb = max(int(np.ceil(rm / bw)), 1)
     sec = ((np.arctan2(y, x) + np.pi) / (2 * np.pi) * sectors).astype(int) % sectors
     b = np.minimum((r / bw).astype(int), nb - 1)
-    h = np.full((sectors, nb), np.nan)
-    np.fmax.at(h, (sec, b), top)
-    return (np.arange(nb) + 0.5) * bw, h
+    order = np.lexsort((top, b, sec))
+    cell = sec[order] * nb + b[order]
+    last = np.flatnonzero(np.r_[cell[1:] != cell[:-1], True])  # the highest particle of each cell
+    rr = np.full((sectors, nb), np.nan)
+    hh = np.full((sectors, nb), np.nan)
+    idx = order[last]
+    rr[sec[idx], b[idx]] = r[idx]
+    hh[sec[idx], b[idx]] = top[idx]
+    return rr, hh
 
 
 def repose_angle_coords(pos, rad, center=(0.0, 0.0), sectors: int = 8, band=DEFAULT_BAND) -> CoordAngle:
-    r_c, h = top_profile(pos, rad, center, sectors)
+    r_pts, h = top_profile(pos, rad, center, sectors)
+    bw = 2.0 * float(np.mean(rad))
+    r_c = (np.arange(h.shape[1]) + 0.5) * bw
     floor_layer = 2.0 * float(np.max(rad))
     angles = []
     for s in range(h.shape[0]):
@@ -57,7 +67,7 @@ def repose_angle_coords(pos, rad, center=(0.0, 0.0), sectors: int = 8, band=DEFA
         height = float(np.nanmax(hs))
         apex = int(np.nanargmax(hs))
         # outward from the apex only: the flank is the descending part
-        rr, hh = r_c[apex:], hs[apex:]
+        rr, hh = r_pts[s, apex:], hs[apex:]
         fit = fit_flank(rr, hh, height, band)
         if fit.ok and fit.slope < 0:
             angles.append(fit.angle)
