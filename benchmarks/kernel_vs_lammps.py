@@ -1,0 +1,144 @@
+"""Throughput of the built-in kernel and LAMMPS on the same settled heap column, side by side.
+
+Both engines start from the same state (a column of the `default` preset's particles,
+settled by the built-in kernel inside its cylinder), use the same time step, skin,
+materials and contact model as far as LAMMPS allows, and run the same number of steps
+on one core each. Two cases:
+
+* non-cohesive: LAMMPS `hertz/material` + `damping coeff_restitution` + `mindlin` +
+  `rolling sds`, whose normal damping equals EDEM's (and ours); our rolling law is
+  EDEM's constant directional torque, LAMMPS's is a spring-dashpot-slider (sds);
+* cohesive: LAMMPS `jkr` with `damping viscoelastic` (it refuses coeff_restitution and tsuji
+  with jkr), its coefficient matched to our damping at a typical contact.
+
+Usage:  python benchmarks/kernel_vs_lammps.py [--steps 2000] [--preset default]
+Prints particle-steps per second for each engine and the ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+from _lammps import open_lammps  # noqa: E402
+
+from calib_cli.dem.heap import fill_cylinder, get_preset, interactions  # noqa: E402
+from calib_cli.dem.materials import Material  # noqa: E402
+from calib_cli.dem.system import System, Walls  # noqa: E402
+
+
+def settled_column(preset: str, seed: int = 1):
+    pre = get_preset(preset)
+    c, num = pre.condition, pre.numerics
+    parts = fill_cylinder(c, num.packing_fraction, np.random.default_rng(seed))
+    pp, pw = interactions({"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3})
+    s = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
+               wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pw,
+               cylinder=pw, walls=Walls(True, c.cylinder_diameter_mm * 0.5e-3, 0.0, np.inf))
+    s.drag = num.settle_drag
+    s.advance(int(0.25 / s.dt))
+    s.drag = 0.0
+    s.advance(int(0.05 / s.dt))
+    return s, c, num
+
+
+def ours(state: System, params: dict, steps: int):
+    c_p = state.particles
+    from calib_cli.dem.system import Particles
+
+    p = Particles(c_p.pos.copy(), c_p.rad.copy(), c_p.vel.copy(), c_p.omg.copy())
+    pp, pw = interactions(params)
+    s = System(p, material=state.material, wall_material=state.wall_material, pp=pp, floor=pw, cylinder=pw,
+               walls=Walls(True, state.walls.cylinder_radius, 0.0, np.inf), dt=state.dt)
+    s.advance(20)  # JIT warm-up outside the timing
+    t = time.perf_counter()
+    s.advance(steps)
+    return time.perf_counter() - t, s
+
+
+def lammps(state: System, params: dict, steps: int, cohesive: bool):
+    p = state.particles
+    n = len(p.rad)
+    E, nu, rho = state.material.youngs_modulus, state.material.poisson, state.material.density
+    Rc = state.walls.cylinder_radius
+    lo = p.pos.min(0) - 0.01
+    hi = p.pos.max(0) + 0.05
+    lo[2] = -0.001
+    with tempfile.TemporaryDirectory() as d:
+        data = os.path.join(d, "column.data")
+        with open(data, "w") as f:
+            f.write(f"column\n\n{n} atoms\n1 atom types\n\n{lo[0]} {hi[0]} xlo xhi\n{lo[1]} {hi[1]} ylo yhi\n"
+                    f"{lo[2]} {hi[2]} zlo zhi\n\nAtoms # sphere\n\n")
+            for i in range(n):
+                f.write(f"{i + 1} 1 {2 * p.rad[i]:.10g} {rho:.10g} {p.pos[i, 0]:.10g} {p.pos[i, 1]:.10g} "
+                        f"{p.pos[i, 2]:.10g}\n")
+            f.write("\nVelocities\n\n")
+            for i in range(n):
+                f.write(f"{i + 1} {p.vel[i, 0]:.10g} {p.vel[i, 1]:.10g} {p.vel[i, 2]:.10g} {p.omg[i, 0]:.10g} "
+                        f"{p.omg[i, 1]:.10g} {p.omg[i, 2]:.10g}\n")
+        mu, mur, e = params["static_friction"], params["rolling_friction"], params["restitution"]
+        kt = 8 * 2e6 * 1e-4  # sds rolling stiffness of the order of a contact's tangential stiffness
+        if cohesive:
+            # viscoelastic: F_d = eta a m* v_n; eta matched to our 2 sqrt(5/6) |beta| sqrt(2 E* a m*) at a
+            # typical contact (a = 1e-4 m, m* = 4e-5 kg): approximate, which is fine for a throughput figure
+            Es = E / (2 * (1 - nu**2))
+            beta = abs(math.log(e)) / math.sqrt(math.log(e) ** 2 + math.pi**2)
+            eta = 2 * math.sqrt(5 / 6) * beta * math.sqrt(2 * Es / (1e-4 * 4e-5))
+            normal = f"jkr {E:.6g} {eta:.6g} {nu} {params['surface_energy']} damping viscoelastic"
+        else:
+            normal = f"hertz/material {E:.6g} {e} {nu} damping coeff_restitution"
+        model = f"{normal} tangential mindlin NULL 1.0 {mu} rolling sds {kt:.6g} 0.0 {mur}"
+        wall = f"hertz/material {E:.6g} {e} {nu} damping coeff_restitution tangential mindlin NULL 1.0 {mu} " \
+               f"rolling sds {kt:.6g} 0.0 {mur}"
+        lmp = open_lammps()
+        for cmd in [
+            "units si", "atom_style sphere", "atom_modify map array", "boundary f f f", "newton off",
+            "comm_modify vel yes", f"read_data {data}",
+            f"neighbor {state.skin:.6g} bin", "neigh_modify delay 0 every 1 check yes",
+            "pair_style granular", f"pair_coeff * * {model}",
+            f"region cyl cylinder z 0 0 {Rc:.6g} {lo[2]} {hi[2]} side in units box",
+            f"fix cylw all wall/gran/region granular {wall} region cyl",
+            f"fix floor all wall/gran granular {wall} zplane 0.0 NULL",
+            "fix grav all gravity 9.81 vector 0 0 -1", "fix nve all nve/sphere",
+            f"timestep {state.dt:.10g}", "run 20",
+        ]:
+            lmp.command(cmd)
+        t = time.perf_counter()
+        lmp.command(f"run {steps}")
+        wall_s = time.perf_counter() - t
+        ke = lmp.get_thermo("ke")
+        lmp.close()
+    return wall_s, ke
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--preset", default="default")
+    a = ap.parse_args()
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    state, cond, num = settled_column(a.preset)
+    n = state.n
+    print(f"settled column: {n} particles, {cond.particle_d_min_mm}-{cond.particle_d_max_mm} mm in a "
+          f"{cond.cylinder_diameter_mm} mm cylinder; dt = {state.dt:.3g} s; {a.steps} steps; one core each")
+    print(f"{'case':<14}{'calib [p-steps/s]':>20}{'LAMMPS [p-steps/s]':>21}{'ratio':>8}")
+    for case, params, coh in [
+        ("non-cohesive", {"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3}, False),
+        ("cohesive", {"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3,
+                      "surface_energy": 1.25}, True),
+    ]:
+        t_ours, s = ours(state, params, a.steps)
+        t_lmp, _ = lammps(state, params, a.steps, coh)
+        r_ours, r_lmp = n * a.steps / t_ours, n * a.steps / t_lmp
+        print(f"{case:<14}{r_ours:>20.3e}{r_lmp:>21.3e}{r_ours / r_lmp:>8.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
