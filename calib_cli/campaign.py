@@ -22,6 +22,7 @@ from . import artifacts as art
 from .dem import KERNEL_VERSION, SOURCE_HASH
 from .dem.heap import HeapCondition, Numerics, run_heap, run_key
 from .dem.render import render_side_view
+from .imaging.measure import measure_image
 
 RESULTS = Path("simulate") / "results.parquet"
 RUNS = Path("simulate") / "runs"
@@ -57,20 +58,26 @@ def derive_seed(base: int, run_id: int, repeat: int) -> int:
     return int(np.random.SeedSequence([int(base), int(run_id), int(repeat)]).generate_state(1)[0] & 0x7FFFFFFF)
 
 
-def _row(req: Request, res) -> dict:
+def _row(req: Request, res, img) -> dict:
+    """The results row. The primary angle is the rendered side view's, measured by the same
+    code as the photographs (SPEC 5), falling back to the coordinate angle."""
     a = res.angle
     ok = res.status == "ok"
     s = res.system
+    img_ok = ok and img.status == "ok"
+    primary = img.repose_angle if img_ok else a.angle
     return {
         "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
         "seed": req.seed, "preset": req.preset, "condition_id": req.condition_id, "model": req.model,
         **{k: float(v) for k, v in req.params.items()},
         **asdict(req.condition),
         "status": res.status, "message": res.message,
-        "repose_angle": a.angle if ok else np.nan,
+        "repose_angle": primary if ok else np.nan,
         "angle_coords": a.angle if ok else np.nan,
         "angle_coords_sd": a.sd if ok else np.nan,
-        "angle_image": np.nan,
+        "angle_image": img.repose_angle if img_ok else np.nan,
+        "angle_image_left": img.angle_left if img_ok else np.nan,
+        "angle_image_right": img.angle_right if img_ok else np.nan,
         "heap_height_mm": a.height * 1e3, "base_radius_mm": a.base_radius * 1e3,
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
         "t_settled": res.t_settled, "t_lift_end": res.t_lift_end, "max_overlap": s.max_overlap,
@@ -91,11 +98,11 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
                           "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
     out.mkdir(parents=True, exist_ok=True)
-    row = _row(req, res)
+    view = render_side_view(p.pos, p.rad)
+    row = _row(req, res, measure_image(view.image))
     art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
     art.write_table(out / "profile.parquet", pd.DataFrame({"r_m": res.angle.profile_r, "h_m": res.angle.profile_h}))
     art.write_table(out / "energy.parquet", pd.DataFrame(res.energy, columns=["t", "kinetic_energy", "rim_height"]))
-    view = render_side_view(p.pos, p.rad)
     art.write_png(out / "side.png", view.image)
     art.write_vtp(out / "particles.vtp", p.pos, {"radius": p.rad, "velocity": p.vel, "angular_velocity": p.omg})
     art.write_json(out / "key.json", req.key)

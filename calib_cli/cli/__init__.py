@@ -13,6 +13,7 @@ from .. import artifacts as art
 from ..settings import load_settings
 from .common import SETTINGS_FILE, ForceOpt, RunOpt, SettingsOpt, check_run_dir, console, err_console, handle_errors
 from .doe_cmds import ascent_app, bbd_app, pb_app
+from .measure_cmd import measure_angle
 from .simulate_cmd import simulate_heap
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ app = typer.Typer(
 app.add_typer(pb_app, name="pb")
 app.add_typer(ascent_app, name="ascent")
 app.add_typer(bbd_app, name="bbd")
+app.command("measure-angle")(handle_errors(measure_angle))
 app.command("simulate-heap")(handle_errors(simulate_heap))
 
 
