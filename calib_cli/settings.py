@@ -55,6 +55,24 @@ DEFAULTS: dict[str, Any] = {
         "fixed": {},
         "alpha": 0.05,
     },
+    "surrogate": {
+        "models": ["rsm", "bp", "pso-bp"],
+        "hidden": 8,
+        "epochs": 100,  # paper 3.5.1
+        "seed": 0,
+    },
+    "invert": {
+        # paper 3.5.3: 50 generations, population 10, crossover 0.4, mutation 0.2
+        "generations": 50,
+        "population": 10,
+        "crossover": 0.4,
+        "mutation": 0.2,
+        "seed": 0,
+        # the near-optimal set: every point whose predicted error is within this many degrees
+        "tolerance": 0.25,
+        "samples": 20000,
+        "restarts": 10,
+    },
 }
 
 _OPEN_TABLES = {"factors", "ascent.fixed", "bbd.fixed", "bbd.ranges"}
@@ -148,6 +166,14 @@ def validate(s: Mapping) -> None:
         raise CalibError("ascent.steps must be at least 3 (a bracket needs neighbours)")
     if int(s["bbd"]["center_points"]) < 1:
         raise CalibError("bbd.center_points must be at least 1")
+    for m in s["surrogate"]["models"]:
+        if m not in ("rsm", "bp", "pso-bp"):
+            raise CalibError(f"surrogate.models: unknown model {m!r} (rsm, bp, pso-bp)")
+    iv = s["invert"]
+    if not (0 <= iv["crossover"] <= 1 and 0 <= iv["mutation"] <= 1):
+        raise CalibError("invert.crossover and invert.mutation must lie in [0, 1]")
+    if int(iv["generations"]) < 1 or int(iv["population"]) < 2 or float(iv["tolerance"]) <= 0:
+        raise CalibError("invert needs generations >= 1, population >= 2 and a positive tolerance")
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"] or len(rng) != 2:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")

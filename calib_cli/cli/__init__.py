@@ -15,6 +15,7 @@ from .common import SETTINGS_FILE, ForceOpt, RunOpt, SettingsOpt, check_run_dir,
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
 from .simulate_cmd import simulate_heap
+from .surrogate_cmds import fit_surrogate, invert, predict
 
 app = typer.Typer(
     name="calib",
@@ -28,6 +29,9 @@ app.add_typer(ascent_app, name="ascent")
 app.add_typer(bbd_app, name="bbd")
 app.command("measure-angle")(handle_errors(measure_angle))
 app.command("simulate-heap")(handle_errors(simulate_heap))
+app.command("fit-surrogate")(handle_errors(fit_surrogate))
+app.command("predict")(handle_errors(predict))
+app.command("invert")(handle_errors(invert))
 
 
 def _version(value: bool):
