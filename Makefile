@@ -5,8 +5,11 @@ PY     := $(VENV)/bin/python
 CALIB  := $(VENV)/bin/calib
 PAPER  := sample_runs/paper
 DATA   := sample_data/paper
+SMOKE  := sample_runs/smoke
+PHOTOS := sample_data/photos
+SIM    := --preset smoke --workers 2
 
-.PHONY: setup test test-all calibrate paper docs clean
+.PHONY: setup test test-all calibrate paper smoke sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -38,6 +41,26 @@ paper: setup
 	$(CALIB) bbd analyze --run $(PAPER) --responses $(DATA)/table7_bbd.csv
 	$(CALIB) fit-surrogate --run $(PAPER)
 	$(CALIB) invert --run $(PAPER)
+
+# A whole calibration on simulations, in minutes: photographs -> screening -> ascent -> BBD ->
+# surrogates -> inversion -> validation runs, every simulation with the smoke preset
+smoke: setup
+	$(CALIB) init --run $(SMOKE) --settings stages/smoke.toml
+	$(CALIB) measure-angle --run $(SMOKE) --images $(PHOTOS) --conditions $(PHOTOS)/conditions.csv
+	$(CALIB) pb design --run $(SMOKE)
+	$(CALIB) simulate-heap --run $(SMOKE) --design $(SMOKE)/pb/design.parquet $(SIM)
+	$(CALIB) pb analyze --run $(SMOKE)
+	$(CALIB) ascent design --run $(SMOKE)
+	$(CALIB) simulate-heap --run $(SMOKE) --design $(SMOKE)/ascent/design.parquet $(SIM)
+	$(CALIB) ascent analyze --run $(SMOKE)
+	$(CALIB) bbd design --run $(SMOKE)
+	$(CALIB) simulate-heap --run $(SMOKE) --design $(SMOKE)/bbd/design.parquet $(SIM)
+	$(CALIB) bbd analyze --run $(SMOKE)
+	$(CALIB) fit-surrogate --run $(SMOKE)
+	$(CALIB) invert --run $(SMOKE) --validate 3 $(SIM)
+
+sample-photos: setup
+	$(PY) stages/sample_photos.py
 
 docs: setup
 	$(VENV)/bin/typer calib_cli.cli utils docs --name calib --output docs/cli.md

@@ -128,8 +128,14 @@ def _save_index(run_dir: Path, rows: list[dict]) -> None:
 
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
-                 on_progress: Callable | None = None) -> pd.DataFrame:
-    """Run every request (cached ones are loaded, not recomputed); return their rows."""
+                 on_progress: Callable | None = None, dask: str | None = None) -> pd.DataFrame:
+    """Run every request (cached ones are loaded, not recomputed); return their rows.
+
+    Executors: in-process (workers = 1), a local process pool (workers > 1), or a Dask cluster
+    (``dask`` = a scheduler address, or "local" for a LocalCluster of ``workers`` processes).
+    Every executor writes through :func:`execute` into the same cache, so results do not depend
+    on where they ran; Dask workers must see the run directory (a shared filesystem).
+    """
     requests = list(requests)
     run_dir = Path(run_dir)
     (run_dir / RUNS).mkdir(parents=True, exist_ok=True)
@@ -154,7 +160,26 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
             finish(i, art.read_json(done))
         else:
             todo.append(i)
-    if workers <= 1 or len(todo) <= 1:
+    if dask and todo:
+        from distributed import Client, LocalCluster, as_completed
+
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None) if dask == "local" else None
+        client = Client(cluster if cluster is not None else dask)
+        try:
+            futs = {client.submit(_execute_in_worker, requests[i], str(run_dir.resolve()), pure=False): i
+                    for i in todo}
+            try:
+                for f in as_completed(list(futs)):
+                    finish(futs[f], f.result())
+            except BaseException:
+                client.cancel(list(futs))
+                raise
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    elif workers <= 1 or len(todo) <= 1:
         for i in todo:
             finish(i, execute(requests[i], str(run_dir), on_progress))
     else:

@@ -148,3 +148,12 @@ def test_simulate_heap_bad_input(tmp_path):
         r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), *args])
         assert r.exit_code == 2 and needle in r.output, (args, r.output)
         assert not (tmp_path / "r" / "simulate" / "results.parquet").exists()
+
+
+def test_dask_local_cluster_gives_the_process_pool_results(tmp_path):
+    reqs = [Request({"static_friction": mu}, TINY, TINY_NUM, derive_seed(0, i, 0), "tiny", "", i)
+            for i, mu in enumerate([0.3, 0.6], start=1)]
+    a = run_campaign(reqs, tmp_path / "pool", workers=2)
+    b = run_campaign(reqs, tmp_path / "dask", workers=2, dask="local")
+    cols = ["run_hash", "repose_angle", "angle_coords", "n_steps", "status"]
+    pd.testing.assert_frame_equal(a[cols].reset_index(drop=True), b[cols].reset_index(drop=True))

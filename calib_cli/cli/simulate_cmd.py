@@ -68,6 +68,8 @@ def simulate_heap(
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Override a heap-test variable, e.g. "
                          "--condition lift_speed_mm_s=20 (repeatable).")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
+    dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
+                    "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Recompute runs that are already cached.")] = False,
 ):
     """Simulate the heap test with the built-in DEM kernel.
@@ -117,7 +119,7 @@ def simulate_heap(
             prog.advance(total)
             prog.update(inner, completed=0)
 
-        rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress)
+        rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress, dask=dask)
     show = rows[["run_id", "repeat", *[c for c in PARAMETERS if c in rows.columns], "status", "repose_angle",
                  "n_particles", "wall_s"]]
     console.print(df_table(show, f"simulate-heap -> {run / 'simulate' / 'results.parquet'}"))
