@@ -41,6 +41,7 @@ paper: setup
 	$(CALIB) bbd analyze --run $(PAPER) --responses $(DATA)/table7_bbd.csv
 	$(CALIB) fit-surrogate --run $(PAPER)
 	$(CALIB) invert --run $(PAPER)
+	$(CALIB) report --run $(PAPER)
 
 # A whole calibration on simulations, in minutes: photographs -> screening -> ascent -> BBD ->
 # surrogates -> inversion -> validation runs, every simulation with the smoke preset
@@ -58,6 +59,7 @@ smoke: setup
 	$(CALIB) bbd analyze --run $(SMOKE)
 	$(CALIB) fit-surrogate --run $(SMOKE)
 	$(CALIB) invert --run $(SMOKE) --validate 3 $(SIM)
+	$(CALIB) report --run $(SMOKE)
 
 sample-photos: setup
 	$(PY) stages/sample_photos.py

@@ -122,3 +122,9 @@ def test_cli_fit_predict_invert(tmp_path):
     assert (run / "invert" / "fitness.png").is_file() and "not identifiable" in r.output
     r = runner.invoke(app, ["invert", "--run", str(run), "--target", "120"])
     assert r.exit_code == 2
+    r = runner.invoke(app, ["report", "--run", str(run)])
+    assert r.exit_code == 0
+    page = (run / "report.html").read_text()
+    assert "Box-Behnken" in page and "Inversion" in page and 'src="bbd/surface_' in page
+    r = runner.invoke(app, ["report", "--run", str(tmp_path / "empty")])
+    assert r.exit_code == 2 and "no stage output" in r.output

@@ -63,6 +63,18 @@ def init(run: RunOpt, settings: SettingsOpt = None, force: ForceOpt = False):
     console.print(f"[green]✓[/] wrote {target}")
 
 
+@app.command("report")
+@handle_errors
+def report(run: RunOpt):
+    """Write RUN/report.html: every stage's summary tables and plots on one page, for sharing."""
+    from ..report import build_report
+
+    run = check_run_dir(run)
+    page = build_report(run)
+    art.atomic_write_bytes(run / "report.html", page.encode())
+    console.print(f"[green]✓[/] wrote {run / 'report.html'}")
+
+
 def main() -> None:
     """Console-script entry point: no traceback for anything a user can cause."""
     try:

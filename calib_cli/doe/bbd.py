@@ -15,8 +15,6 @@ from itertools import combinations
 
 import numpy as np
 import pandas as pd
-import pyDOE3
-
 from ..errors import CalibError
 from ..space import ParameterSpace
 from .linear import LinearFit, fit_linear
@@ -26,6 +24,8 @@ def design(space: ParameterSpace, center_points: int = 5, fixed: dict[str, float
     """Box-Behnken design in natural units (3 factors, 5 centre points -> 17 runs)."""
     if len(space) < 3:
         raise CalibError(f"a Box-Behnken design needs at least 3 factors, got {len(space)}")
+    import pyDOE3  # here, not at import: it costs every CLI command 0.6 s
+
     coded = pyDOE3.bbdesign(len(space), center=center_points)
     df = pd.DataFrame(space.to_natural(coded), columns=space.names)
     for name, v in (fixed or {}).items():

@@ -13,8 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-import pyDOE3
-
 from ..errors import CalibError
 from ..space import ParameterSpace
 from .linear import LinearFit, fit_linear
@@ -25,6 +23,8 @@ def design(space: ParameterSpace, runs: int = 12) -> tuple[pd.DataFrame, np.ndar
     k = len(space)
     if runs % 4 or runs <= k:
         raise CalibError(f"a Plackett-Burman design needs a multiple of 4 runs greater than {k}, got {runs}")
+    import pyDOE3  # here, not at import: it costs every CLI command 0.6 s
+
     coded = pyDOE3.pbdesign(runs - 1)
     if coded.shape[0] != runs:
         raise CalibError(f"no {runs}-run Plackett-Burman design is available")

@@ -18,7 +18,6 @@ from typing import Sequence
 
 import numpy as np
 import pandas as pd
-import torch
 
 from ..doe.bbd import QuadraticRSM
 from ..errors import CalibError
@@ -62,6 +61,12 @@ class RSMSurrogate:
         return m
 
 
+def _torch():
+    import torch  # here, not at import: it costs every CLI command a second
+
+    return torch
+
+
 class BPNetwork:
     """One-hidden-layer back-propagation network (torch, float64, deterministic per seed)."""
 
@@ -76,7 +81,8 @@ class BPNetwork:
     def _dim(self, k: int) -> int:
         return self.hidden * k + 2 * self.hidden + 1
 
-    def _forward(self, theta: torch.Tensor, Xn: torch.Tensor) -> torch.Tensor:
+    def _forward(self, theta, Xn):
+        torch = _torch()
         k, h = Xn.shape[1], self.hidden
         W1 = theta[: h * k].reshape(h, k)
         b1 = theta[h * k: h * k + h]
@@ -87,7 +93,8 @@ class BPNetwork:
     def _norm_x(self, X):
         return 2 * (np.asarray(X, float) - self.x_lo_) / (self.x_hi_ - self.x_lo_) - 1
 
-    def _loss_np(self, theta: np.ndarray, Xn: torch.Tensor, yn: torch.Tensor) -> float:
+    def _loss_np(self, theta: np.ndarray, Xn, yn) -> float:
+        torch = _torch()
         with torch.no_grad():
             return float(torch.mean((self._forward(torch.as_tensor(theta), Xn) - yn) ** 2))
 
@@ -95,6 +102,7 @@ class BPNetwork:
         return np.random.default_rng(self.seed).uniform(-2, 2, self._dim(Xn.shape[1]))
 
     def fit(self, X, y) -> "BPNetwork":
+        torch = _torch()
         X = np.atleast_2d(np.asarray(X, float))
         y = np.asarray(y, float)
         if len(y) < 3:
@@ -127,6 +135,7 @@ class BPNetwork:
         return self
 
     def predict(self, X) -> np.ndarray:
+        torch = _torch()
         Xn = torch.as_tensor(self._norm_x(np.atleast_2d(np.asarray(X, float))))
         with torch.no_grad():
             yn = self._forward(torch.as_tensor(self.theta_), Xn).numpy()
