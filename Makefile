@@ -9,7 +9,7 @@ SMOKE  := sample_runs/smoke
 PHOTOS := sample_data/photos
 SIM    := --preset smoke --workers 2
 
-.PHONY: setup test test-all calibrate paper smoke sample-photos docs clean
+.PHONY: setup test test-all calibrate paper smoke hidden-effect sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -60,6 +60,19 @@ smoke: setup
 	$(CALIB) fit-surrogate --run $(SMOKE)
 	$(CALIB) invert --run $(SMOKE) --validate 3 $(SIM)
 	$(CALIB) report --run $(SMOKE)
+
+# The discrepancy loop on a synthetic lab with hidden cohesion (docs/tutorial-hidden-effect.md)
+LAB    := sample_runs/hidden-effect
+LABSIM := --preset smoke --repeats 2 --workers 2
+TRUTH  := --set static_friction=0.5 --set rolling_friction=0.2 --set restitution=0.3
+hidden-effect: setup
+	$(CALIB) synth-lab --out $(LAB)/lab $(TRUTH) --set surface_energy=0.8 --hidden cohesion \
+		--sizes 5-6,6-7,7-8 --cylinders 40,48 --repeats 3 --preset smoke --workers 2
+	$(CALIB) measure-angle --run $(LAB) --images $(LAB)/lab --conditions $(LAB)/lab/conditions.csv
+	$(CALIB) compare --run $(LAB) $(TRUTH) $(LABSIM)
+	$(CALIB) diagnose --run $(LAB) $(TRUTH) $(LABSIM)
+	$(CALIB) model add cohesion --run $(LAB)
+	$(CALIB) compare --run $(LAB) $(TRUTH) --set surface_energy=0.8 $(LABSIM)
 
 sample-photos: setup
 	$(PY) stages/sample_photos.py

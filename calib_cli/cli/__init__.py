@@ -12,6 +12,7 @@ from .. import __version__
 from .. import artifacts as art
 from ..settings import load_settings
 from .common import SETTINGS_FILE, ForceOpt, RunOpt, SettingsOpt, check_run_dir, console, err_console, handle_errors
+from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
 from .simulate_cmd import simulate_heap
@@ -32,6 +33,10 @@ app.command("simulate-heap")(handle_errors(simulate_heap))
 app.command("fit-surrogate")(handle_errors(fit_surrogate))
 app.command("predict")(handle_errors(predict))
 app.command("invert")(handle_errors(invert))
+app.add_typer(model_app, name="model")
+app.command("compare")(handle_errors(compare))
+app.command("diagnose")(handle_errors(diagnose))
+app.command("synth-lab")(handle_errors(synth_lab))
 
 
 def _version(value: bool):

@@ -96,7 +96,21 @@ def simulate_heap(
             points.append((int(rid), {**fixed, **_params({c: row[c] for c in cols})}))
     else:
         points.append((0, fixed))
-    requests = [Request(p, cond, pre.numerics, derive_seed(seed, rid, r), preset, dname, rid, r)
+    from ..model import EFFECTS, load_model
+
+    model = load_model(run)
+    mhash = ""
+    if model.revision >= 1:  # a model file exists: absent effects are pinned at their neutral values
+        owner = {e.parameter: e.name for e in EFFECTS.values()}
+        for _, p in points:
+            stray = [k for k in p if owner.get(k) not in model.effects]
+            if stray:
+                raise CalibError(f"{', '.join(stray)} belong(s) to effect(s) "
+                                 f"{', '.join(sorted({owner[k] for k in stray}))} not in the model "
+                                 f"(revision {model.revision}); `calib model add` it first")
+        points = [(rid, model.pin(p) | {k: v for k, v in p.items() if k.startswith("wall_")}) for rid, p in points]
+        mhash = model.hash
+    requests = [Request(p, cond, pre.numerics, derive_seed(seed, rid, r), preset, dname, rid, r, mhash)
                 for rid, p in points for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
         interactions(req.params)

@@ -1,0 +1,323 @@
+"""`calib model`, `calib compare`, `calib diagnose`, `calib synth-lab`: the discrepancy loop (SPEC 6)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Annotated, Optional
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import typer  # noqa: E402
+
+from .. import artifacts as art  # noqa: E402
+from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
+from ..dem.heap import HeapCondition, get_preset  # noqa: E402
+from ..discrepancy.stats import confounded, residual_table, score_effects, summary, trends  # noqa: E402
+from ..errors import CalibError  # noqa: E402
+from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
+from .common import RunOpt, check_run_dir, console, df_table, handle_errors  # noqa: E402
+from .simulate_cmd import _pairs, _params  # noqa: E402
+
+model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
+COND_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s"]
+PresetOpt = Annotated[str, typer.Option(help="smoke | default | paper: geometry not given by the conditions table.")]
+RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
+WorkersOpt = Annotated[int, typer.Option(min=1, help="Parallel simulations.")]
+SetOpt = Annotated[Optional[list[str]], typer.Option("--set", help="Calibrated parameter KEY=VALUE (default: "
+                                                     "RUN/invert/solution.parquet).")]
+
+
+def _show(m: Model) -> None:
+    rows = [{"effect": e.name, "in model": e.name in m.effects, "parameter": e.parameter, "low": e.low,
+             "high": e.high, "neutral": "= particle value" if math.isnan(e.neutral) else e.neutral,
+             "what": e.description} for e in EFFECTS.values()]
+    console.print(df_table(pd.DataFrame(rows), f"model revision {m.revision}: {', '.join(m.effects)}"))
+
+
+@model_app.command("show")
+@handle_errors
+def model_show(run: RunOpt):
+    """Print the model's effects (RUN/model.toml; the default model if there is none)."""
+    _show(load_model(check_run_dir(run)))
+
+
+@model_app.command("add")
+@handle_errors
+def model_add(effect: str, run: RunOpt):
+    """Add an effect: writes a new revision of RUN/model.toml (old ones kept in RUN/model/)."""
+    run = check_run_dir(run)
+    m = load_model(run)
+    if effect not in EFFECTS:
+        raise CalibError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
+    if effect in m.effects:
+        raise CalibError(f"{effect} is already in the model")
+    new = save_model(run, Model((*m.effects, effect), m.revision, f"added {effect}"))
+    _show(new)
+
+
+@model_app.command("remove")
+@handle_errors
+def model_remove(effect: str, run: RunOpt):
+    """Remove an effect (its parameter returns to its neutral value): a new revision."""
+    run = check_run_dir(run)
+    m = load_model(run)
+    if effect not in m.effects:
+        raise CalibError(f"{effect} is not in the model ({', '.join(m.effects)})")
+    new = save_model(run, Model(tuple(e for e in m.effects if e != effect), m.revision, f"removed {effect}"))
+    _show(new)
+
+
+def _conditions(run: Path) -> pd.DataFrame:
+    p = run / "measure" / "conditions.parquet"
+    c = art.read_table(p, columns=["condition_id", "mean", "sd", "n"],
+                       what="measured conditions (run `calib measure-angle` first)")
+    if (c["n"] < 1).any():
+        raise CalibError(f"condition(s) {', '.join(c.loc[c['n'] < 1, 'condition_id'])} have no measured angle")
+    return c
+
+
+def _condition_of(row: pd.Series, base: HeapCondition) -> HeapCondition:
+    vals = {k: float(row[k]) for k in COND_VARS if k in row.index and pd.notna(row[k])}
+    c = dataclasses.replace(base, **vals)
+    c.validate()
+    return c
+
+
+def _calibrated(run: Path, set_: Optional[list[str]], model: Model) -> dict[str, float]:
+    given = _params(_pairs(set_, "--set")) if set_ else {}
+    sol = run / "invert" / "solution.parquet"
+    if sol.is_file():
+        s = art.read_table(sol).iloc[0]
+        base = {k: float(s[k]) for k in s.index if k in {e.parameter for e in EFFECTS.values()}}
+    else:
+        base = {}
+    theta = {**base, **given}
+    missing = [p for p in model.parameters if p not in theta]
+    if missing:
+        raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
+    return {p: theta[p] for p in model.parameters}
+
+
+def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
+    """Mean, sd, n of the simulated angle per condition at parameters theta."""
+    pre = get_preset(preset)
+    reqs = []
+    for i, (_, row) in enumerate(conds.iterrows(), start=1):
+        c = _condition_of(row, pre.condition)
+        for r in range(repeats):
+            reqs.append(Request(model.pin(theta) | {k: v for k, v in theta.items() if k.startswith("wall_")}, c,
+                                pre.numerics, derive_seed(seed, i, r), preset, tag, i, r, model.hash,
+                                str(row["condition_id"])))
+    rows = run_campaign(reqs, run, workers)
+    g = rows.groupby("condition_id")["repose_angle"]
+    out = pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "n": g.count()})
+    return out.reindex(conds["condition_id"].astype(str)), rows
+
+
+def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
+            workers: WorkersOpt = 1):
+    """Calibrated model vs measurements per condition: residuals in units of the combined
+    uncertainty, failing conditions (|z| > 2), RMSE and chi2/dof, and the error history across
+    model revisions.
+
+    Reads RUN/measure/conditions.parquet, RUN/invert/solution.parquet (or --set), RUN/model.toml.
+    Writes RUN/compare/residuals.parquet, appends RUN/compare/history.parquet, and plots
+    residuals.png, history.png.
+    """
+    run = check_run_dir(run)
+    model = load_model(run)
+    conds = _conditions(run)
+    theta = _calibrated(run, set_, model)
+    console.print(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
+                  f"{repeats} simulations")
+    sim, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare")
+    res = residual_table(conds["mean"], conds["sd"], conds["n"], sim["mean"].to_numpy(), sim["sd"].to_numpy(),
+                         sim["n"].to_numpy())
+    table = pd.DataFrame({"condition_id": conds["condition_id"].astype(str), "measured": conds["mean"],
+                          "measured_sd": conds["sd"], "measured_n": conds["n"], "simulated": sim["mean"].to_numpy(),
+                          "simulated_sd": sim["sd"].to_numpy(), "simulated_n": sim["n"].to_numpy(),
+                          **{k: res[k].to_numpy() for k in ("residual", "uncertainty", "z", "fails")}})
+    for c in COND_VARS:
+        if c in conds.columns:
+            table[c] = conds[c].to_numpy()
+    summ = summary(res, len(model.parameters))
+    hist_path = run / "compare" / "history.parquet"
+    hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
+    hist = pd.concat([hist, pd.DataFrame([{"revision": model.revision, "effects": ",".join(model.effects),
+                                           "rmse": summ["rmse"], "chi2_dof": summ["chi2_dof"],
+                                           "n_conditions": summ["n_conditions"], "n_fail": summ["n_fail"],
+                                           **{f"param_{k}": v for k, v in theta.items()}}])], ignore_index=True)
+    vars_ = [c for c in COND_VARS if c in table.columns and table[c].nunique() > 1]
+    fig1, axes = plt.subplots(1, max(len(vars_), 1), figsize=(4.5 * max(len(vars_), 1), 4), squeeze=False)
+    for ax, v in zip(axes[0], vars_ or ["condition_id"]):
+        x = table[v] if v in table.columns else np.arange(len(table))
+        ax.errorbar(x, table["residual"], yerr=2 * table["uncertainty"], fmt="o", capsize=3)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel(v)
+        ax.set_ylabel("measured - simulated [deg] (+-2u)")
+    fig1.suptitle(f"residuals, model revision {model.revision}")
+    fig2, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(hist["revision"].astype(str) + "\n" + hist["effects"].str.replace(",", "\n"), hist["rmse"], "o-")
+    ax.set_ylabel("RMSE over conditions [deg]")
+    ax.set_title("error per model revision")
+    st = art.Stage(run, "compare", f"rev{model.revision}", inputs={"conditions": run / "measure" / "conditions.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
+    with st.commit() as out:
+        out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
+        out.figure("residuals.png", fig1)
+    art.write_table(hist_path, hist, {"stage": "compare.history"})
+    fig2.savefig(run / "compare" / "history.png", dpi=120, bbox_inches="tight")
+    plt.close(fig2)
+    console.print(df_table(table[["condition_id", "measured", "measured_sd", "simulated", "simulated_sd", "residual",
+                                  "z", "fails"]], f"model vs measurements (revision {model.revision})"))
+    console.print(f"RMSE {summ['rmse']:.2f} deg, chi2/dof {summ['chi2_dof']:.2f}, "
+                  f"{summ['n_fail']} of {summ['n_conditions']} condition(s) fail (|z| > 2)")
+    if len(hist) > 1:
+        console.print(df_table(hist[["revision", "effects", "rmse", "chi2_dof", "n_fail"]], "error history"))
+
+
+def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
+             workers: WorkersOpt = 1, alpha: Annotated[float, typer.Option(help="Significance level.")] = 0.05):
+    """Rank the effects missing from the model by how much of the misfit each would explain
+    (score test after projecting out what the current parameters absorb), with the evidence.
+
+    Reads RUN/compare/residuals.parquet (run `calib compare` first), the calibrated parameters and
+    RUN/model.toml. Writes RUN/diagnose/ranking.parquet (effect, score, p_value, explained_fraction,
+    evidence) and sensitivities.parquet. Runs go through the simulation cache.
+    """
+    run = check_run_dir(run)
+    model = load_model(run)
+    res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
+    conds = _conditions(run)
+    theta = _calibrated(run, set_, model)
+    cands = model.candidates
+    if len(conds) <= len(model.parameters):
+        raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "
+                         f"({len(model.parameters)}): otherwise the current parameters can absorb any pattern of "
+                         "residuals and no missing effect can be told apart. Measure heaps under more conditions.")
+    n_sims = (len(model.parameters) + len(cands)) * len(conds) * repeats
+    console.print(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects x "
+                  f"{len(conds)} conditions x {repeats} repeats = {n_sims} simulations (cached runs are reused)")
+    base, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare")
+    b = base["mean"].to_numpy()
+    J, G = [], {}
+    for e in model.effects:
+        eff = EFFECTS[e]
+        h = eff.step if theta[eff.parameter] + eff.step <= eff.high else -eff.step
+        sim, _ = _simulate(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
+                           workers, f"sens-{e}")
+        J.append((sim["mean"].to_numpy() - b) / h)
+    for e in cands:
+        eff = EFFECTS[e]
+        start = eff.neutral if not math.isnan(eff.neutral) else theta.get(eff.parameter.replace("wall_", ""), 0.5)
+        m2 = Model((*model.effects, e), model.revision)
+        sim, _ = _simulate(run, m2, {**theta, eff.parameter: start + eff.step}, conds, preset, repeats, workers,
+                           f"cand-{e}")
+        G[e] = (sim["mean"].to_numpy() - b) / eff.step
+    J = np.column_stack(J) if J else np.zeros((len(b), 0))
+    r_all, u_all = res["residual"].to_numpy(float), res["uncertainty"].to_numpy(float)
+    ok = np.isfinite(r_all) & np.isfinite(u_all) & np.all(np.isfinite(J), axis=1)
+    for g in G.values():
+        ok &= np.isfinite(g)
+    if not ok.all():
+        dropped = ", ".join(conds["condition_id"].astype(str)[~ok])
+        console.print(f"[yellow]warning:[/] left out condition(s) {dropped}: a simulation formed no heap there "
+                      "or the uncertainty is unknown")
+    if ok.sum() <= J.shape[1]:
+        raise CalibError(f"only {int(ok.sum())} usable condition(s) for {J.shape[1]} parameters: cannot diagnose")
+    J, G = J[ok], {k: g[ok] for k, g in G.items()}
+    ranking = score_effects(r_all[ok], u_all[ok], J, G)
+    for a, c in confounded(u_all[ok], J, G):
+        console.print(f"[yellow]warning:[/] {a} and {c} leave the same signature across these conditions: "
+                      "the data cannot tell them apart; add conditions that separate them")
+    tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
+    top = tr.sort_values("p_value").iloc[0] if len(tr) else None
+    words = []
+    for _, r in ranking.iterrows():
+        eff = EFFECTS[r["effect"]]
+        sig = "significant" if r["p_value"] < alpha else "not significant"
+        txt = (f"{sig} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the misfit; "
+               f"its signature: {eff.signature}")
+        if top is not None and r["p_value"] < alpha:
+            way = "grows" if top["slope"] > 0 else "falls"
+            txt += f"; observed: the residual {way} with {top['variable']} (p = {top['p_value']:.3g})"
+        words.append(txt)
+    ranking["evidence"] = words
+    sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})
+    for k, e in enumerate(model.effects):
+        sens[f"d_{EFFECTS[e].parameter}"] = J[:, k]
+    for e, g in G.items():
+        sens[f"candidate_{e}"] = g
+    st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
+    with st.commit() as out:
+        out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "evidence"]],
+                  model_revision=model.revision)
+        out.table("sensitivities.parquet", sens)
+        out.table("trends.parquet", tr)
+    console.print(df_table(ranking[["effect", "score", "p_value", "explained_fraction"]],
+                           f"missing effects, ranked (model revision {model.revision})"))
+    for _, r in ranking.iterrows():
+        console.print(f"[bold]{r['effect']}[/]: {r['evidence']}")
+    if not (ranking["p_value"] < alpha).any():
+        console.print("No missing effect is significant: the misfit is within what the measurement noise explains.")
+
+
+def synth_lab(
+    out: Annotated[Path, typer.Option(help="Folder for the lab's photographs, conditions.csv and truth.toml.")],
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="True parameter KEY=VALUE (repeatable), "
+                    "including the hidden effect's, e.g. --set surface_energy=0.8.")] = None,
+    hidden: Annotated[str, typer.Option(help="Name of the hidden effect (recorded in truth.toml only).")] = "cohesion",
+    sizes: Annotated[str, typer.Option(help="Particle size ranges d_min-d_max (mm), comma separated.")] = "5-6,6-8,8-10",
+    cylinders: Annotated[str, typer.Option(help="Cylinder diameters (mm), comma separated.")] = "50",
+    fill_ratio: Annotated[float, typer.Option(help="Fill height / cylinder diameter.")] = 1.0,
+    repeats: RepeatsOpt = 3, preset: PresetOpt = "smoke", workers: WorkersOpt = 1,
+    noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
+    seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
+):
+    """Synthetic measurements with a hidden effect: DEM heaps under several conditions, rendered
+    as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads)."""
+    import cv2
+    import tomli_w
+
+    from ..dem.render import render_side_view
+
+    truth = _params(_pairs(set_, "--set")) if set_ else {}
+    pre = get_preset(preset)
+    conds = []
+    for s in sizes.split(","):
+        lo, hi = (float(v) for v in s.split("-"))
+        for d in cylinders.split(","):
+            D = float(d)
+            conds.append((f"d{s}_D{int(D)}", dataclasses.replace(pre.condition, particle_d_min_mm=lo,
+                                                                  particle_d_max_mm=hi, cylinder_diameter_mm=D,
+                                                                  fill_height_mm=D * fill_ratio)))
+    reqs = [Request(truth, c, pre.numerics, derive_seed(seed, i, r), preset, "lab", i, r, "truth", cid)
+            for i, (cid, c) in enumerate(conds, start=1) for r in range(repeats)]
+    for _, c in conds:
+        c.validate()
+    work = out / ".runs"
+    rows = run_campaign(reqs, work, workers)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    lines = ["image," + "condition_id," + ",".join(COND_VARS)]
+    for (_, row), req in zip(rows.iterrows(), reqs):
+        st = art.read_table(work / "simulate" / "runs" / row["run_hash"] / "state.parquet")
+        img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=6000).image
+        img = np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
+        name = f"{req.condition_id}_r{req.repeat + 1}.png"
+        cv2.imwrite(str(out / name), img)
+        c = req.condition
+        lines.append(f"{name},{req.condition_id}," + ",".join(str(getattr(c, k)) for k in COND_VARS))
+    (out / "conditions.csv").write_text("\n".join(lines) + "\n")
+    (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
+        {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
+         "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
+    ok = rows["status"].eq("ok").sum()
+    console.print(f"[green]✓[/] {len(rows)} heaps ({ok} formed) in {len(conds)} conditions -> {out}")

@@ -1,0 +1,95 @@
+"""Residuals against uncertainty, and the score (Lagrange-multiplier) test of missing effects.
+
+Residual r_c = measured_c - simulated_c per condition, with the combined standard uncertainty
+u_c = sqrt(sd_m^2/n_m + sd_s^2/n_s); z_c = r_c / u_c; a condition fails when |z_c| > 2.
+
+For a candidate effect with sensitivity g (d angle / d parameter per condition, from a step
+away from neutral) and the model's own sensitivities J (one column per calibrated
+parameter), the part of g the current parameters cannot absorb is
+g_perp = g - J (J' W J)^-1 J' W g, W = diag(1/u^2). The score statistic
+LM = (g_perp' W r)^2 / (g_perp' W g_perp) is chi-square with 1 df under "the effect is absent";
+the explained fraction LM / (r' W r) is the share of the weighted misfit that adding the
+effect (and re-fitting the current parameters, to first order) would remove.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+
+def residual_table(measured, measured_sd, measured_n, simulated, simulated_sd, simulated_n) -> pd.DataFrame:
+    m, s = np.asarray(measured, float), np.asarray(simulated, float)
+    um2 = np.where(np.asarray(measured_n) > 1, np.asarray(measured_sd, float) ** 2 / np.asarray(measured_n), np.nan)
+    us2 = np.where(np.asarray(simulated_n) > 1, np.asarray(simulated_sd, float) ** 2 / np.asarray(simulated_n), np.nan)
+    u = np.sqrt(np.nan_to_num(um2, nan=0.0) + np.nan_to_num(us2, nan=0.0))
+    u = np.where(u > 0, u, np.nan)
+    r = m - s
+    z = r / u
+    return pd.DataFrame({"residual": r, "uncertainty": u, "z": z, "fails": np.abs(np.nan_to_num(z)) > 2.0})
+
+
+def summary(res: pd.DataFrame, n_params: int) -> dict:
+    r, z = res["residual"].to_numpy(float), res["z"].to_numpy(float)
+    n = len(r)
+    dof = max(n - n_params, 1)
+    return {"rmse": float(np.sqrt(np.mean(r**2))), "chi2_dof": float(np.nansum(z**2) / dof),
+            "n_conditions": n, "n_fail": int(res["fails"].sum())}
+
+
+def score_effects(r, u, J, G: dict[str, np.ndarray]) -> pd.DataFrame:
+    """Rank candidate effects (columns of G) by the score test against residuals r."""
+    r, u = np.asarray(r, float), np.asarray(u, float)
+    w = 1.0 / np.where(np.isfinite(u) & (u > 0), u, np.nanmedian(u)) ** 2
+    J = np.atleast_2d(np.asarray(J, float)).reshape(len(r), -1) if np.size(J) else np.zeros((len(r), 0))
+    total = float(np.sum(w * r * r))
+    rows = []
+    for name, g in G.items():
+        g = np.asarray(g, float)
+        if J.shape[1]:
+            A = J.T @ (w[:, None] * J)
+            gp = g - J @ np.linalg.lstsq(A, J.T @ (w * g), rcond=None)[0]
+        else:
+            gp = g
+        den = float(np.sum(w * gp * gp))
+        lm = float(np.sum(w * gp * r) ** 2 / den) if den > 1e-12 * max(float(np.sum(w * g * g)), 1e-300) else 0.0
+        rows.append({"effect": name, "score": lm, "p_value": float(stats.chi2.sf(lm, 1)),
+                     "explained_fraction": lm / total if total > 0 else 0.0,
+                     "direction": float(np.sign(np.sum(w * gp * r)))})
+    return pd.DataFrame(rows).sort_values("score", ascending=False).reset_index(drop=True)
+
+
+def _project(u, J, g):
+    w = 1.0 / np.asarray(u, float) ** 2
+    if J.shape[1] == 0:
+        return g, w
+    return g - J @ np.linalg.lstsq(J.T @ (w[:, None] * J), J.T @ (w * g), rcond=None)[0], w
+
+
+def confounded(u, J, G: dict[str, np.ndarray], threshold: float = 0.9) -> list[tuple[str, str]]:
+    """Pairs of candidates whose projected signatures are collinear (|weighted corr| > threshold):
+    the data cannot tell them apart, whatever their scores."""
+    J = np.atleast_2d(np.asarray(J, float)).reshape(len(u), -1) if np.size(J) else np.zeros((len(u), 0))
+    proj = {k: _project(u, J, np.asarray(g, float)) for k, g in G.items()}
+    names, out = list(proj), []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            (ga, w), (gb, _) = proj[a], proj[b]
+            na, nb = np.sqrt(np.sum(w * ga * ga)), np.sqrt(np.sum(w * gb * gb))
+            if na > 0 and nb > 0 and abs(np.sum(w * ga * gb)) / (na * nb) > threshold:
+                out.append((a, b))
+    return out
+
+
+def trends(res: pd.DataFrame, variables: pd.DataFrame) -> pd.DataFrame:
+    """Slope of the residual against each condition variable (OLS), with its p-value."""
+    rows = []
+    r = res["residual"].to_numpy(float)
+    for c in variables.columns:
+        x = pd.to_numeric(variables[c], errors="coerce").to_numpy(float)
+        if np.isfinite(x).sum() < 3 or np.ptp(x[np.isfinite(x)]) == 0:
+            continue
+        lr = stats.linregress(x, r)
+        rows.append({"variable": c, "slope": float(lr.slope), "p_value": float(lr.pvalue), "r": float(lr.rvalue)})
+    return pd.DataFrame(rows, columns=["variable", "slope", "p_value", "r"])

@@ -1,0 +1,113 @@
+"""The model: a named set of physical effects, revisioned (SPEC section 6).
+
+Each effect declares its parameters with bounds and a neutral value at which the effect
+is off. A parameter of an effect that is not in the model is pinned at its neutral value in
+every simulation. ``RUN/model.toml`` holds the current revision; every change writes a new
+revision and keeps the old ones in ``RUN/model/rev-NNNN.toml``. The model's hash is part of
+every simulation's cache key, so a model change never reuses runs of another model.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import tomli_w
+
+from . import artifacts as art
+from .errors import CalibError
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    parameter: str
+    low: float
+    high: float
+    neutral: float  # the value at which the effect is off
+    step: float  # the step away from neutral that diagnose simulates
+    description: str
+    signature: str  # how its misfit shows across conditions (diagnose's words)
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in [
+    Effect("sliding_friction", "static_friction", 0.05, 1.0, 0.3, 0.15, "Coulomb sliding friction between grains",
+           "steeper heaps everywhere, little dependence on grain size or heap size"),
+    Effect("rolling_friction", "rolling_friction", 0.0, 0.5, 0.0, 0.1,
+           "constant-directional-torque rolling resistance (grain shape)",
+           "steeper heaps everywhere; stronger for grains that roll freely"),
+    Effect("cohesion", "surface_energy", 0.0, 3.0, 0.0, 0.5, "JKR cohesion (moisture, fines)",
+           "the residual grows as particle size falls and as the heap gets smaller: cohesion scales as 1/d"),
+    Effect("restitution", "restitution", 0.05, 1.0, 0.5, 0.2, "normal restitution (energy lost in impacts)",
+           "matters for fast, dynamic heap formation (a fast lift); small in slow tests"),
+    Effect("wall_friction", "wall_static_friction", 0.0, 1.0, float("nan"), 0.2,
+           "floor and cylinder friction distinct from the grains' own",
+           "the residual changes with the cylinder diameter (wall area per grain) and the floor material"),
+    Effect("wall_rolling", "wall_rolling_friction", 0.0, 0.5, float("nan"), 0.1,
+           "rolling resistance on the floor distinct from the grains'",
+           "the toe of the heap: the residual changes with the floor material and heap size"),
+]}
+#: wall_* effects are neutral when they equal the particles' own value (NaN marks "tied")
+
+DEFAULT_EFFECTS = ["sliding_friction", "rolling_friction", "restitution"]
+MODEL_FILE = "model.toml"
+
+
+@dataclass(frozen=True)
+class Model:
+    effects: tuple[str, ...]
+    revision: int = 1
+    note: str = ""
+
+    def __post_init__(self):
+        bad = [e for e in self.effects if e not in EFFECTS]
+        if bad:
+            raise CalibError(f"unknown effect(s) {bad}; known: {', '.join(EFFECTS)}")
+
+    @property
+    def parameters(self) -> list[str]:
+        return [EFFECTS[e].parameter for e in self.effects]
+
+    @property
+    def candidates(self) -> list[str]:
+        return [e for e in EFFECTS if e not in self.effects]
+
+    @property
+    def hash(self) -> str:
+        return art.hash_obj(sorted(self.effects))
+
+    def pin(self, params: dict[str, float]) -> dict[str, float]:
+        """Parameters of a simulation: given values for the model's effects, neutral for the rest."""
+        out = {}
+        for name, eff in EFFECTS.items():
+            if name in self.effects:
+                if eff.parameter in params:
+                    out[eff.parameter] = float(params[eff.parameter])
+            elif eff.neutral == eff.neutral:  # not NaN: a value of its own
+                out[eff.parameter] = eff.neutral
+        return out
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps({"revision": self.revision, "effects": list(self.effects), "note": self.note})
+
+
+def load_model(run: Path) -> Model:
+    p = Path(run) / MODEL_FILE
+    if not p.is_file():
+        return Model(tuple(DEFAULT_EFFECTS), 0, "default model (no model.toml yet)")
+    try:
+        d = tomllib.loads(p.read_text())
+        return Model(tuple(d["effects"]), int(d.get("revision", 1)), str(d.get("note", "")))
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+        raise CalibError(f"{p} is not a valid model file ({e})") from None
+
+
+def save_model(run: Path, model: Model) -> Model:
+    """Write a new revision (kept in RUN/model/) and make it current."""
+    run = Path(run)
+    old = load_model(run)
+    new = Model(model.effects, old.revision + 1, model.note)
+    art.atomic_write_bytes(run / "model" / f"rev-{new.revision:04d}.toml", new.to_toml().encode())
+    art.atomic_write_bytes(run / MODEL_FILE, new.to_toml().encode())
+    return new
