@@ -61,18 +61,29 @@ smoke: setup
 	$(CALIB) invert --run $(SMOKE) --validate 3 $(SIM)
 	$(CALIB) report --run $(SMOKE)
 
-# The discrepancy loop on a synthetic lab with hidden cohesion (docs/tutorial-hidden-effect.md)
+# The discrepancy loop on a synthetic lab with hidden cohesion (docs/tutorial-hidden-effect.md):
+# calibrate the starting model on all conditions, compare, diagnose, add the effect, recalibrate, compare
 LAB    := sample_runs/hidden-effect
-LABSIM := --preset smoke --repeats 2 --workers 2
-TRUTH  := --set static_friction=0.5 --set rolling_friction=0.2 --set restitution=0.3
+LABSIM := --preset smoke --workers 2
+REV1   := -s 'bbd.factors=["static_friction","rolling_friction","surface_energy"]'
 hidden-effect: setup
-	$(CALIB) synth-lab --out $(LAB)/lab $(TRUTH) --set surface_energy=0.8 --hidden cohesion \
+	$(CALIB) synth-lab --out $(LAB)/lab --set static_friction=0.5 --set rolling_friction=0.2 \
+		--set restitution=0.3 --set surface_energy=0.8 --hidden cohesion \
 		--sizes 5-6,6-7,7-8 --cylinders 40,48 --repeats 3 --preset smoke --workers 2
+	$(CALIB) init --run $(LAB) --settings stages/hidden-effect.toml
 	$(CALIB) measure-angle --run $(LAB) --images $(LAB)/lab --conditions $(LAB)/lab/conditions.csv
-	$(CALIB) compare --run $(LAB) $(TRUTH) $(LABSIM)
-	$(CALIB) diagnose --run $(LAB) $(TRUTH) $(LABSIM)
+	$(CALIB) bbd design --run $(LAB)
+	$(CALIB) simulate-heap --run $(LAB) --design $(LAB)/bbd/design.parquet --conditions $(LAB)/measure/conditions.parquet $(LABSIM)
+	$(CALIB) fit-surrogate --run $(LAB) --from-simulations bbd
+	$(CALIB) invert --run $(LAB)
+	$(CALIB) compare --run $(LAB) --repeats 2 $(LABSIM)
+	$(CALIB) diagnose --run $(LAB) --repeats 2 $(LABSIM)
 	$(CALIB) model add cohesion --run $(LAB)
-	$(CALIB) compare --run $(LAB) $(TRUTH) --set surface_energy=0.8 $(LABSIM)
+	$(CALIB) bbd design --run $(LAB) $(REV1)
+	$(CALIB) simulate-heap --run $(LAB) --design $(LAB)/bbd/design.parquet --conditions $(LAB)/measure/conditions.parquet $(LABSIM)
+	$(CALIB) fit-surrogate --run $(LAB) --from-simulations bbd $(REV1)
+	$(CALIB) invert --run $(LAB) $(REV1)
+	$(CALIB) compare --run $(LAB) --set restitution=0.3 --repeats 2 $(LABSIM)
 
 sample-photos: setup
 	$(PY) stages/sample_photos.py

@@ -67,6 +67,8 @@ def simulate_heap(
     preset: Annotated[str, typer.Option(help="smoke | default | paper (geometry, particle count, numerics).")] = "default",
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Override a heap-test variable, e.g. "
                          "--condition lift_speed_mm_s=20 (repeatable).")] = None,
+    conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
+                          "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
                     "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
@@ -110,8 +112,20 @@ def simulate_heap(
                                  f"(revision {model.revision}); `calib model add` it first")
         points = [(rid, model.pin(p) | {k: v for k, v in p.items() if k.startswith("wall_")}) for rid, p in points]
         mhash = model.hash
-    requests = [Request(p, cond, pre.numerics, derive_seed(seed, rid, r), preset, dname, rid, r, mhash)
-                for rid, p in points for r in range(repeats)]
+    crossed = [("", cond)]
+    if conditions is not None:
+        ctab = art.read_table(conditions, columns=["condition_id"], what="conditions table") \
+            if conditions.suffix.lower() == ".parquet" else pd.read_csv(conditions)
+        if "condition_id" not in ctab.columns:
+            raise CalibError(f"conditions table {conditions} lacks column condition_id")
+        crossed = []
+        for _, row in ctab.drop_duplicates("condition_id").iterrows():
+            vals = {k: row[k] for k in ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm",
+                                        "fill_height_mm", "lift_speed_mm_s") if k in row.index and pd.notna(row[k])}
+            crossed.append((str(row["condition_id"]), _condition(cond, vals)))
+    requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
+                        dname, rid, r, mhash, cid)
+                for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
         interactions(req.params)
     if force:

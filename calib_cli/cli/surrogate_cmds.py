@@ -28,8 +28,45 @@ from .simulate_cmd import _condition, _pairs, _params  # noqa: E402
 MODELS_DIR = Path("surrogate") / "models"
 
 
-def _training_data(run: Path, responses: Optional[Path], cfg: dict) -> tuple[pd.DataFrame, list[str], dict]:
+COND_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s"]
+
+
+def _simulated_training_data(run: Path, stage: str, response: str) -> tuple[pd.DataFrame, list[str], dict]:
+    """Training data from simulations of a design crossed with conditions (`simulate-heap --conditions`):
+    inputs are the design's factors plus every condition variable that varies (SPEC 6)."""
+    design = run / stage / "design.parquet"
+    space = space_from_design(design)
+    if space is None:
+        raise CalibError(f"no design at {design}")
+    res_path = run / "simulate" / "results.parquet"
+    res = art.read_table(res_path, what="simulation results")
+    from ..model import load_model
+
+    model = load_model(run)
+    mhash = model.hash if model.revision >= 1 else ""
+    res = res[(res["design"] == stage) & res[response].notna() & (res["model"].fillna("") == mhash)]
+    if res.empty:
+        raise CalibError(f"no finished simulations of the {stage} design for model revision {model.revision} "
+                         f"in {run}")
+    keys = ["run_id", "condition_id"]
+    # condition variables that carry information of their own (d_max = d_min + 1, or a fill height
+    # proportional to the diameter, add nothing and would make the fit singular)
+    conds, basis = [], np.ones((len(res), 1))
+    for c in COND_VARS:
+        if c in res.columns and res[c].nunique() > 1:
+            trial = np.column_stack([basis, res[c].to_numpy(float)])
+            if np.linalg.matrix_rank(trial) > basis.shape[1]:
+                conds.append(c)
+                basis = trial
+    data = res.groupby(keys, as_index=False).agg({**{n: "first" for n in space.names}, **{c: "first" for c in conds},
+                                                  response: "mean"})
+    return data, space.names + conds, {"design": design, "results": res_path}
+
+
+def _training_data(run: Path, responses: Optional[Path], cfg: dict, from_simulations: Optional[str] = None):
     response = cfg["response"]
+    if from_simulations:
+        return _simulated_training_data(run, from_simulations, response)
     space = space_from_design(run / "bbd" / "design.parquet")
     names = space.names if space is not None else (list(cfg["bbd"]["factors"]) or
                                                    [n for n in cfg["pb"]["factors"] if n != "restitution"])
@@ -42,8 +79,11 @@ def _training_data(run: Path, responses: Optional[Path], cfg: dict) -> tuple[pd.
     return art.read_table(path, columns=[*names, response], what="BBD data"), names, {"data": path}
 
 
-def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOpt = None,
-                  setting: SettingOpt = None, force: ForceOpt = False):
+def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None,
+                  from_simulations: Annotated[Optional[str], typer.Option(
+                      "--from-simulations", help="Train on the simulations of this design stage (e.g. bbd), "
+                      "with the condition variables that vary as extra inputs (several conditions at once).")] = None,
+                  settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Fit RSM, BP and PSO-BP surrogates; compare them in-sample, on a seeded 80/20 split and by
     leave-one-out (paper 3.5.1-3.5.2, Table 9).
 
@@ -54,7 +94,7 @@ def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None, settings: Setting
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
     sc = cfg["surrogate"]
-    data, names, inputs = _training_data(run, responses, cfg)
+    data, names, inputs = _training_data(run, responses, cfg, from_simulations)
     st = art.Stage(run, "surrogate", "fit", inputs=inputs, settings={"surrogate": sc, "inputs": names})
     if st.up_to_date() and not force:
         return skipped(st)
@@ -195,15 +235,34 @@ def invert(
                              "condition": sorted(condition or [])})
     if st.up_to_date() and not force:
         return skipped(st)
-    # one surrogate for all conditions: the same prediction is compared with every target
-    # (multi-condition surrogates take the condition variables as inputs: the discrepancy loop)
-    predict_all = lambda P: np.repeat(m.predict(P)[:, None], len(targets), axis=1)  # noqa: E731
-    res = invert_surrogate(predict_all, names, best["lows"], best["highs"], targets, int(iv["generations"]),
+    params = [n for n in names if n not in COND_VARS]
+    cvars = [n for n in names if n in COND_VARS]
+    lows = [lo for n, lo in zip(names, best["lows"]) if n in params]
+    highs = [hi for n, hi in zip(names, best["highs"]) if n in params]
+    if cvars:
+        # a surrogate over parameters and condition variables: predict every measured condition
+        if target is not None or not cond_path.is_file():
+            raise CalibError("this surrogate takes condition variables: invert it against the measured conditions "
+                             f"({cond_path}), not a single --target")
+        ctab = art.read_table(cond_path, columns=["condition_id", "mean", *cvars], what="measured conditions")
+        cx = ctab[cvars].to_numpy(float)
+
+        def predict_all(P):
+            P = np.atleast_2d(P)
+            full = np.hstack([np.repeat(P, len(cx), axis=0), np.tile(cx, (len(P), 1))])
+            return m.predict(full).reshape(len(P), len(cx))
+    else:
+        # one condition (or a surrogate without condition inputs): the same prediction for every target
+        def predict_all(P):
+            return np.repeat(m.predict(np.atleast_2d(P))[:, None], len(targets), axis=1)
+    res = invert_surrogate(predict_all, params, lows, highs, targets, int(iv["generations"]),
                            int(iv["population"]), float(iv["crossover"]), float(iv["mutation"]), int(iv["seed"]),
                            float(iv["tolerance"]), int(iv["samples"]), int(iv["restarts"]))
-    pred = float(m.predict(res.best[None, :])[0])
-    sol = pd.DataFrame([{**dict(zip(names, res.best.tolist())), "predicted_angle": pred, "fitness": res.fitness,
+    preds = predict_all(res.best[None, :])[0]
+    pred = float(np.mean(preds))
+    sol = pd.DataFrame([{**dict(zip(params, res.best.tolist())), "predicted_angle": pred, "fitness": res.fitness,
                          "model": name, "target": float(np.mean(targets))}])
+    per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
     hist = pd.DataFrame({"generation": np.arange(1, len(res.ga.best) + 1), "best": res.ga.best, "mean": res.ga.mean})
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(hist["generation"], hist["best"], label="best")
@@ -218,13 +277,14 @@ def invert(
         pre = get_preset(preset)
         cond = _condition(pre.condition, _pairs(condition, "condition"))
         fixed = {k: float(v) for k, v in cfg["bbd"]["fixed"].items() if k in PARAMETERS}
-        params = {**fixed, **{n: float(v) for n, v in zip(names, res.best) if n in PARAMETERS}}
-        reqs = [Request(params, cond, pre.numerics, derive_seed(int(iv["seed"]), 0, r), preset, "validate", 0, r)
+        vparams = {**fixed, **{n: float(v) for n, v in zip(params, res.best) if n in PARAMETERS}}
+        reqs = [Request(vparams, cond, pre.numerics, derive_seed(int(iv["seed"]), 0, r), preset, "validate", 0, r)
                 for r in range(validate)]
         rows = run_campaign(reqs, run, workers)
         validation = rows[["repeat", "seed", "status", "repose_angle", "angle_coords", "angle_image", "wall_s"]]
     with st.commit() as out:
         out.table("solution.parquet", sol, targets=targets, target_source=tsource)
+        out.table("predicted_conditions.parquet", per_cond)
         out.table("history.parquet", hist)
         out.table("solution_set.parquet", res.solution_set, tolerance=float(iv["tolerance"]))
         out.table("ranges.parquet", res.ranges)
@@ -232,8 +292,10 @@ def invert(
         if validation is not None:
             out.table("validation.parquet", validation)
     console.print(df_table(sol, f"GA optimum (targets from {tsource})"))
+    if len(targets) > 1:
+        console.print(df_table(per_cond, "per condition: measured target and predicted angle at the optimum"))
     console.print(df_table(res.ranges, f"Near-optimal set: {len(res.solution_set)} points within "
-                                       f"{float(iv['tolerance']):g} deg of the target"))
+                                       f"{float(iv['tolerance']):g} deg of the best fitness"))
     if not res.identifiable:
         wide = res.ranges.loc[res.ranges["width_fraction"] > 0.2, "parameter"].tolist()
         console.print(f"[yellow]warning:[/] not identifiable from the data given: {', '.join(wide)} can vary over "

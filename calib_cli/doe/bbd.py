@@ -56,18 +56,28 @@ class QuadraticRSM:
     with ``anova`` and ``stats``).
     """
 
-    def __init__(self, lack_of_fit: bool = True):
+    def __init__(self, lack_of_fit: bool = True, drop_degenerate: bool = False):
         self.lack_of_fit = lack_of_fit
+        self.drop_degenerate = drop_degenerate
 
     def fit(self, data: pd.DataFrame, space: ParameterSpace, response: str = "repose_angle") -> "QuadraticRSM":
         coded = space.to_coded(data[space.names].to_numpy(dtype=float))
         y = data[response].to_numpy(dtype=float)
         terms = quadratic_terms(space.names)
+        if self.drop_degenerate:
+            # an input seen at only two levels has x^2 = a + b x: its square term cannot be estimated
+            two = {n for j, n in enumerate(space.names) if len(np.unique(np.round(coded[:, j], 9))) < 3}
+            terms = [t for t in terms if not (t.endswith("^2") and t[:-2] in two)]
         self.space_ = space
         self.terms_ = terms
-        self.fit_ = fit_linear(y, quadratic_matrix(coded), terms, points=coded, lack_of_fit=self.lack_of_fit)
+        self.fit_ = fit_linear(y, self._matrix(coded), terms, points=coded, lack_of_fit=self.lack_of_fit)
         self.coef_ = self.fit_.coef
         return self
+
+    def _matrix(self, coded) -> np.ndarray:
+        full = quadratic_terms(self.space_.names)
+        idx = [full.index(t) for t in self.terms_]
+        return quadratic_matrix(coded)[:, idx]
 
     def predict(self, natural) -> np.ndarray:
         """Predicted response at natural-unit points ((n, k) array or DataFrame)."""
@@ -76,7 +86,7 @@ class QuadraticRSM:
         return self.predict_coded(self.space_.to_coded(natural))
 
     def predict_coded(self, coded) -> np.ndarray:
-        M = quadratic_matrix(coded)
+        M = self._matrix(coded)
         c = self.coef_.to_numpy()
         return c[0] + M @ c[1:]
 

@@ -39,7 +39,7 @@ class RSMSurrogate:
         df = pd.DataFrame(np.asarray(X, float), columns=self.inputs)
         df["y"] = np.asarray(y, float)
         space = ParameterSpace.from_data(df, self.inputs)
-        self.rsm_ = QuadraticRSM(lack_of_fit=False).fit(df, space, "y")
+        self.rsm_ = QuadraticRSM(lack_of_fit=False, drop_degenerate=True).fit(df, space, "y")
         self.coef_ = self.rsm_.coef_
         return self
 
