@@ -26,9 +26,7 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from _lammps import open_lammps  # noqa: E402
-
+from calib_cli.engines.lammps import open_lammps, write_data  # noqa: E402
 from calib_cli.dem.heap import fill_cylinder, get_preset, interactions  # noqa: E402
 from calib_cli.dem.materials import Material  # noqa: E402
 from calib_cli.dem.system import System, Walls  # noqa: E402
@@ -73,16 +71,7 @@ def lammps(state: System, params: dict, steps: int, cohesive: bool):
     lo[2] = -0.001
     with tempfile.TemporaryDirectory() as d:
         data = os.path.join(d, "column.data")
-        with open(data, "w") as f:
-            f.write(f"column\n\n{n} atoms\n1 atom types\n\n{lo[0]} {hi[0]} xlo xhi\n{lo[1]} {hi[1]} ylo yhi\n"
-                    f"{lo[2]} {hi[2]} zlo zhi\n\nAtoms # sphere\n\n")
-            for i in range(n):
-                f.write(f"{i + 1} 1 {2 * p.rad[i]:.10g} {rho:.10g} {p.pos[i, 0]:.10g} {p.pos[i, 1]:.10g} "
-                        f"{p.pos[i, 2]:.10g}\n")
-            f.write("\nVelocities\n\n")
-            for i in range(n):
-                f.write(f"{i + 1} {p.vel[i, 0]:.10g} {p.vel[i, 1]:.10g} {p.vel[i, 2]:.10g} {p.omg[i, 0]:.10g} "
-                        f"{p.omg[i, 1]:.10g} {p.omg[i, 2]:.10g}\n")
+        write_data(data, p.pos, p.rad, rho, lo, hi, p.vel, p.omg)
         mu, mur, e = params["static_friction"], params["rolling_friction"], params["restitution"]
         kt = 8 * 2e6 * 1e-4  # sds rolling stiffness of the order of a contact's tangential stiffness
         if cohesive:

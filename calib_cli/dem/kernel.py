@@ -303,7 +303,8 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
                 force[i, d] -= drag * mass[i] * vel[i, d]
         Ri = rad[i]
         wix, wiy, wiz = omg[i, 0], omg[i, 1], omg[i, 2]
-        # floor z = 0, normal +z
+        # floor z = 0, normal +z. (The floor and cylinder blocks repeat their accumulation on
+        # purpose: folding it into an inlined helper cost 40 % of the throughput, 6.0 -> 3.6 M p-steps/s.)
         if floor_on > 0.0:
             delta = Ri - pos[i, 2]
             if delta > dcf:

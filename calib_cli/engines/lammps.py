@@ -72,6 +72,21 @@ class _Parts:
     omg: np.ndarray
 
 
+def write_data(path: str, pos, rad, density: float, lo, hi, vel=None, omg=None) -> None:
+    """A LAMMPS data file (atom_style sphere): id type diameter density x y z [+ Velocities]."""
+    n = len(rad)
+    with open(path, "w") as f:
+        f.write(f"calib heap\n\n{n} atoms\n1 atom types\n\n{lo[0]} {hi[0]} xlo xhi\n{lo[1]} {hi[1]} ylo yhi\n"
+                f"{lo[2]} {hi[2]} zlo zhi\n\nAtoms # sphere\n\n")
+        for i in range(n):
+            f.write(f"{i + 1} 1 {2 * rad[i]:.10g} {density:.10g} {pos[i, 0]:.10g} {pos[i, 1]:.10g} {pos[i, 2]:.10g}\n")
+        if vel is not None:
+            f.write("\nVelocities\n\n")
+            for i in range(n):
+                f.write(f"{i + 1} {vel[i, 0]:.10g} {vel[i, 1]:.10g} {vel[i, 2]:.10g} {omg[i, 0]:.10g} "
+                        f"{omg[i, 1]:.10g} {omg[i, 2]:.10g}\n")
+
+
 def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
     """``roll_arm`` = R_i / R_eff: LAMMPS's rolling torque is R_eff x F_roll with |F_roll| <= mu F_n,
     EDEM's constant torque is mu F_n R_i; so mu_roll = mu_r R_i / R_eff (2 for a pair of equal
@@ -114,12 +129,7 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     try:
         with tempfile.TemporaryDirectory() as d:
             data = os.path.join(d, "heap.data")
-            with open(data, "w") as f:
-                f.write(f"heap\n\n{n} atoms\n1 atom types\n\n{-half} {half} xlo xhi\n{-half} {half} ylo yhi\n"
-                        f"-0.001 {ztop} zlo zhi\n\nAtoms # sphere\n\n")
-                for i in range(n):
-                    x, y, z = parts.pos[i]
-                    f.write(f"{i + 1} 1 {2 * parts.rad[i]:.10g} {rho:.10g} {x:.10g} {y:.10g} {z:.10g}\n")
+            write_data(data, parts.pos, parts.rad, rho, (-half, -half, -0.001), (half, half, ztop))
             model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
             wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
             for cmd in [
