@@ -41,6 +41,7 @@ class Request:
     model: str = ""
     condition_id: str = ""
     engine: str = "builtin"  # builtin | lammps
+    mpi: int = 1  # MPI ranks of a LAMMPS run (the summation order, hence the trajectory, depends on it)
 
     @property
     def key(self) -> dict:
@@ -48,6 +49,8 @@ class Request:
         k["source"] = SOURCE_HASH
         if self.engine != "builtin":  # keeps the built-in engine's existing cache keys
             k["engine"] = self.engine
+        if self.mpi > 1:
+            k["mpi"] = self.mpi
         return k
 
     @property
@@ -72,7 +75,7 @@ def _row(req: Request, res, img) -> dict:
     return {
         "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
         "seed": req.seed, "preset": req.preset, "condition_id": req.condition_id, "model": req.model,
-        "engine": req.engine,
+        "engine": req.engine, "mpi": req.mpi,
         **{k: float(v) for k, v in req.params.items()},
         **asdict(req.condition),
         "status": res.status, "message": res.message,
@@ -99,7 +102,7 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
 
-        res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress)
+        res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress, mpi=req.mpi)
     else:
         res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
     p = res.system.particles

