@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 import tempfile
 import time
 
@@ -63,7 +62,6 @@ def ours(state: System, params: dict, steps: int):
 
 def lammps(state: System, params: dict, steps: int, cohesive: bool):
     p = state.particles
-    n = len(p.rad)
     E, nu, rho = state.material.youngs_modulus, state.material.poisson, state.material.density
     Rc = state.walls.cylinder_radius
     lo = p.pos.min(0) - 0.01

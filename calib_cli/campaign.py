@@ -10,7 +10,7 @@ index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every fin
 from __future__ import annotations
 
 import concurrent.futures as cf
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping
 

@@ -154,3 +154,19 @@ def test_help_says_what_is_read_and_written():
 def test_bad_setting_on_command_line(run):
     r = calib("pb", "design", "--run", run, "-s", "pb.runs=10")
     assert r.exit_code == 2 and "multiple of 4" in r.output
+
+
+def test_console_entry_point_exit_codes(tmp_path):
+    """The real entry point (not CliRunner): usage errors and user errors exit 2 without a traceback."""
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "calib_cli", *map(str, args)], capture_output=True, text=True)
+
+    r = run("pb", "analyze", "--bogus")
+    assert r.returncode == 2 and "No such option" in r.stderr and "Traceback" not in r.stderr
+    r = run("pb", "analyze", "--run", tmp_path / "r", "--responses", tmp_path / "missing.csv")
+    assert r.returncode == 2 and r.stderr.strip().startswith("error: responses file not found")
+    assert "Traceback" not in r.stderr
+    assert run("--version").returncode == 0

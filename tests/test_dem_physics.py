@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from calib_cli.dem import kernel
-from calib_cli.dem.contact import (DELTA_CUT, U_CUT, hertz_contact_time, jkr_cutoff_overlap, jkr_force_of_radius,
+from calib_cli.dem.contact import (hertz_contact_time, jkr_cutoff_overlap, jkr_force_of_radius,
                                    jkr_overlap_of_radius, normal_law, rayleigh_time_step)
 from calib_cli.dem.materials import Interaction, Material, effective_moduli
 from calib_cli.dem.system import Particles, System, UnstableError, Walls

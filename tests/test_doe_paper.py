@@ -1,7 +1,6 @@
 """The paper's statistics, reproduced from its own responses to the printed digits."""
 
 import numpy as np
-import pandas as pd
 import pytest
 from hypothesis import given, settings, strategies as st
 

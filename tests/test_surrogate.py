@@ -1,7 +1,6 @@
 """Surrogates, PSO, GA and the inversion, on the paper's Table 7."""
 
 import numpy as np
-import pandas as pd
 import pytest
 from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner

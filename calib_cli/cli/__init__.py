@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import sys
-from pathlib import Path
 
 import typer
 
@@ -81,27 +80,19 @@ def report(run: RunOpt):
 
 
 def main() -> None:
-    """Console-script entry point: no traceback for anything a user can cause."""
+    """Console-script entry point: no traceback for anything a user can cause.
+
+    typer/click handle usage errors and --help themselves (standalone mode, exit code 2);
+    user errors inside commands are CalibError (handle_errors, exit 2); whatever else escapes
+    is a bug, reported in one line (exit 70) unless CALIB_DEBUG is set.
+    """
     try:
-        rv = app(standalone_mode=False)
-    except SystemExit as e:
-        raise
-    except typer.Exit as e:  # pragma: no cover - click converts these
-        sys.exit(e.exit_code)
+        app()
     except KeyboardInterrupt:
         err_console.print("[bold red]interrupted[/]")
         sys.exit(130)
-    except Exception as e:  # click usage errors and bugs
-        import click
-
-        if isinstance(e, click.exceptions.ClickException):
-            e.show()
-            sys.exit(e.exit_code)
-        if isinstance(e, click.exceptions.Abort):
-            err_console.print("[bold red]interrupted[/]")
-            sys.exit(130)
+    except Exception as e:
         if os.environ.get("CALIB_DEBUG"):
             raise
         err_console.print(f"[bold red]internal error:[/] {type(e).__name__}: {e} (set CALIB_DEBUG=1 for a traceback)")
         sys.exit(70)
-    sys.exit(rv if isinstance(rv, int) else 0)

@@ -15,7 +15,7 @@ from rich.table import Table
 
 from .. import artifacts as art
 from ..errors import CalibError
-from ..settings import factor_space, load_settings
+from ..settings import load_settings
 from ..space import ParameterSpace
 
 console = Console()

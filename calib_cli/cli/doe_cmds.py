@@ -18,7 +18,7 @@ from ..errors import CalibError
 from ..settings import factor_space
 from ..space import ParameterSpace
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console,
-                     df_table, fmt, handle_errors, pvalue, resolve_settings, simulated_responses, skipped,
+                     df_table, handle_errors, pvalue, resolve_settings, simulated_responses, skipped,
                      space_from_design)
 
 pb_app = typer.Typer(help="Plackett-Burman screening (paper 3.1, Tables 2-4).", no_args_is_help=True)

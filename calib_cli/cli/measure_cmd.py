@@ -14,7 +14,7 @@ from .. import artifacts as art
 from ..errors import CalibError
 from ..imaging.measure import measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
-from .common import ForceOpt, RunOpt, check_run_dir, console, df_table, handle_errors, skipped
+from .common import ForceOpt, RunOpt, check_run_dir, console, df_table, skipped
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 CONDITION_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm",

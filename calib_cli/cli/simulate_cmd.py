@@ -16,7 +16,7 @@ from ..campaign import Request, derive_seed, run_campaign
 from ..dem.heap import PARAMETERS, HeapCondition, get_preset, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
-from .common import RunOpt, check_run_dir, console, df_table, handle_errors
+from .common import RunOpt, check_run_dir, console, df_table
 
 
 def _pairs(items: Optional[list[str]], what: str) -> dict:

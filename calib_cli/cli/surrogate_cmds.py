@@ -20,7 +20,7 @@ from ..dem.heap import PARAMETERS, get_preset  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
-from ..surrogate.models import MODEL_NAMES, make_model, model_from_state  # noqa: E402
+from ..surrogate.models import make_model, model_from_state  # noqa: E402
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console,  # noqa: E402
                      df_table, resolve_settings, skipped, space_from_design)
 from .simulate_cmd import _condition, _pairs, _params  # noqa: E402

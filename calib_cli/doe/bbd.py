@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from ..errors import CalibError
 from ..space import ParameterSpace
-from .linear import LinearFit, fit_linear
+from .linear import fit_linear
 
 
 def design(space: ParameterSpace, center_points: int = 5, fixed: dict[str, float] | None = None) -> pd.DataFrame:
