@@ -47,12 +47,10 @@ def _profile(x: np.ndarray, angle: float, o: SynthOptions, xc: float) -> np.ndar
         cap = H - r * t / 2 - d * d * t / (2 * r)
         h = np.where(d < r, cap, h)
     if o.toe_round_px > 0:
-        toe = H / t
-        d = np.abs(x - xc) - (toe - o.toe_round_px)
-        r = o.toe_round_px
-        fillet = (r - np.clip(d, 0, r)) ** 2 * t / (2 * r) * (np.abs(x - xc) > toe - r)
-        # continue the flank smoothly into the floor
-        h = np.where((d > -r) & (d < r) & (np.abs(x - xc) > toe - r), np.maximum(h, fillet * 0 + (r - d) ** 2 * t / (4 * r)), h)
+        # a parabolic fillet tangent to the flank at toe - r and to the floor at toe + r
+        toe, r = H / t, o.toe_round_px
+        s = np.abs(x - xc)
+        h = np.where(np.abs(s - toe) < r, t * (toe + r - s) ** 2 / (4 * r), h)
     return h
 
 
@@ -86,10 +84,10 @@ def synth_heap(angle: float, options: SynthOptions | None = None, seed: int = 0)
             continue
         depth = rng.uniform(0.3, 0.6) * g / 2
         r = g / 2 * rng.uniform(0.8, 1.1)
-        nrm = np.array([-np.sign(xs - xc) * t, -1.0]) / math.hypot(t, 1.0)  # outward normal (image coords)
-        cx, cy = xs + nrm[0] * (r - depth) * 0 + np.sign(xs - xc) * 0, base - hs
-        cx = xs - nrm[0] * 0 + (r - depth) * (np.sign(xs - xc) * t / math.hypot(t, 1))
-        cy = base - hs - (r - depth) / math.hypot(t, 1)
+        # centre (r - depth) out along the flank's outward normal (sign t, -1)/sqrt(1 + t^2), image y down
+        off = (r - depth) / math.hypot(t, 1.0)
+        cx = xs + np.sign(xs - xc) * t * off
+        cy = base - hs - off
         cv2.circle(img, (int(cx), int(cy)), int(r), float(fg), -1)
     for _ in range(o.scattered):
         toe = kk.heap_height_px / t
