@@ -111,7 +111,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
     for i, (_, row) in enumerate(conds.iterrows(), start=1):
         c = _condition_of(row, pre.condition)
         for r in range(repeats):
-            reqs.append(Request(model.pin(theta) | {k: v for k, v in theta.items() if k.startswith("wall_")}, c,
+            reqs.append(Request(model.pin(theta), c,
                                 pre.numerics, derive_seed(seed, i, r), preset, tag, i, r, model.hash,
                                 str(row["condition_id"])))
     rows = run_campaign(reqs, run, workers)

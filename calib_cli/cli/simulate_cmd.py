@@ -122,7 +122,7 @@ def simulate_heap(
                 raise CalibError(f"{', '.join(stray)} belong(s) to effect(s) "
                                  f"{', '.join(sorted({owner[k] for k in stray}))} not in the model "
                                  f"(revision {model.revision}); `calib model add` it first")
-        points = [(rid, model.pin(p) | {k: v for k, v in p.items() if k.startswith("wall_")}) for rid, p in points]
+        points = [(rid, model.pin(p)) for rid, p in points]
         mhash = model.hash
     crossed = [("", cond)]
     if conditions is not None:
