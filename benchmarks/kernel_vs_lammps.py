@@ -12,7 +12,9 @@ on one core each. Two cases:
   with jkr), its coefficient matched to our damping at a typical contact.
 
 Usage:  python benchmarks/kernel_vs_lammps.py [--steps 2000] [--preset default]
-Prints particle-steps per second for each engine and the ratio.
+Prints particle-steps per second for each engine on one core and their ratio (equal core
+counts), and the built-in kernel on all cores (its pair loop runs in parallel; LAMMPS on several
+ranks is `--engine lammps --mpi N`, not timed here).
 """
 
 from __future__ import annotations
@@ -46,7 +48,10 @@ def settled_column(preset: str, seed: int = 1):
     return s, c, num
 
 
-def ours(state: System, params: dict, steps: int):
+def ours(state: System, params: dict, steps: int, threads: int = 1):
+    import numba
+
+    numba.set_num_threads(threads)
     c_p = state.particles
     from calib_cli.dem.system import Particles
 
@@ -110,21 +115,22 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--preset", default="default")
     a = ap.parse_args()
-    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    import numba
     state, cond, num = settled_column(a.preset)
     n = state.n
     print(f"settled column: {n} particles, {cond.particle_d_min_mm}-{cond.particle_d_max_mm} mm in a "
           f"{cond.cylinder_diameter_mm} mm cylinder; dt = {state.dt:.3g} s; {a.steps} steps; one core each")
-    print(f"{'case':<14}{'calib [p-steps/s]':>20}{'LAMMPS [p-steps/s]':>21}{'ratio':>8}")
+    print(f"{'case':<14}{'calib 1 core':>14}{'LAMMPS 1 core':>15}{'ratio':>7}{'calib ' + str(numba.config.NUMBA_NUM_THREADS) + ' threads':>18}")
     for case, params, coh in [
         ("non-cohesive", {"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3}, False),
         ("cohesive", {"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3,
                       "surface_energy": 1.25}, True),
     ]:
-        t_ours, s = ours(state, params, a.steps)
+        t_ours, s = ours(state, params, a.steps, 1)
         t_lmp, _ = lammps(state, params, a.steps, coh)
-        r_ours, r_lmp = n * a.steps / t_ours, n * a.steps / t_lmp
-        print(f"{case:<14}{r_ours:>20.3e}{r_lmp:>21.3e}{r_ours / r_lmp:>8.2f}", flush=True)
+        t_par, _ = ours(state, params, a.steps, numba.config.NUMBA_NUM_THREADS)
+        r_ours, r_lmp, r_par = n * a.steps / t_ours, n * a.steps / t_lmp, n * a.steps / t_par
+        print(f"{case:<14}{r_ours:>14.3e}{r_lmp:>15.3e}{r_ours / r_lmp:>7.2f}{r_par:>18.3e}", flush=True)
 
 
 if __name__ == "__main__":

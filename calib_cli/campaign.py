@@ -123,6 +123,9 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
 
 
 def _execute_in_worker(req: Request, run_dir: str) -> dict:
+    import numba
+
+    numba.set_num_threads(1)  # one heap per core: the pool is the parallelism (results do not depend on it)
     return execute(req, run_dir)
 
 
@@ -195,7 +198,10 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
         for i in todo:
             finish(i, execute(requests[i], str(run_dir), on_progress))
     else:
-        with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+        import multiprocessing
+
+        # spawn, not fork: numba's threading layer is not fork-safe once the parent has used it
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir)): i for i in todo}
             try:
                 for f in cf.as_completed(futs):

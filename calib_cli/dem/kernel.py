@@ -231,11 +231,12 @@ def transfer_history(oi, oj, oh, no, ni, nj, nh, nn):
                 nh[k, c] = 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf, hc,
-                   prm, geo, gravity, dt, force, torque, ncont, cnew):
+                   prm, geo, gravity, dt, force, torque, ncont, cnew, pf):
     """Gravity + every particle-particle and particle-wall contact. Returns max overlap / radius.
 
+    ``pf`` is a per-pair scratch buffer (capacity x 11).
     ``ncont`` holds each particle's contact count from the last evaluation (read);
     this evaluation's counts go to ``cnew`` and are copied into ``ncont`` at the end.
     """
@@ -252,7 +253,9 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
     worst = 0.0
     # the widest attraction range of any pair (JKR cutoff gap grows with R*)
     dc_max = -jkr_cutoff_overlap(rad.max() / 2.0, prm[PP, E_S], prm[PP, GAMMA])
-    for k in range(npairs):
+    # pair forces in parallel into a per-pair buffer, then scattered serially in pair order:
+    # the result is bitwise the same whatever the number of threads
+    for k in nb.prange(npairs):
         i = pi[k]
         j = pj[k]
         dx = pos[i, 0] - pos[j, 0]
@@ -262,6 +265,7 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
         Ri = rad[i]
         Rj = rad[j]
         reach = Ri + Rj + dc_max
+        pf[k, 10] = 0.0
         if d2 >= reach * reach:
             for c in range(4):
                 ht[k, c] = 0.0
@@ -275,24 +279,39 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
             nx, ny, nz, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs, ms, inv_inertia[i], inv_inertia[j],
             ncont[i], ncont[j], vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
             omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, k, prm, PP, dt)
-        force[i, 0] += fx
-        force[i, 1] += fy
-        force[i, 2] += fz
-        force[j, 0] -= fx
-        force[j, 1] -= fy
-        force[j, 2] -= fz
-        torque[i, 0] += tix
-        torque[i, 1] += tiy
-        torque[i, 2] += tiz
-        torque[j, 0] += tjx
-        torque[j, 1] += tjy
-        torque[j, 2] += tjz
+        pf[k, 0] = fx
+        pf[k, 1] = fy
+        pf[k, 2] = fz
+        pf[k, 3] = tix
+        pf[k, 4] = tiy
+        pf[k, 5] = tiz
+        pf[k, 6] = tjx
+        pf[k, 7] = tjy
+        pf[k, 8] = tjz
+        pf[k, 9] = ov / min(Ri, Rj)
+        pf[k, 10] = 1.0
+    for k in range(npairs):
+        if pf[k, 10] == 0.0:
+            continue
+        i = pi[k]
+        j = pj[k]
+        force[i, 0] += pf[k, 0]
+        force[i, 1] += pf[k, 1]
+        force[i, 2] += pf[k, 2]
+        force[j, 0] -= pf[k, 0]
+        force[j, 1] -= pf[k, 1]
+        force[j, 2] -= pf[k, 2]
+        torque[i, 0] += pf[k, 3]
+        torque[i, 1] += pf[k, 4]
+        torque[i, 2] += pf[k, 5]
+        torque[j, 0] += pf[k, 6]
+        torque[j, 1] += pf[k, 7]
+        torque[j, 2] += pf[k, 8]
         if ht[k, 3] > 0.0:
             cnew[i] += 1.0
             cnew[j] += 1.0
-        r = ov / min(Ri, Rj)
-        if r > worst:
-            worst = r
+        if pf[k, 9] > worst:
+            worst = pf[k, 9]
     Rc, zedge, vlift, cyl_on, floor_on, drag = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5]
     dcf = jkr_cutoff_overlap(rad.max(), prm[FLOOR, E_S], prm[FLOOR, GAMMA])
     dcc = jkr_cutoff_overlap(rad.max(), prm[CYL, E_S], prm[CYL, GAMMA])
@@ -367,7 +386,7 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
 @nb.njit(cache=True)
 def run_steps(nsteps, t0, dt, pos, vel, omg, force, torque, rad, mass, inv_inertia,
               pi, pj, npairs_arr, ht, ref_pos, skin, reach, hf, hc, prm, geo, lift_start, gravity,
-              overlap_limit, speed_limit, spare_i, spare_j, spare_h, ncont, cnew):
+              overlap_limit, speed_limit, spare_i, spare_j, spare_h, ncont, cnew, pf):
     """Advance ``nsteps`` velocity-Verlet steps.
 
     Returns (status, steps_done, max_overlap_ratio, rebuilds). status 0 OK,
@@ -421,7 +440,7 @@ def run_steps(nsteps, t0, dt, pos, vel, omg, force, torque, rad, mass, inv_inert
         if geo[2] != 0.0:
             geo[1] = geo[2] * max(0.0, t + dt - lift_start)
         worst = compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf, hc,
-                               prm, geo, gravity, dt, force, torque, ncont, cnew)
+                               prm, geo, gravity, dt, force, torque, ncont, cnew, pf)
         vmax2 = 0.0
         for i in range(n):
             im = 1.0 / mass[i]

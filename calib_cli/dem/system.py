@@ -109,7 +109,7 @@ class System:
         self._rebuild()
         kernel.compute_forces(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
                               self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.geo, self.grav, self.dt,
-                              self.force, self.torque, self.ncont, self.cnew)
+                              self.force, self.torque, self.ncont, self.cnew, self.pf)
 
     def _alloc(self, cap: int, keep: int = 0):
         old = getattr(self, "pi", None)
@@ -118,6 +118,7 @@ class System:
             pi[:keep], pj[:keep], ht[:keep] = self.pi[:keep], self.pj[:keep], self.ht[:keep]
         self.pi, self.pj, self.ht = pi, pj, ht
         self.spare_i, self.spare_j, self.spare_h = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, 4))
+        self.pf = np.zeros((cap, 11))
         if not hasattr(self, "npairs"):
             self.npairs = np.zeros(1, np.int64)
 
@@ -159,7 +160,7 @@ class System:
                 nsteps - done, self.t, self.dt, p.pos, p.vel, p.omg, self.force, self.torque, p.rad, self.mass,
                 self.inv_inertia, self.pi, self.pj, self.npairs, self.ht, self.ref_pos, self.skin, self.reach,
                 self.hf, self.hc, self.prm, self.geo, self.walls.lift_start, self.grav, self.overlap_limit,
-                self.speed_limit, self.spare_i, self.spare_j, self.spare_h, self.ncont, self.cnew)
+                self.speed_limit, self.spare_i, self.spare_j, self.spare_h, self.ncont, self.cnew, self.pf)
             done += k
             self.t += k * self.dt
             self.n_steps += k
