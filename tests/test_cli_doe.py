@@ -170,3 +170,8 @@ def test_console_entry_point_exit_codes(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().startswith("error: responses file not found")
     assert "Traceback" not in r.stderr
     assert run("--version").returncode == 0
+
+
+def test_error_messages_keep_their_brackets(tmp_path):
+    r = calib("pb", "design", "--run", tmp_path / "r", "-s", "bbd.ranges.static_friction=[0.5]")
+    assert r.exit_code == 2 and "bbd.ranges.static_friction must be [low, high]" in r.output

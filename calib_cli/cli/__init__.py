@@ -94,5 +94,8 @@ def main() -> None:
     except Exception as e:
         if os.environ.get("CALIB_DEBUG"):
             raise
-        err_console.print(f"[bold red]internal error:[/] {type(e).__name__}: {e} (set CALIB_DEBUG=1 for a traceback)")
+        from rich.markup import escape
+
+        err_console.print(f"[bold red]internal error:[/] {type(e).__name__}: {escape(str(e))} "
+                          "(set CALIB_DEBUG=1 for a traceback)")
         sys.exit(70)

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from .. import artifacts as art
@@ -48,7 +49,8 @@ def handle_errors(fn: Callable) -> Callable:
         try:
             return fn(*args, **kwargs)
         except CalibError as e:
-            err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
+            # escape: a message may hold brackets ('.[lammps]', [low, high]) that rich reads as markup
+            err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:
             err_console.print("[bold red]interrupted:[/] nothing partial was written to the run directory")
@@ -154,7 +156,7 @@ def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None =
     for c in df.columns:
         t.add_column(str(c), justify="left" if df[c].dtype == object else "right")
     for _, r in df.iterrows():
-        t.add_row(*[formats.get(c, fmt)(r[c]) for c in df.columns])
+        t.add_row(*[escape(formats.get(c, fmt)(r[c])) for c in df.columns])
     return t
 
 
