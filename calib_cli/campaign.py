@@ -134,6 +134,24 @@ def load_results(run_dir: Path) -> pd.DataFrame:
     return art.read_table(path, what="simulation results") if path.is_file() else pd.DataFrame()
 
 
+def current_results(run_dir: Path) -> pd.DataFrame:
+    """The index rows an analysis may use: those of the current kernel source, each run once.
+
+    The index keeps rows of older kernel versions (their artefacts stay in the cache), but they
+    are other simulations: averaging them with the current ones as if they were repeats shifted
+    a whole calibration (found on a fresh clone whose committed index held older rows).
+    """
+    df = load_results(run_dir)
+    if df.empty:
+        return df
+    if "source" in df.columns:
+        df = df[df["source"] == SOURCE_HASH]
+    if "run_hash" not in df.columns:  # not an index written by calib: nothing to de-duplicate by
+        return df.reset_index(drop=True)
+    keys = [k for k in ("run_hash", "design", "run_id", "repeat", "condition_id") if k in df.columns]
+    return df.drop_duplicates(subset=keys, keep="last").reset_index(drop=True)
+
+
 def _save_index(run_dir: Path, rows: list[dict]) -> None:
     df = pd.DataFrame(rows)
     keys = ["run_hash", "design", "run_id", "repeat", "condition_id"]

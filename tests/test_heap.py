@@ -157,3 +157,15 @@ def test_dask_local_cluster_gives_the_process_pool_results(tmp_path):
     b = run_campaign(reqs, tmp_path / "dask", workers=2, dask="local")
     cols = ["run_hash", "repose_angle", "angle_coords", "n_steps", "status"]
     pd.testing.assert_frame_equal(a[cols].reset_index(drop=True), b[cols].reset_index(drop=True))
+
+
+def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
+    from calib_cli.campaign import current_results
+    from calib_cli.dem import SOURCE_HASH
+
+    rows = pd.DataFrame({"run_hash": ["a", "a", "b", "c"], "design": "pb", "run_id": [1, 1, 2, 3], "repeat": 0,
+                         "condition_id": "", "source": [SOURCE_HASH, SOURCE_HASH, "old", SOURCE_HASH],
+                         "repose_angle": [30.0, 30.0, 99.0, 31.0]})
+    art.write_table(tmp_path / "simulate" / "results.parquet", rows)
+    cur = current_results(tmp_path)
+    assert sorted(cur["run_hash"]) == ["a", "c"]  # the old kernel's row is not a repeat, nor is a duplicate

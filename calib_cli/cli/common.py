@@ -127,8 +127,13 @@ def simulated_responses(run: Path, design_path: Path, factors: list[str], respon
         raise CalibError(f"no design at {design_path}; create it first (`design` subcommand) or pass --responses FILE")
     if not results_path.is_file():
         raise CalibError(f"no simulated responses in {run}: {hint}")
+    from ..campaign import current_results
+
     design = art.read_table(design_path, what="design")
-    results = art.read_table(results_path, columns=[*factors, response], what="simulation results")
+    art.read_table(results_path, columns=[*factors, response], what="simulation results")  # validates the file
+    results = current_results(run)
+    if results.empty:
+        raise CalibError(f"no simulated responses of the current kernel in {run}: {hint}")
     out = match_to_design(design, results, factors, response, stage=Path(design_path).parent.name)
     missing = int((out["n_repeats"] == 0).sum())
     if missing:

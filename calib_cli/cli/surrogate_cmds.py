@@ -38,8 +38,11 @@ def _simulated_training_data(run: Path, stage: str, response: str) -> tuple[pd.D
     space = space_from_design(design)
     if space is None:
         raise CalibError(f"no design at {design}")
+    from ..campaign import current_results
+
     res_path = run / "simulate" / "results.parquet"
-    res = art.read_table(res_path, what="simulation results")
+    art.read_table(res_path, what="simulation results")  # validates the file
+    res = current_results(run)
     from ..model import load_model
 
     model = load_model(run)
