@@ -191,13 +191,17 @@ def read_json(path: Path) -> dict:
         raise CalibError(f"{path} is missing or not valid JSON") from None
 
 
-def write_png(path: Path, image: np.ndarray) -> None:
+def png_bytes(image: np.ndarray) -> bytes:
     import cv2
 
     ok, buf = cv2.imencode(".png", image)
     if not ok:
-        raise CalibError(f"could not encode {path}")
-    atomic_write_bytes(path, buf.tobytes())
+        raise CalibError("could not encode an image as PNG")
+    return buf.tobytes()
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    atomic_write_bytes(path, png_bytes(image))
 
 
 def write_vtp(path: Path, points: np.ndarray, point_data: Mapping[str, np.ndarray]) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import os
 from pathlib import Path
 from typing import Annotated, Callable, Iterable, Optional
 
@@ -164,6 +163,3 @@ def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None =
         t.add_row(*[escape(formats.get(c, fmt)(r[c])) for c in df.columns])
     return t
 
-
-def debug() -> bool:
-    return bool(os.environ.get("CALIB_DEBUG"))

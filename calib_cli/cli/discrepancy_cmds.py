@@ -17,15 +17,15 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import HeapCondition, get_preset  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
 from ..discrepancy.stats import confounded, residual_table, score_effects, summary, trends  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import RunOpt, check_run_dir, console, df_table, handle_errors  # noqa: E402
-from .simulate_cmd import _pairs, _params  # noqa: E402
+from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
-COND_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s"]
+COND_VARS = list(CONDITION_VARIABLES)
 PresetOpt = Annotated[str, typer.Option(help="smoke | default | paper: geometry not given by the conditions table.")]
 RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Parallel simulations.")]
@@ -82,13 +82,6 @@ def _conditions(run: Path) -> pd.DataFrame:
     return c
 
 
-def _condition_of(row: pd.Series, base: HeapCondition) -> HeapCondition:
-    vals = {k: float(row[k]) for k in COND_VARS if k in row.index and pd.notna(row[k])}
-    c = dataclasses.replace(base, **vals)
-    c.validate()
-    return c
-
-
 def _calibrated(run: Path, set_: Optional[list[str]], model: Model) -> dict[str, float]:
     given = _params(_pairs(set_, "--set")) if set_ else {}
     sol = run / "invert" / "solution.parquet"
@@ -109,7 +102,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
     pre = get_preset(preset)
     reqs = []
     for i, (_, row) in enumerate(conds.iterrows(), start=1):
-        c = _condition_of(row, pre.condition)
+        c = condition_from_row(pre.condition, row)
         for r in range(repeats):
             reqs.append(Request(model.pin(theta), c,
                                 pre.numerics, derive_seed(seed, i, r), preset, tag, i, r, model.hash,

@@ -11,14 +11,14 @@ import typer
 from rich.progress import Progress
 
 from .. import artifacts as art
+from ..dem.heap import CONDITION_VARIABLES
 from ..errors import CalibError
 from ..imaging.measure import measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
 from .common import ForceOpt, RunOpt, check_run_dir, console, df_table, skipped
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
-CONDITION_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm",
-                  "lift_speed_mm_s", "floor"]
+CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
 DEFAULT_CONDITION = "all"
 
 
@@ -154,7 +154,7 @@ def measure_angle(
         out.table("conditions.parquet", summary)
         out.table("profiles.parquet", prof)
         for name, img in overlays.items():
-            out.bytes(f"overlays/{Path(name).stem}.png", _png(img))
+            out.bytes(f"overlays/{Path(name).stem}.png", art.png_bytes(img))
     console.print(df_table(table[["image", "condition_id", "angle_left", "angle_right", "repose_angle", "status"]],
                            f"measure-angle -> {st.dir / 'angles.parquet'}"))
     for _, r in table[table["status"] != "ok"].iterrows():
@@ -163,9 +163,3 @@ def measure_angle(
         console.print(f"[yellow]{r['image']}[/]: {r['message']}")
     console.print(df_table(summary[["condition_id", *STAT_COLUMNS]], "Per condition (cf. paper Table 1)"))
 
-
-def _png(img) -> bytes:
-    import cv2
-
-    ok, buf = cv2.imencode(".png", img)
-    return buf.tobytes()

@@ -13,7 +13,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .. import artifacts as art
 from ..campaign import Request, derive_seed, run_campaign
-from ..dem.heap import PARAMETERS, HeapCondition, get_preset, interactions
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, get_preset, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
 from .common import RunOpt, check_run_dir, console, df_table
@@ -42,6 +42,11 @@ def _params(values: dict) -> dict[str, float]:
             raise CalibError(f"parameter {k} must be finite, got {v!r}")
         out[k] = f
     return out
+
+
+def condition_from_row(base: HeapCondition, row) -> HeapCondition:
+    """The base condition with the variables a conditions-table row gives (missing or NaN: kept)."""
+    return _condition(base, {k: row[k] for k in CONDITION_VARIABLES if k in row.index and pd.notna(row[k])})
 
 
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
@@ -132,9 +137,7 @@ def simulate_heap(
             raise CalibError(f"conditions table {conditions} lacks column condition_id")
         crossed = []
         for _, row in ctab.drop_duplicates("condition_id").iterrows():
-            vals = {k: row[k] for k in ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm",
-                                        "fill_height_mm", "lift_speed_mm_s") if k in row.index and pd.notna(row[k])}
-            crossed.append((str(row["condition_id"]), _condition(cond, vals)))
+            crossed.append((str(row["condition_id"]), condition_from_row(cond, row)))
     requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
                         dname, rid, r, mhash, cid, engine, mpi)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]

@@ -16,7 +16,7 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import PARAMETERS, get_preset  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, get_preset  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
@@ -28,7 +28,7 @@ from .simulate_cmd import _condition, _pairs, _params  # noqa: E402
 MODELS_DIR = Path("surrogate") / "models"
 
 
-COND_VARS = ["particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s"]
+COND_VARS = list(CONDITION_VARIABLES)
 
 
 def _simulated_training_data(run: Path, stage: str, response: str) -> tuple[pd.DataFrame, list[str], dict]:

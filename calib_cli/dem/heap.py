@@ -29,6 +29,11 @@ PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitut
 PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2}
 
 
+#: the numeric heap-test variables (columns of a conditions table); `floor` is a name
+CONDITION_VARIABLES = ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm",
+                       "lift_speed_mm_s")
+
+
 @dataclass(frozen=True)
 class HeapCondition:
     """Heap-test variables (the columns of a conditions table, SPEC section 6)."""
