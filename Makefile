@@ -9,7 +9,7 @@ SMOKE  := sample_runs/smoke
 PHOTOS := sample_data/photos
 SIM    := --preset smoke --workers 2
 
-.PHONY: setup test test-all calibrate paper smoke hidden-effect sample-photos docs clean
+.PHONY: setup test test-all calibrate paper smoke hidden-effect default-bbd sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -26,7 +26,9 @@ test: setup
 test-all: setup
 	$(PY) -m pytest -q
 
-calibrate: paper
+# the main job on the shipped sample data: the paper's chain on its published tables, then a
+# whole calibration on simulations from the sample photographs (make smoke)
+calibrate: paper smoke
 
 # The paper's chain from its own published data: Table 1 -> target; Tables 3, 5, 7 -> Tables 4, 6, 8, Eq. 7;
 # surrogates compared in-sample and held out (Table 9); GA inversion to the measured 32.07 deg (Eq. 11)
@@ -44,7 +46,7 @@ paper: setup
 	$(CALIB) report --run $(PAPER)
 
 # A whole calibration on simulations, in minutes: photographs -> screening -> ascent -> BBD ->
-# surrogates -> inversion -> validation runs, every simulation with the smoke preset
+# surrogates -> inversion -> validation runs -> compare, every simulation with the smoke preset
 smoke: setup
 	$(CALIB) init --run $(SMOKE) --settings stages/smoke.toml
 	$(CALIB) measure-angle --run $(SMOKE) --images $(PHOTOS) --conditions $(PHOTOS)/conditions.csv
@@ -59,6 +61,7 @@ smoke: setup
 	$(CALIB) bbd analyze --run $(SMOKE)
 	$(CALIB) fit-surrogate --run $(SMOKE)
 	$(CALIB) invert --run $(SMOKE) --validate 3 $(SIM)
+	$(CALIB) compare --run $(SMOKE) --repeats 3 $(SIM)
 	$(CALIB) report --run $(SMOKE)
 
 # The discrepancy loop on a synthetic lab with hidden cohesion (docs/tutorial-hidden-effect.md):
@@ -84,6 +87,21 @@ hidden-effect: setup
 	$(CALIB) fit-surrogate --run $(LAB) --from-simulations bbd $(REV1)
 	$(CALIB) invert --run $(LAB) $(REV1)
 	$(CALIB) compare --run $(LAB) --set restitution=0.3 --repeats 2 $(LABSIM)
+
+# The paper's own BBD design (Table 6, from its Tables 3 and 5) simulated with our kernel at the
+# `default` preset: does the simulated heap respond like the paper's EDEM one? (~25 min on 2 cores)
+DBBD   := sample_runs/default-bbd
+default-bbd: setup
+	$(CALIB) init --run $(DBBD) --settings stages/paper.toml
+	$(CALIB) measure-angle --run $(DBBD) --angles $(DATA)/table1_angles.csv
+	$(CALIB) pb design --run $(DBBD)
+	$(CALIB) pb analyze --run $(DBBD) --responses $(DATA)/table3_pb.csv
+	$(CALIB) ascent design --run $(DBBD)
+	$(CALIB) ascent analyze --run $(DBBD) --responses $(DATA)/table5_ascent.csv
+	$(CALIB) bbd design --run $(DBBD)
+	$(CALIB) simulate-heap --run $(DBBD) --design $(DBBD)/bbd/design.parquet --preset default --workers 2
+	$(CALIB) bbd analyze --run $(DBBD)
+	$(CALIB) report --run $(DBBD)
 
 sample-photos: setup
 	$(PY) stages/sample_photos.py

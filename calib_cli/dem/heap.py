@@ -71,6 +71,7 @@ class Numerics:
     settle_drag: float = 10.0  # 1/s: background drag during the fill only (kills the fill's fall)
     settle_time_max: float = 1.0  # s
     rest_speed: float = 0.005  # m/s: rms speed at which the heap counts as at rest
+    rest_time_min: float = 1.0  # s after the lift: the same creep time for every heap (docs/physics.md)
     time_max: float = 6.0  # s, total
     chunk: int = 400  # steps between checks
 
@@ -162,6 +163,7 @@ class HeapResult:
     numerics: Numerics
     seed: int
     energy: list = field(default_factory=list)  # (t, kinetic energy, rim height)
+    angle_drift: float = float("nan")  # deg/s over the last DRIFT_WINDOW s (creep; docs/physics.md)
 
     @property
     def n_particles(self) -> int:
@@ -170,6 +172,36 @@ class HeapResult:
     @property
     def n_steps(self) -> int:
         return self.system.n_steps
+
+
+#: s: the angle's rate of change is fitted over this window at the end of the rest phase
+DRIFT_WINDOW = 0.3
+
+
+class DriftMeter:
+    """The rest phase's clock and the heap's creep: the coordinate angle is sampled over the
+    last ``DRIFT_WINDOW`` s before the earliest end, and its least-squares slope (deg/s) tells
+    how far from static the heap still is when it is measured. Shared by both engines."""
+
+    def __init__(self, t_start: float, min_duration: float):
+        self.t_done = t_start + min_duration
+        self.samples: list[tuple[float, float]] = []
+
+    def done(self, t: float) -> bool:
+        return t >= self.t_done
+
+    def sample(self, t: float, pos: np.ndarray, rad: np.ndarray) -> None:
+        if t >= self.t_done - DRIFT_WINDOW:
+            a = repose_angle_coords(pos, rad).angle
+            if np.isfinite(a):
+                self.samples.append((t, a))
+
+    def rate(self) -> float:
+        if len(self.samples) < 3:
+            return float("nan")
+        t, a = np.array(self.samples[-64:]).T
+        t, a = t[t >= t[-1] - DRIFT_WINDOW], a[t >= t[-1] - DRIFT_WINDOW]
+        return float(np.polyfit(t, a, 1)[0]) if len(t) >= 3 and np.ptp(t) > 0 else float("nan")
 
 
 def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None, numerics: Numerics | None = None,
@@ -197,6 +229,11 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
         v = parts.vel
         return float(np.sqrt(np.sum(sysm.mass * np.sum(v * v, axis=1)) / np.sum(sysm.mass)))
 
+    def top_inside():
+        p = parts.pos
+        inside = p[:, 0] ** 2 + p[:, 1] ** 2 < Rc * Rc
+        return float(np.max(p[inside, 2] + parts.rad[inside])) if inside.any() else 0.0
+
     def chunk(phase):
         sysm.advance(num.chunk)
         energy.append((sysm.t, sysm.kinetic_energy(), sysm.rim_height))
@@ -219,14 +256,18 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     t_lift_end = np.nan
     while sysm.t < num.time_max:
         chunk("lift")
-        if sysm.rim_height > fill_top + d_max:
+        # the cylinder is done once its rim clears every grain still inside it: a fill that
+        # collapses meets the rising rim long before the rim reaches the settled fill's top
+        if sysm.rim_height > min(fill_top, top_inside()) + d_max:
             t_lift_end = sysm.t
             break
     sysm.geo[3] = 0.0
     sysm.geo[2] = 0.0
-    # 3. rest
+    # 3. rest: at least rest_time_min, then until the rms speed is below rest_speed
+    drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else sysm.t, num.rest_time_min)
     while sysm.t < num.time_max:
-        if rms_speed() < num.rest_speed:
+        drift.sample(sysm.t, parts.pos, parts.rad)
+        if rms_speed() < num.rest_speed and drift.done(sysm.t):
             break
         chunk("rest")
     if not np.isfinite(t_lift_end):
@@ -242,7 +283,7 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     elif not np.isfinite(ang.angle):
         status, message = "no_heap", "no flank could be fitted to the final state"
     return HeapResult(sysm, status, message, ang, t_settled, t_lift_end, sysm.t, time.perf_counter() - t0,
-                      dict(params), cond, num, seed, energy)
+                      dict(params), cond, num, seed, energy, drift.rate())
 
 
 def condition_dict(c: HeapCondition) -> dict:

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..dem.angle import repose_angle_coords
 from ..dem.contact import jkr_time_step, rayleigh_time_step
-from ..dem.heap import HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
+from ..dem.heap import DriftMeter, HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
 from ..dem.materials import Material, effective_moduli
 from ..errors import CalibError
 
@@ -199,12 +199,18 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
             t_lift_end = np.nan
             while steps * dt < num.time_max:
                 x, v = chunk("lift")
-                if vlift * (steps * dt - t_settled) > fill_top + d_max:
+                inside = x[:, 0] ** 2 + x[:, 1] ** 2 < Rc * Rc
+                top_inside = float(np.max(x[inside, 2] + parts.rad[inside])) if inside.any() else 0.0
+                if vlift * (steps * dt - t_settled) > min(fill_top, top_inside) + d_max:
                     t_lift_end = steps * dt
                     break
             lmp.command("unfix cylw")
             setup[0] = True
-            while steps * dt < num.time_max and rms(v) >= num.rest_speed:
+            drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else steps * dt, num.rest_time_min)
+            while steps * dt < num.time_max:
+                drift.sample(steps * dt, x, parts.rad)
+                if rms(v) < num.rest_speed and drift.done(steps * dt):
+                    break
                 x, v = chunk("rest")
             omg = gather("omega")
     finally:
@@ -222,7 +228,7 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
         status, message = "no_heap", "no flank could be fitted to the final state"
     info = _SystemInfo(n, steps, dt, float("nan"), _Parts(x, parts.rad, v, omg))
     return HeapResult(info, status, message, ang, t_settled, t_lift_end, t_end, time.perf_counter() - t0,
-                      dict(params), cond, num, seed, energy)
+                      dict(params), cond, num, seed, energy, drift.rate())
 
 
 def _run_mpi(params, condition, numerics, seed, ranks: int) -> HeapResult:

@@ -1,0 +1,73 @@
+"""How static is a finished heap? Runs one heap with the rest criterion switched off and
+prints, every ~0.1 s after the cylinder leaves, the median and 99th-percentile grain speed,
+the coordinate angle and the heap height: the creep of the constant-directional-torque
+rolling law (docs/physics.md, "Creep").
+
+Usage:  python benchmarks/heap_creep.py [--preset default] [--set surface_energy=1.25 ...]
+        [--after 3.0] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+
+import calib_cli.dem.heap as heap
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--preset", default="default")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--after", type=float, default=3.0, help="seconds of rest to follow after the lift")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    params = {"static_friction": 0.275, "rolling_friction": 0.215, "surface_energy": 1.25, "restitution": 0.2}
+    for kv in a.set:
+        k, v = kv.split("=", 1)
+        params[k] = float(v)
+    pre = heap.get_preset(a.preset)
+    log = []
+
+    def probe(t, t_max, phase):
+        log.append((t, phase))
+
+    # the heap is first run as usual to find its lift end, then again (same seed: bitwise the
+    # same trajectory) with a fixed rest of --after seconds, sampled every chunk
+    t0 = time.perf_counter()
+    first = heap.run_heap(params, pre.condition, pre.numerics, seed=a.seed)
+    num = dataclasses.replace(pre.numerics, rest_speed=0.0, rest_time_min=a.after,
+                              time_max=first.t_lift_end + a.after + 1e-9)
+    samples = []
+    orig = heap.System.advance
+
+    def advance(self, n):
+        orig(self, n)
+        if self.walls.lift_start < np.inf and self.geo[2] == 0.0:  # the cylinder is gone
+            p = self.particles
+            sp = np.linalg.norm(p.vel, axis=1)
+            ang = heap.repose_angle_coords(p.pos, p.rad)
+            samples.append((self.t, np.median(sp), np.percentile(sp, 99), ang.angle, ang.height))
+
+    heap.System.advance = advance
+    try:
+        r = heap.run_heap(params, pre.condition, num, seed=a.seed)
+    finally:
+        heap.System.advance = orig
+    print(f"preset {a.preset}, {r.n_particles} grains, dt {r.system.dt:.3g} s, {params}")
+    print(f"usual protocol: angle {first.angle.angle:.2f} deg at {first.t_end - first.t_lift_end:.2f} s after the "
+          f"lift, drift {first.angle_drift:+.2f} deg/s ({first.status})")
+    print(f"{'t after lift [s]':>17}{'median v [mm/s]':>17}{'p99 v [mm/s]':>14}{'angle [deg]':>13}{'height [mm]':>13}")
+    next_t = 0.0
+    for t, med, p99, ang, h in samples:
+        if t - r.t_lift_end >= next_t - 1e-9:
+            print(f"{t - r.t_lift_end:17.2f}{med * 1e3:17.2f}{p99 * 1e3:14.2f}{ang:13.2f}{h * 1e3:13.1f}")
+            next_t += 0.1 if t - r.t_lift_end < 0.5 else 0.25
+    print(f"wall {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
