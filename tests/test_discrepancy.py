@@ -73,6 +73,26 @@ def test_score_is_invariant_to_what_the_parameters_absorb():
     assert 0 <= base.loc["cohesion", "explained_fraction"] <= 1
 
 
+def test_pooled_scatter_keeps_the_false_failure_rate_near_nominal():
+    """No true misfit, 3 measured and 2 simulated heaps per condition, 6 conditions, the same
+    scatter everywhere: with each condition's own sd a chance small sd makes it 'fail' far more
+    often than |z| > 2 promises; pooled over conditions the rate is near the t distribution's
+    (df = 18: 6 %)."""
+    rng = np.random.default_rng(7)
+    fails = {True: 0, False: 0}
+    n_labs = 2000
+    for _ in range(n_labs):
+        meas = rng.normal(30.0, 2.0, (6, 3))
+        sim = rng.normal(30.0, 2.0, (6, 2))
+        for pool in (True, False):
+            t = residual_table(meas.mean(1), meas.std(1, ddof=1), [3] * 6, sim.mean(1), sim.std(1, ddof=1), [2] * 6,
+                               pool=pool)
+            fails[pool] += int(t["fails"].sum())
+    rate = {k: v / (6 * n_labs) for k, v in fails.items()}
+    assert 0.04 <= rate[True] <= 0.08
+    assert rate[False] > 1.5 * rate[True]
+
+
 def test_residuals_and_summary():
     t = residual_table([30.0, 33.0], [1.0, 1.0], [4, 4], [30.2, 30.0], [0.5, 0.5], [4, 4])
     u = np.sqrt(1 / 4 + 0.25 / 4)
@@ -109,6 +129,28 @@ def test_model_cli(tmp_path):
     r = runner.invoke(app, ["model", "remove", "cohesion", "--run", run])
     assert r.exit_code == 0 and "revision 2" in r.output
     assert runner.invoke(app, ["model", "add", "magic", "--run", run]).exit_code == 2
+
+def test_compare_uses_the_calibration_s_fixed_values_and_effects(tmp_path):
+    """Without a model file, an effect the calibration switched on joins the model (simulate-heap
+    pins nothing then), and parameters the BBD held fixed keep their fixed values."""
+    from calib_cli.cli.discrepancy_cmds import _model_and_theta
+
+    (tmp_path / "bbd").mkdir()
+    (tmp_path / "invert").mkdir()
+    design = pd.DataFrame({"run_id": [1, 2], "static_friction": [0.2, 0.4], "rolling_friction": [0.1, 0.3],
+                           "surface_energy": [0.0, 0.5], "restitution": [0.25, 0.25]})
+    art.write_table(tmp_path / "bbd" / "design.parquet", design)
+    sol = {"static_friction": 0.3, "rolling_friction": 0.2, "surface_energy": 0.4, "predicted_angle": 31.0}
+    art.write_table(tmp_path / "invert" / "solution.parquet", pd.DataFrame([sol]))
+    model, theta = _model_and_theta(tmp_path, None)
+    assert "cohesion" in model.effects and model.revision == 0
+    assert theta == {"static_friction": 0.3, "rolling_friction": 0.2, "restitution": 0.25, "surface_energy": 0.4}
+    # at its neutral value the effect stays out (a candidate for diagnose); --set wins over all
+    model, theta = _model_and_theta(tmp_path, ["surface_energy=0", "restitution=0.3"])
+    assert "cohesion" not in model.effects and theta["restitution"] == 0.3
+    # a model file is the user's word: nothing joins it
+    save_model(tmp_path, Model(("sliding_friction", "rolling_friction", "restitution")))
+    assert "cohesion" not in _model_and_theta(tmp_path, None)[0].effects
 
 
 TRUTH = ["--set", "static_friction=0.5", "--set", "rolling_friction=0.2", "--set", "restitution=0.3"]

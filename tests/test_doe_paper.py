@@ -93,6 +93,21 @@ def test_ascent_warns_at_edge(table5):
     assert res.best_step == 5 and res.at_edge
 
 
+def test_ascent_step_without_a_heap_is_never_best_but_bounds_the_bracket(table5):
+    # step 2 formed no heap (NaN): step 3 stays the best and step 2 still bounds the bracket
+    path = table5.copy()
+    path.loc[path["step"] == 2, "repose_angle"] = np.nan
+    res = ascent.analyze(path, BBD_FACTORS, "repose_angle", target=32.84)
+    assert res.best_step == 3
+    assert res.bracket.set_index("factor").loc["static_friction", "low"] == 0.112
+    # a step next to the target that gave no heap moves the best step elsewhere
+    path.loc[path["step"] == 3, "repose_angle"] = np.nan
+    assert ascent.analyze(path, BBD_FACTORS, "repose_angle", target=32.84).best_step == 4
+    path["repose_angle"] = np.nan
+    with pytest.raises(CalibError, match="no step"):
+        ascent.analyze(path, BBD_FACTORS, "repose_angle", target=32.84)
+
+
 def test_ascent_gradient_direction_follows_effects_toward_target(table3):
     res = pb.analyze(table3, ParameterSpace.from_data(table3, PB_FACTORS))
     sig = res.significant

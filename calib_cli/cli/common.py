@@ -101,24 +101,44 @@ def match_to_design(design: pd.DataFrame, results: pd.DataFrame, factors: list[s
     R = results[factors].to_numpy(dtype=float)
     yv = results[response].to_numpy(dtype=float)
     by_id = stage is not None and {"design", "run_id"} <= set(results.columns) and "run_id" in design.columns
-    means, counts = [], []
+    means, counts, runs = [], [], []
     for i, row in enumerate(X):
         if by_id:
             hit = ((results["design"] == stage) & (results["run_id"] == design["run_id"].iloc[i])).to_numpy().copy()
             hit &= np.all(np.isclose(R, row[None, :], rtol=1e-9, atol=1e-12), axis=1)
         else:
             hit = np.all(np.isclose(R, row[None, :], rtol=1e-9, atol=1e-12), axis=1)
+        runs.append(int(hit.sum()))
         hit &= np.isfinite(yv)
         counts.append(int(hit.sum()))
         means.append(float(yv[hit].mean()) if hit.any() else np.nan)
     out = design.copy()
     out[response] = means
     out["n_repeats"] = counts
+    out["n_runs"] = runs  # simulated, with or without a response (a column, no heap, a timeout)
     return out
 
 
-def simulated_responses(run: Path, design_path: Path, factors: list[str], response: str) -> pd.DataFrame:
-    """The design's rows with the simulated response from RUN/simulate/results.parquet."""
+def bbd_fixed(run: Path, cfg: dict) -> dict[str, float]:
+    """Heap parameters the response surface held fixed: the constant parameter columns of
+    RUN/bbd/design.parquet (what the surrogate was trained at), else settings bbd.fixed.
+    Simulations at the calibrated point (validation, compare) must use the same values."""
+    from ..dem.heap import PARAMETERS
+
+    path = Path(run) / "bbd" / "design.parquet"
+    if path.is_file():
+        d = art.read_table(path, what="BBD design")
+        return {c: float(d[c].iloc[0]) for c in d.columns if c in PARAMETERS and d[c].nunique() == 1}
+    return {k: float(v) for k, v in cfg["bbd"]["fixed"].items() if k in PARAMETERS}
+
+
+def simulated_responses(run: Path, design_path: Path, factors: list[str], response: str,
+                        allow_failed: bool = False) -> pd.DataFrame:
+    """The design's rows with the simulated response from RUN/simulate/results.parquet.
+
+    Every design run must have been simulated. A run simulated without a response (no heap,
+    a standing column, a timeout) is an error unless ``allow_failed`` (the ascent path, whose
+    steps need not all form heaps): its response is then NaN."""
     results_path = Path(run) / "simulate" / "results.parquet"
     hint = (f"run `calib simulate-heap --run {run} --design {design_path}` first, "
             f"or pass --responses FILE with responses from another engine")
@@ -134,9 +154,15 @@ def simulated_responses(run: Path, design_path: Path, factors: list[str], respon
     if results.empty:
         raise CalibError(f"no simulated responses of the current kernel in {run}: {hint}")
     out = match_to_design(design, results, factors, response, stage=Path(design_path).parent.name)
-    missing = int((out["n_repeats"] == 0).sum())
+    missing = int((out["n_runs"] == 0).sum())
     if missing:
-        raise CalibError(f"{missing} of {len(out)} design runs have no simulated response: {hint}")
+        raise CalibError(f"{missing} of {len(out)} design runs have not been simulated: {hint}")
+    failed = out.index[out["n_repeats"] == 0]
+    if len(failed) and not allow_failed:
+        ids = ", ".join(str(v) for v in out.loc[failed, "run_id"]) if "run_id" in out.columns else str(len(failed))
+        raise CalibError(f"design run(s) {ids} were simulated but gave no angle (no heap, a standing column or a "
+                         f"timeout; see the status column of {results_path}): the fit needs a response at every run - "
+                         f"narrow the factor ranges, or pass --responses FILE")
     return out
 
 

@@ -21,7 +21,7 @@ from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
 from ..discrepancy.stats import confounded, residual_table, score_effects, summary, trends  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
-from .common import RunOpt, check_run_dir, console, df_table, handle_errors  # noqa: E402
+from .common import RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings  # noqa: E402
 from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
@@ -82,19 +82,31 @@ def _conditions(run: Path) -> pd.DataFrame:
     return c
 
 
-def _calibrated(run: Path, set_: Optional[list[str]], model: Model) -> dict[str, float]:
+def _model_and_theta(run: Path, set_: Optional[list[str]]) -> tuple[Model, dict[str, float]]:
+    """The model and its calibrated parameter values: the BBD's fixed values < the inversion's
+    solution < --set. Without a model file (revision 0) simulate-heap pins nothing, so an effect
+    the calibration switched on (a non-neutral value, e.g. surface_energy 0.5) joins the model."""
+    model = load_model(run)
     given = _params(_pairs(set_, "--set")) if set_ else {}
     sol = run / "invert" / "solution.parquet"
+    known = {e.parameter for e in EFFECTS.values()}
+    base = {}
     if sol.is_file():
         s = art.read_table(sol).iloc[0]
-        base = {k: float(s[k]) for k in s.index if k in {e.parameter for e in EFFECTS.values()}}
-    else:
-        base = {}
-    theta = {**base, **given}
+        base = {k: float(s[k]) for k in s.index if k in known}
+    # parameters the response surface held fixed keep their fixed values (the surrogate and
+    # the inversion know nothing else about them)
+    fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known}
+    theta = {**fixed, **base, **given}
+    if model.revision == 0:
+        used = [e.name for e in EFFECTS.values() if e.name not in model.effects and e.parameter in theta
+                and not (e.neutral == e.neutral and theta[e.parameter] == e.neutral)]
+        if used:
+            model = Model((*model.effects, *used), 0, f"default model + {', '.join(used)} (set by the calibration)")
     missing = [p for p in model.parameters if p not in theta]
     if missing:
         raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
-    return {p: theta[p] for p in model.parameters}
+    return model, {p: theta[p] for p in model.parameters}
 
 
 def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
@@ -124,9 +136,8 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     residuals.png, history.png.
     """
     run = check_run_dir(run)
-    model = load_model(run)
+    model, theta = _model_and_theta(run, set_)
     conds = _conditions(run)
-    theta = _calibrated(run, set_, model)
     console.print(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
                   f"{repeats} simulations")
     sim, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare")
@@ -185,10 +196,9 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     evidence) and sensitivities.parquet. Runs go through the simulation cache.
     """
     run = check_run_dir(run)
-    model = load_model(run)
+    model, theta = _model_and_theta(run, set_)
     res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = _conditions(run)
-    theta = _calibrated(run, set_, model)
     cands = model.candidates
     if len(conds) <= len(model.parameters):
         raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "

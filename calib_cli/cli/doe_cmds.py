@@ -176,12 +176,14 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
             data.insert(0, "step", np.arange(1, len(data) + 1))
         inputs = {"responses": responses}
     else:
-        data = simulated_responses(run, design_path, factors, response)
+        data = simulated_responses(run, design_path, factors, response, allow_failed=True)
         inputs = {"design": design_path, "results": run / "simulate" / "results.parquet"}
     st = art.Stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
     if st.up_to_date() and not force:
         return skipped(st)
     res = ascent_mod.analyze(data, factors, response, tgt)
+    for step in res.path.loc[~np.isfinite(res.path[response]), "step"]:
+        console.print(f"[yellow]warning:[/] step {step} formed no heap (no angle): it cannot be the best step")
     with st.commit() as out:
         out.table("path.parquet", res.path, target=tgt)
         out.table("bracket.parquet", res.bracket, best_step=res.best_step, target=tgt)

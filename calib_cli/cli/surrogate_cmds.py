@@ -21,7 +21,7 @@ from ..errors import CalibError  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
-from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console,  # noqa: E402
+from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, bbd_fixed, check_run_dir, console,  # noqa: E402
                      df_table, resolve_settings, skipped, space_from_design)
 from .simulate_cmd import _condition, _pairs, _params  # noqa: E402
 
@@ -279,7 +279,7 @@ def invert(
     if validate:
         pre = get_preset(preset)
         cond = _condition(pre.condition, _pairs(condition, "condition"))
-        fixed = {k: float(v) for k, v in cfg["bbd"]["fixed"].items() if k in PARAMETERS}
+        fixed = bbd_fixed(run, cfg)
         vparams = {**fixed, **{n: float(v) for n, v in zip(params, res.best) if n in PARAMETERS}}
         reqs = [Request(vparams, cond, pre.numerics, derive_seed(int(iv["seed"]), 0, r), preset, "validate", 0, r)
                 for r in range(validate)]

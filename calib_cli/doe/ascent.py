@@ -68,7 +68,11 @@ def analyze(path: pd.DataFrame, factors: list[str], response: str, target: float
         raise CalibError(f"target must be a positive angle, got {target}")
     p = path.sort_values("step").reset_index(drop=True).copy()
     p["relative_error_percent"] = 100 * np.abs(p[response] - target) / target
-    i = int(np.argmin(p["relative_error_percent"].to_numpy()))
+    err = p["relative_error_percent"].to_numpy()
+    if not np.isfinite(err).any():
+        raise CalibError("no step of the ascent path has a response (none formed a heap?)")
+    # a step without a response (no heap) is never the best, but still bounds the bracket
+    i = int(np.nanargmin(err))
     p["best"] = False
     p.loc[i, "best"] = True
     lo_i, hi_i = max(i - 1, 0), min(i + 1, len(p) - 1)
