@@ -30,15 +30,20 @@ test-all: setup
 # whole calibration on simulations from the sample photographs (make smoke)
 calibrate: paper smoke
 
+# Table 1 -> target, Tables 3 and 5 -> screening and ascent, into run directory $(1)
+define paper_screening
+$(CALIB) init --run $(1) --settings stages/paper.toml
+$(CALIB) measure-angle --run $(1) --angles $(DATA)/table1_angles.csv
+$(CALIB) pb design --run $(1)
+$(CALIB) pb analyze --run $(1) --responses $(DATA)/table3_pb.csv
+$(CALIB) ascent design --run $(1)
+$(CALIB) ascent analyze --run $(1) --responses $(DATA)/table5_ascent.csv
+endef
+
 # The paper's chain from its own published data: Table 1 -> target; Tables 3, 5, 7 -> Tables 4, 6, 8, Eq. 7;
 # surrogates compared in-sample and held out (Table 9); GA inversion to the measured 32.07 deg (Eq. 11)
 paper: setup
-	$(CALIB) init --run $(PAPER) --settings stages/paper.toml
-	$(CALIB) measure-angle --run $(PAPER) --angles $(DATA)/table1_angles.csv
-	$(CALIB) pb design --run $(PAPER)
-	$(CALIB) pb analyze --run $(PAPER) --responses $(DATA)/table3_pb.csv
-	$(CALIB) ascent design --run $(PAPER)
-	$(CALIB) ascent analyze --run $(PAPER) --responses $(DATA)/table5_ascent.csv
+	$(call paper_screening,$(PAPER))
 	$(CALIB) bbd design --run $(PAPER)
 	$(CALIB) bbd analyze --run $(PAPER) --responses $(DATA)/table7_bbd.csv
 	$(CALIB) fit-surrogate --run $(PAPER)
@@ -92,12 +97,7 @@ hidden-effect: setup
 # `default` preset: does the simulated heap respond like the paper's EDEM one? (~25 min on 2 cores)
 DBBD   := sample_runs/default-bbd
 default-bbd: setup
-	$(CALIB) init --run $(DBBD) --settings stages/paper.toml
-	$(CALIB) measure-angle --run $(DBBD) --angles $(DATA)/table1_angles.csv
-	$(CALIB) pb design --run $(DBBD)
-	$(CALIB) pb analyze --run $(DBBD) --responses $(DATA)/table3_pb.csv
-	$(CALIB) ascent design --run $(DBBD)
-	$(CALIB) ascent analyze --run $(DBBD) --responses $(DATA)/table5_ascent.csv
+	$(call paper_screening,$(DBBD))
 	$(CALIB) bbd design --run $(DBBD)
 	$(CALIB) simulate-heap --run $(DBBD) --design $(DBBD)/bbd/design.parquet --preset default --workers 2
 	$(CALIB) bbd analyze --run $(DBBD)

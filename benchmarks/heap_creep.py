@@ -30,11 +30,6 @@ def main():
         k, v = kv.split("=", 1)
         params[k] = float(v)
     pre = heap.get_preset(a.preset)
-    log = []
-
-    def probe(t, t_max, phase):
-        log.append((t, phase))
-
     # the heap is first run as usual to find its lift end, then again (same seed: bitwise the
     # same trajectory) with a fixed rest of --after seconds, sampled every chunk
     t0 = time.perf_counter()

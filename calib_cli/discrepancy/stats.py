@@ -26,7 +26,7 @@ from scipy import stats
 
 
 def _pooled_var(sd, n) -> np.ndarray:
-    """Each condition's variance, or the variance pooled over conditions (NaN where n < 2)."""
+    """The variance pooled over the conditions with n > 1, for every condition (NaN if none)."""
     sd, n = np.asarray(sd, float), np.asarray(n, float)
     ok = (n > 1) & np.isfinite(sd)
     if not ok.any():
