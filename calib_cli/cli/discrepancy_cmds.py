@@ -128,10 +128,12 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
             workers: WorkersOpt = 1):
     """Calibrated model vs measurements per condition: residuals in units of the combined
-    uncertainty, failing conditions (|z| > 2), RMSE and chi2/dof, and the error history across
-    model revisions.
+    uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
+    RMSE and chi2/dof, and the error history across model revisions.
 
-    Reads RUN/measure/conditions.parquet, RUN/invert/solution.parquet (or --set), RUN/model.toml.
+    Reads RUN/measure/conditions.parquet, RUN/invert/solution.parquet (or --set; parameters the
+    BBD held fixed keep their fixed values), RUN/model.toml (without it: the default effects plus
+    any the calibration switched on).
     Writes RUN/compare/residuals.parquet, appends RUN/compare/history.parquet, and plots
     residuals.png, history.png.
     """
