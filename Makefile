@@ -9,7 +9,7 @@ SMOKE  := sample_runs/smoke
 PHOTOS := sample_data/photos
 SIM    := --preset smoke --workers 2
 
-.PHONY: setup test test-all calibrate paper smoke hidden-effect default-bbd sample-photos docs clean
+.PHONY: setup test test-all calibrate paper smoke hidden-effect default-bbd default-bbd-half-g sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -102,6 +102,16 @@ default-bbd: setup
 	$(CALIB) simulate-heap --run $(DBBD) --design $(DBBD)/bbd/design.parquet --preset default --workers 2
 	$(CALIB) bbd analyze --run $(DBBD)
 	$(CALIB) report --run $(DBBD)
+
+# The same design with the surface-energy range halved (0.44-0.81 J/m2): how the order of
+# influence changes when cohesion matters less (docs/physics.md; ~19 min on 2 cores)
+DBBD2  := sample_runs/default-bbd-half-g
+default-bbd-half-g: setup
+	$(call paper_screening,$(DBBD2))
+	$(CALIB) bbd design --run $(DBBD2) -s 'bbd.ranges.surface_energy=[0.4375,0.8125]'
+	$(CALIB) simulate-heap --run $(DBBD2) --design $(DBBD2)/bbd/design.parquet --preset default --workers 2
+	$(CALIB) bbd analyze --run $(DBBD2)
+	$(CALIB) report --run $(DBBD2)
 
 sample-photos: setup
 	$(PY) stages/sample_photos.py
