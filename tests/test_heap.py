@@ -142,8 +142,11 @@ def test_simulate_design_then_analyze_end_to_end(tmp_path):
     res = art.read_table(run / "simulate" / "results.parquet")
     assert len(res) == 12 and set(res["design"]) == {"pb"}
     for c in ["repose_angle", "angle_coords", "angle_image", "seed", "n_particles", "n_steps", "wall_s",
-              "static_friction", "cylinder_diameter_mm"]:
+              "static_friction", "cylinder_diameter_mm", "angle_drift_deg_s"]:
         assert c in res.columns
+    # heaps still creeping when measured are pointed out, and only then
+    creeping = (res["status"] == "ok") & (res["angle_drift_deg_s"].abs() > 2.0)
+    assert ("creeping" in r.output) == bool(creeping.any())
     r2 = runner.invoke(app, ["simulate-heap", "--run", str(run), "--design", str(run / "pb" / "design.parquet"),
                              "--preset", "smoke", *cond])
     assert "12 cached" in r2.output

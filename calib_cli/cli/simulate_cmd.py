@@ -19,6 +19,10 @@ from ..settings import _parse_value
 from .common import RunOpt, check_run_dir, console, df_table
 
 
+#: deg/s: measured heaps whose angle still changes faster than this are pointed out
+DRIFT_WARN = 2.0
+
+
 def _pairs(items: Optional[list[str]], what: str) -> dict:
     out = {}
     for item in items or ():
@@ -163,9 +167,17 @@ def simulate_heap(
             prog.update(inner, completed=0)
 
         rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress, dask=dask)
+    drift = "angle_drift_deg_s" if "angle_drift_deg_s" in rows.columns else None  # absent in old cached rows
     show = rows[["run_id", "repeat", *[c for c in PARAMETERS if c in rows.columns], "status", "repose_angle",
-                 "n_particles", "wall_s"]]
+                 *([drift] if drift else []), "n_particles", "wall_s"]]
     console.print(df_table(show, f"simulate-heap -> {run / 'simulate' / 'results.parquet'}"))
+    if drift:
+        creeping = rows[(rows["status"] == "ok") & (rows[drift].abs() > DRIFT_WARN)]
+        if len(creeping):
+            console.print(f"[yellow]note:[/] {len(creeping)} of {len(rows)} heap(s) were still creeping by more than "
+                          f"{DRIFT_WARN:g} deg/s when measured (up to {creeping[drift].abs().max():.1f}): the rolling "
+                          "law cannot hold a static heap, so every angle is taken at the same stage (docs/physics.md, "
+                          "'Creep')")
     bad = rows[rows["status"] != "ok"]
     for _, r in bad.iterrows():
         console.print(f"[yellow]run {r['run_id']} repeat {r['repeat']}: {r['status']}[/] - {r['message']}")
