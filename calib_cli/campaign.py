@@ -86,7 +86,7 @@ def _row(req: Request, res, img) -> dict:
         "angle_image_left": img.angle_left if img_ok else np.nan,
         "angle_image_right": img.angle_right if img_ok else np.nan,
         "heap_height_mm": a.height * 1e3, "base_radius_mm": a.base_radius * 1e3,
-        "angle_drift_deg_s": float(getattr(res, "angle_drift", np.nan)),
+        "angle_drift_deg_s": float(res.angle_drift),
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
         "t_settled": res.t_settled, "t_lift_end": res.t_lift_end, "max_overlap": s.max_overlap,
         "wall_s": res.wall_s, "particle_steps_per_s": s.n * s.n_steps / max(res.wall_s, 1e-9),

@@ -43,6 +43,7 @@ def test_both_engines_run_the_same_heap_with_the_same_columns(tmp_path):
     assert list(res["engine"]) == ["builtin", "lammps"]
     assert res["n_particles"].nunique() == 1  # the same fill
     assert res["status"].eq("ok").all() and res["angle_coords"].notna().all()
+    assert res["angle_drift_deg_s"].notna().all()  # both engines measure the creep
     for h in res["run_hash"]:
         for f in ("state.parquet", "side.png", "particles.vtp", "result.json"):
             assert (run / "simulate" / "runs" / h / f).is_file()
@@ -55,6 +56,7 @@ def test_lammps_on_two_mpi_ranks(tmp_path):
     assert r.exit_code == 0, r.output
     res = art.read_table(run / "simulate" / "results.parquet")
     assert res["mpi"].tolist() == [2] and res["status"].eq("ok").all()
+    assert res["angle_drift_deg_s"].notna().all()  # carried back from rank 0
 
 
 def test_mpi_needs_lammps(tmp_path):

@@ -167,17 +167,15 @@ def simulate_heap(
             prog.update(inner, completed=0)
 
         rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress, dask=dask)
-    drift = "angle_drift_deg_s" if "angle_drift_deg_s" in rows.columns else None  # absent in old cached rows
     show = rows[["run_id", "repeat", *[c for c in PARAMETERS if c in rows.columns], "status", "repose_angle",
-                 *([drift] if drift else []), "n_particles", "wall_s"]]
+                 "angle_drift_deg_s", "n_particles", "wall_s"]]
     console.print(df_table(show, f"simulate-heap -> {run / 'simulate' / 'results.parquet'}"))
-    if drift:
-        creeping = rows[(rows["status"] == "ok") & (rows[drift].abs() > DRIFT_WARN)]
-        if len(creeping):
-            console.print(f"[yellow]note:[/] {len(creeping)} of {len(rows)} heap(s) were still creeping by more than "
-                          f"{DRIFT_WARN:g} deg/s when measured (up to {creeping[drift].abs().max():.1f}): the rolling "
-                          "law cannot hold a static heap, so every angle is taken at the same stage (docs/physics.md, "
-                          "'Creep')")
+    creeping = rows[(rows["status"] == "ok") & (rows["angle_drift_deg_s"].abs() > DRIFT_WARN)]
+    if len(creeping):
+        console.print(f"[yellow]note:[/] {len(creeping)} of {len(rows)} heap(s) were still creeping by more than "
+                      f"{DRIFT_WARN:g} deg/s when measured (up to {creeping['angle_drift_deg_s'].abs().max():.1f}): "
+                      "the rolling law cannot hold a static heap, so every angle is taken at the same stage "
+                      "(docs/physics.md, 'Creep')")
     bad = rows[rows["status"] != "ok"]
     for _, r in bad.iterrows():
         console.print(f"[yellow]run {r['run_id']} repeat {r['repeat']}: {r['status']}[/] - {r['message']}")

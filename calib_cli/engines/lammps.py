@@ -259,4 +259,5 @@ def _run_mpi(params, condition, numerics, seed, ranks: int) -> HeapResult:
     info = _SystemInfo(len(parts.rad), int(sc["n_steps"]), float(sc["dt"]), float("nan"), parts)
     t_lift = float("nan") if sc["t_lift_end"] is None else sc["t_lift_end"]
     return HeapResult(info, sc["status"], sc["message"], ang, sc["t_settled"], t_lift, sc["t_end"],
-                      sc["wall_s"], dict(params), condition, numerics, seed, [tuple(e) for e in sc["energy"]])
+                      sc["wall_s"], dict(params), condition, numerics, seed, [tuple(e) for e in sc["energy"]],
+                      float("nan") if sc.get("angle_drift") is None else float(sc["angle_drift"]))

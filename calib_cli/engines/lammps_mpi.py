@@ -20,7 +20,8 @@ def main(req_path: str, out_path: str) -> None:
         scalars = {"status": res.status, "message": res.message, "t_settled": res.t_settled,
                    "t_lift_end": res.t_lift_end if np.isfinite(res.t_lift_end) else None, "t_end": res.t_end,
                    "wall_s": res.wall_s, "n_steps": res.system.n_steps, "dt": res.system.dt,
-                   "energy": [list(e) for e in res.energy]}
+                   "energy": [list(e) for e in res.energy],
+                   "angle_drift": res.angle_drift if np.isfinite(res.angle_drift) else None}
         np.savez(out_path + ".tmp.npz", x=p.pos, v=p.vel, omg=p.omg, rad=p.rad, scalars=json.dumps(scalars))
         import os
 
