@@ -12,7 +12,9 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
 * rolling: `rolling sds k_r 0 mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
   the arm R_eff (= R/2 for two equal spheres) where EDEM's constant directional torque uses R_i,
   so mu_roll = 2 mu_r between grains (exact for equal radii) and mu_r on a wall; the spring makes
-  small rotations elastic where ours are rigid (approximate);
+  small rotations elastic where ours are rigid, so it is critically damped (approximate); our
+  torque also resists twist about the normal, which LAMMPS's rolling model does not see
+  (`twisting sds` was tried and agreed worse, docs/physics.md);
 * walls: the floor `wall/gran zplane`, the cylinder a `region cylinder ... open 1 open 2` moving
   up at the lift speed with `wall/gran/region`; the settling drag is `fix viscous` with the
   mean grain mass (ours is proportional to each grain's mass).
@@ -90,7 +92,9 @@ def write_data(path: str, pos, rad, density: float, lo, hi, vel=None, omg=None) 
 def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
     """``roll_arm`` = R_i / R_eff: LAMMPS's rolling torque is R_eff x F_roll with |F_roll| <= mu F_n,
     EDEM's constant torque is mu F_n R_i; so mu_roll = mu_r R_i / R_eff (2 for a pair of equal
-    spheres, 1 on a wall)."""
+    spheres, 1 on a wall). The rolling spring is critically damped at a typical grain
+    (gamma = 2 sqrt(k_r m)): ours has no elastic phase, and an undamped spring rings and lets
+    the heap flow further (docs/physics.md, "LAMMPS")."""
     if pp.surface_energy > 0:
         Es = E / (2 * (1 - nu**2))
         le = math.log(pp.restitution) if pp.restitution < 1 else 0.0
@@ -99,8 +103,9 @@ def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
         normal = f"jkr {E:.6g} {eta:.6g} {nu} {pp.surface_energy:.6g} damping viscoelastic"
     else:
         normal = f"hertz/material {E:.6g} {pp.restitution:.6g} {nu} damping coeff_restitution"
+    groll = 2 * math.sqrt(kroll * m_typ)
     return (f"{normal} tangential mindlin NULL 1.0 {pp.static_friction:.6g} "
-            f"rolling sds {kroll:.6g} 0.0 {pp.rolling_friction * roll_arm:.6g}")
+            f"rolling sds {kroll:.6g} {groll:.6g} {pp.rolling_friction * roll_arm:.6g}")
 
 
 def _rank() -> int:
@@ -145,7 +150,7 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
             model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
             wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
             for cmd in [
-                "units si", "atom_style sphere", "atom_modify map array", "boundary f f f", "newton off",
+                "units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
                 "comm_modify vel yes", f"read_data {data}", "thermo_modify lost ignore",
                 f"neighbor {0.3 * float(parts.rad.mean()):.6g} bin", "neigh_modify delay 0 every 1 check yes",
                 "pair_style granular", f"pair_coeff * * {model}",
