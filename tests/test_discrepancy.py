@@ -215,3 +215,16 @@ def test_diagnose_needs_more_conditions_than_parameters(tmp_path):
     r = runner.invoke(app, ["diagnose", "--run", str(run), "--set", "static_friction=0.4", "--set",
                             "rolling_friction=0.1", "--set", "restitution=0.3"])
     assert r.exit_code == 2 and "more conditions" in r.output
+
+
+def test_synth_lab_crosses_fill_heights(tmp_path):
+    """--fills adds heap size as a condition variable (crossed with sizes and cylinders)."""
+    lab = tmp_path / "lab"
+    r = runner.invoke(app, ["synth-lab", "--out", str(lab), *TRUTH, "--sizes", "6-8", "--cylinders", "40",
+                            "--fills", "40,60", "--repeats", "1", "--preset", "smoke"])
+    assert r.exit_code == 0, r.output
+    c = pd.read_csv(lab / "conditions.csv")
+    assert list(c["condition_id"]) == ["d6-8_D40_H40", "d6-8_D40_H60"]
+    assert list(c["fill_height_mm"]) == [40.0, 60.0] and set(c["cylinder_diameter_mm"]) == {40.0}
+    r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "bad"), *TRUTH, "--fills", "40,high"])
+    assert r.exit_code != 0 and "--fills" in r.output and not (tmp_path / "bad").exists()

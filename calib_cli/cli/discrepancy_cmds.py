@@ -281,7 +281,9 @@ def synth_lab(
     hidden: Annotated[str, typer.Option(help="Name of the hidden effect (recorded in truth.toml only).")] = "cohesion",
     sizes: Annotated[str, typer.Option(help="Particle size ranges d_min-d_max (mm), comma separated.")] = "5-6,6-8,8-10",
     cylinders: Annotated[str, typer.Option(help="Cylinder diameters (mm), comma separated.")] = "50",
-    fill_ratio: Annotated[float, typer.Option(help="Fill height / cylinder diameter.")] = 1.0,
+    fill_ratio: Annotated[float, typer.Option(help="Fill height / cylinder diameter (without --fills).")] = 1.0,
+    fills: Annotated[Optional[str], typer.Option(help="Fill heights (mm), comma separated, crossed with the sizes "
+                     "and cylinders: heap size is where cohesion leaves a signature friction cannot mimic.")] = None,
     repeats: RepeatsOpt = 3, preset: PresetOpt = "smoke", workers: WorkersOpt = 1,
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
@@ -296,13 +298,19 @@ def synth_lab(
     truth = _params(_pairs(set_, "--set")) if set_ else {}
     pre = get_preset(preset)
     conds = []
-    for s in sizes.split(","):
-        lo, hi = (float(v) for v in s.split("-"))
-        for d in cylinders.split(","):
-            D = float(d)
-            conds.append((f"d{s}_D{int(D)}", dataclasses.replace(pre.condition, particle_d_min_mm=lo,
-                                                                  particle_d_max_mm=hi, cylinder_diameter_mm=D,
-                                                                  fill_height_mm=D * fill_ratio)))
+    try:
+        heights = [float(h) for h in fills.split(",")] if fills else [None]
+        for s in sizes.split(","):
+            lo, hi = (float(v) for v in s.split("-"))
+            for d in cylinders.split(","):
+                D = float(d)
+                for H in heights:
+                    cid = f"d{s}_D{D:g}" + (f"_H{H:g}" if H is not None else "")
+                    conds.append((cid, dataclasses.replace(pre.condition, particle_d_min_mm=lo, particle_d_max_mm=hi,
+                                                           cylinder_diameter_mm=D,
+                                                           fill_height_mm=D * fill_ratio if H is None else H)))
+    except ValueError as e:
+        raise CalibError(f"--sizes, --cylinders, --fills: expected numbers like 5-6,6-7 / 40,48 / 50,100 ({e})")
     reqs = [Request(truth, c, pre.numerics, derive_seed(seed, i, r), preset, "lab", i, r, "truth", cid)
             for i, (cid, c) in enumerate(conds, start=1) for r in range(repeats)]
     for _, c in conds:
