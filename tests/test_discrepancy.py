@@ -228,3 +228,42 @@ def test_synth_lab_crosses_fill_heights(tmp_path):
     assert list(c["fill_height_mm"]) == [40.0, 60.0] and set(c["cylinder_diameter_mm"]) == {40.0}
     r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "bad"), *TRUTH, "--fills", "40,high"])
     assert r.exit_code != 0 and "--fills" in r.output and not (tmp_path / "bad").exists()
+
+
+CAND_BOUNDS = {"cohesion": (0.0, 3.0), "wall_friction": (-0.5, 0.5), "restitution": (-0.25, 0.5)}
+
+
+def test_bounded_score_equals_the_free_score_when_no_bound_is_active():
+    r = lab("cohesion", 1.0, 3)
+    free = score_effects(r, U, J, G).set_index("effect")
+    inf = np.full(2, np.inf)
+    boxed = score_effects(r, U, J, G, bounds=(-inf, inf),
+                          cand_bounds={k: (-np.inf, np.inf) for k in G}).set_index("effect")
+    for k in G:
+        assert boxed.loc[k, "score"] == pytest.approx(free.loc[k, "score"], rel=1e-9)
+        assert boxed.loc[k, "p_value"] == pytest.approx(free.loc[k, "p_value"], rel=1e-9)
+
+
+def test_a_misfit_the_parameters_cannot_reach_is_evidence_of_a_missing_effect():
+    """Friction and rolling at the top of their ranges, every heap 1 deg steeper than the model
+    (2 sigma per condition): the free projection explains the offset away with parameter values
+    the calibration may not use; the bounded test keeps them in range and finds the effect."""
+    at_top = (np.array([-0.3, -0.2]), np.zeros(2))
+    found = free = false = 0
+    for seed in range(200):
+        noise = np.random.default_rng(seed).normal(0, U[0], 6)
+        found += (score_effects(1.0 + noise, U, J, G, bounds=at_top, cand_bounds=CAND_BOUNDS)["p_value"]
+                  < 0.05 / len(G)).any()
+        free += (score_effects(1.0 + noise, U, J, G)["p_value"] < 0.05 / len(G)).any()
+        false += (score_effects(noise, U, J, G, bounds=at_top, cand_bounds=CAND_BOUNDS)["p_value"]
+                  < 0.05 / len(G)).any()
+    assert found / 200 >= 0.95 and free / 200 <= 0.1
+    assert false / 200 <= 0.08  # the control stays near nominal (chi-bar approximation)
+
+
+def test_at_bounds():
+    from calib_cli.discrepancy.stats import at_bounds
+
+    ranges = {"static_friction": (0.3, 0.7), "rolling_friction": (0.1, 0.3), "restitution": (0.1, 0.5)}
+    got = at_bounds({"static_friction": 0.63, "rolling_friction": 0.2999, "restitution": 0.1}, ranges)
+    assert got == {"rolling_friction": "high", "restitution": "low"}

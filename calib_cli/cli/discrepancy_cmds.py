@@ -18,10 +18,11 @@ import typer  # noqa: E402
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
-from ..discrepancy.stats import confounded, residual_table, score_effects, summary, trends  # noqa: E402
+from ..discrepancy.stats import at_bounds, confounded, residual_table, score_effects, summary, trends  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
-from .common import RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings  # noqa: E402
+from .common import (RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings,
+                     space_from_design)  # noqa: E402
 from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
@@ -218,9 +219,11 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sim, _ = _simulate(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
                            workers, f"sens-{e}")
         J.append((sim["mean"].to_numpy() - b) / h)
+    starts = {}
     for e in cands:
         eff = EFFECTS[e]
         start = eff.neutral if not math.isnan(eff.neutral) else theta.get(eff.parameter.replace("wall_", ""), 0.5)
+        starts[e] = start
         m2 = Model((*model.effects, e), model.revision)
         sim, _ = _simulate(run, m2, {**theta, eff.parameter: start + eff.step}, conds, preset, repeats, workers,
                            f"cand-{e}")
@@ -237,7 +240,23 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     if ok.sum() <= J.shape[1]:
         raise CalibError(f"only {int(ok.sum())} usable condition(s) for {J.shape[1]} parameters: cannot diagnose")
     J, G = J[ok], {k: g[ok] for k, g in G.items()}
-    ranking = score_effects(r_all[ok], u_all[ok], J, G)
+    # the current parameters can absorb misfit only within the ranges the calibration searched
+    sp = space_from_design(run / "bbd" / "design.parquet")
+    ranges = {EFFECTS[e].parameter: ((sp[EFFECTS[e].parameter].low, sp[EFFECTS[e].parameter].high)
+                                     if sp is not None and EFFECTS[e].parameter in sp.names
+                                     else (EFFECTS[e].low, EFFECTS[e].high)) for e in model.effects}
+    pars = [EFFECTS[e].parameter for e in model.effects]
+    lo = np.array([ranges[q][0] - theta[q] for q in pars])
+    hi = np.array([ranges[q][1] - theta[q] for q in pars])
+    cand_b = {e: (EFFECTS[e].low - starts[e], EFFECTS[e].high - starts[e]) for e in G}
+    edge = at_bounds(theta, ranges)
+    for q, side in edge.items():
+        console.print(f"[yellow]note:[/] {q} = {theta[q]:.4g} is at the {side} end of its range "
+                      f"[{ranges[q][0]:.4g}, {ranges[q][1]:.4g}]: it cannot absorb misfit beyond it, so the test "
+                      "keeps each parameter inside its range (a residual it cannot reach is evidence of a "
+                      "missing effect, or of a range set too narrow)")
+    ranking = score_effects(r_all[ok], u_all[ok], J, G, bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)),
+                            cand_bounds=cand_b)
     for a, c in confounded(u_all[ok], J, G):
         console.print(f"[yellow]warning:[/] {a} and {c} leave the same signature across these conditions: "
                       "the data cannot tell them apart; add conditions that separate them")
