@@ -1,7 +1,7 @@
 """Do the two engines agree? The same heaps (same fill from the same seed, same condition,
 lift, stop criterion and angle measurement) on the built-in kernel and on LAMMPS, side by side.
 
-Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3]
+Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3] [--points 0,1,2]
 Prints, per parameter point, the mean and sd over seeds of each engine's angle, their
 difference, and whether it lies within the run-to-run spread (2 standard errors).
 """
@@ -28,11 +28,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="smoke")
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--points", default=",".join(str(i) for i in range(len(POINTS))),
+                    help="which points, by index (0-based, comma separated): larger presets take minutes per heap")
     a = ap.parse_args()
     pre = get_preset(a.preset)
     print(f"preset {a.preset}: {pre.note}; {a.seeds} seeds per point; angle from coordinates (deg)")
     print(f"{'point':<24}{'calib':>14}{'LAMMPS':>14}{'diff':>8}{'2 SE':>7}  agree   wall calib/LAMMPS [s]")
-    for name, p in POINTS:
+    for name, p in [POINTS[int(i)] for i in a.points.split(",")]:
         A, B, ta, tb = [], [], 0.0, 0.0
         for s in range(1, a.seeds + 1):
             t = time.perf_counter()
