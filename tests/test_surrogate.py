@@ -127,3 +127,25 @@ def test_cli_fit_predict_invert(tmp_path):
     assert "Box-Behnken" in page and "Inversion" in page and 'src="bbd/surface_' in page
     r = runner.invoke(app, ["report", "--run", str(tmp_path / "empty")])
     assert r.exit_code == 2 and "no stage output" in r.output
+
+
+def test_the_near_optimal_set_contains_the_reported_optimum(monkeypatch):
+    """The GA reports its best-ever point, which its final population (mutated after the last
+    selection) and the Sobol sample may both miss: the set and its ranges must contain it."""
+    from calib_cli.surrogate import inversion as inv
+    from calib_cli.surrogate.ga import GAResult
+
+    def predict(P):  # a sharp well at a = 0.6 on a flat floor, two conditions
+        P = np.atleast_2d(P)
+        base = 35.0 + 5.0 * np.exp(-((P[:, 0] - 0.6) / 0.001) ** 2)
+        return np.column_stack([base, base])
+
+    def ga_found_the_well(f, lo, hi, *a, **k):  # a population that has drifted off the best
+        pop = np.array([[0.2, 0.5], [1.2, 0.5]])
+        return GAResult(np.array([0.6, 0.5]), 0.0, np.zeros(1), np.zeros(1), pop, f(pop))
+
+    monkeypatch.setattr(inv, "ga_minimize", ga_found_the_well)
+    res = inv.invert(predict, ["a", "b"], [0.0, 0.0], [1.6, 1.0], [40.0, 40.0], samples=256, restarts=2)
+    r = res.ranges.set_index("parameter")
+    assert r.loc["a", "low"] <= 0.6 <= r.loc["a", "high"] and r.loc["a", "high"] - r.loc["a", "low"] < 0.01
+    assert res.solution_set["fitness"].min() == 0.0
