@@ -267,3 +267,14 @@ def test_at_bounds():
     ranges = {"static_friction": (0.3, 0.7), "rolling_friction": (0.1, 0.3), "restitution": (0.1, 0.5)}
     got = at_bounds({"static_friction": 0.63, "rolling_friction": 0.2999, "restitution": 0.1}, ranges)
     assert got == {"rolling_friction": "high", "restitution": "low"}
+
+
+def test_a_parameter_stuck_at_its_bound_does_not_make_candidates_look_alike():
+    """Two candidates that differ by what static friction (column 0) would absorb look alike
+    while it is free to move, and differ once it is stuck at a bound and projected out no more
+    (diagnose passes only the free parameters' columns)."""
+    from calib_cli.discrepancy.stats import confounded
+
+    G2 = {"a": G["cohesion"], "b": G["cohesion"] + 0.5 * J[:, 0]}
+    assert ("a", "b") in confounded(U, J, G2)
+    assert not confounded(U, J[:, [1]], G2)

@@ -257,7 +257,10 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
                       "missing effect, or of a range set too narrow)")
     ranking = score_effects(r_all[ok], u_all[ok], J, G, bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)),
                             cand_bounds=cand_b)
-    for a, c in confounded(u_all[ok], J, G):
+    # as in the ranking, a parameter stuck at the edge of its range absorbs nothing: judge the
+    # candidates' signatures after projecting out only the parameters that are free to move
+    free = [k for k, q in enumerate(pars) if q not in edge]
+    for a, c in confounded(u_all[ok], J[:, free], G):
         console.print(f"[yellow]warning:[/] {a} and {c} leave the same signature across these conditions: "
                       "the data cannot tell them apart; add conditions that separate them")
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
