@@ -72,7 +72,7 @@ smoke: setup
 # The discrepancy loop on a synthetic lab with hidden cohesion (docs/tutorial-hidden-effect.md):
 # calibrate the starting model on all conditions, compare, diagnose, add the effect, recalibrate, compare.
 # The lab varies grain size and fill height (heap size) at the `default` numerics: smoke heaps scatter
-# too much to see a missing effect (~40 min on 2 cores)
+# too much to see a missing effect (~45 min on 2 cores)
 LAB    := sample_runs/hidden-effect
 LABSIM := --preset default --workers 2
 REV1   := -s 'bbd.factors=["static_friction","rolling_friction","surface_energy"]'
