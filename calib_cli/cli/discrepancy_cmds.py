@@ -242,10 +242,11 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     J, G = J[ok], {k: g[ok] for k, g in G.items()}
     # the current parameters can absorb misfit only within the ranges the calibration searched
     sp = space_from_design(run / "bbd" / "design.parquet")
-    ranges = {EFFECTS[e].parameter: ((sp[EFFECTS[e].parameter].low, sp[EFFECTS[e].parameter].high)
-                                     if sp is not None and EFFECTS[e].parameter in sp.names
-                                     else (EFFECTS[e].low, EFFECTS[e].high)) for e in model.effects}
-    pars = [EFFECTS[e].parameter for e in model.effects]
+    ranges = {}
+    for e in model.effects:  # in J's column order
+        q = EFFECTS[e].parameter
+        ranges[q] = (sp[q].low, sp[q].high) if sp is not None and q in sp.names else (EFFECTS[e].low, EFFECTS[e].high)
+    pars = list(ranges)
     lo = np.array([ranges[q][0] - theta[q] for q in pars])
     hi = np.array([ranges[q][1] - theta[q] for q in pars])
     cand_b = {e: (EFFECTS[e].low - starts[e], EFFECTS[e].high - starts[e]) for e in G}
