@@ -1,6 +1,7 @@
 """Surrogates, PSO, GA and the inversion, on the paper's Table 7."""
 
 import numpy as np
+import pandas as pd
 import pytest
 from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner
@@ -121,6 +122,17 @@ def test_cli_fit_predict_invert(tmp_path):
     assert (run / "invert" / "fitness.png").is_file() and "not identifiable" in r.output
     r = runner.invoke(app, ["invert", "--run", str(run), "--target", "120"])
     assert r.exit_code == 2
+    # validation heaps run on the measured rig (here a 40 mm cylinder), not the preset's (50 mm)
+    (run / "measure").mkdir()
+    art.write_table(run / "measure" / "conditions.parquet", pd.DataFrame(
+        {"condition_id": ["rig40"], "mean": [32.07], "sd": [1.0], "n": [5], "particle_d_min_mm": [6.0],
+         "particle_d_max_mm": [8.0], "cylinder_diameter_mm": [40.0], "fill_height_mm": [40.0]}))
+    r = runner.invoke(app, ["invert", "--run", str(run), "--model", "rsm", "--validate", "1", "--preset", "smoke"])
+    assert r.exit_code == 0, r.output
+    val = art.read_table(run / "invert" / "validation.parquet")
+    assert list(val["condition_id"]) == ["rig40"] and "validation (rig40)" in r.output
+    sims = art.read_table(run / "simulate" / "results.parquet")
+    assert list(sims[["cylinder_diameter_mm", "fill_height_mm"]].iloc[0]) == [40.0, 40.0]
     r = runner.invoke(app, ["report", "--run", str(run)])
     assert r.exit_code == 0
     page = (run / "report.html").read_text()

@@ -23,7 +23,7 @@ from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, bbd_fixed, check_run_dir, console,  # noqa: E402
                      df_table, resolve_settings, skipped, space_from_design)
-from .simulate_cmd import _condition, _pairs, _params  # noqa: E402
+from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
 MODELS_DIR = Path("surrogate") / "models"
 
@@ -278,13 +278,21 @@ def invert(
     validation = None
     if validate:
         pre = get_preset(preset)
-        cond = _condition(pre.condition, _pairs(condition, "condition"))
+        if condition or not cond_path.is_file():
+            vconds = [("", _condition(pre.condition, _pairs(condition, "condition")))]
+        else:
+            # the rig the heaps were measured on, not the preset's: a validation elsewhere validates nothing
+            ctab = art.read_table(cond_path, what="measured conditions")
+            vconds = [(str(row["condition_id"]), condition_from_row(pre.condition, row)) for _, row in ctab.iterrows()]
         fixed = bbd_fixed(run, cfg)
         vparams = {**fixed, **{n: float(v) for n, v in zip(params, res.best) if n in PARAMETERS}}
-        reqs = [Request(vparams, cond, pre.numerics, derive_seed(int(iv["seed"]), 0, r), preset, "validate", 0, r)
-                for r in range(validate)]
+        # one condition keeps run index 0, so its seeds are those of a plain --validate
+        reqs = [Request(vparams, c, pre.numerics, derive_seed(int(iv["seed"]), i if len(vconds) > 1 else 0, r),
+                        preset, "validate", i, r, condition_id=cid)
+                for i, (cid, c) in enumerate(vconds, start=1) for r in range(validate)]
         rows = run_campaign(reqs, run, workers)
-        validation = rows[["repeat", "seed", "status", "repose_angle", "angle_coords", "angle_image", "wall_s"]]
+        validation = rows[["condition_id", "repeat", "seed", "status", "repose_angle", "angle_coords", "angle_image",
+                           "wall_s"]]
     with st.commit() as out:
         out.table("solution.parquet", sol, targets=targets, target_source=tsource)
         out.table("predicted_conditions.parquet", per_cond)
@@ -305,11 +313,14 @@ def invert(
                       "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
                       "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
     if validation is not None:
-        ok = validation["repose_angle"].dropna()
-        if len(ok):
-            t = float(np.mean(targets))
-            console.print(f"validation: {len(ok)}/{validate} heaps, mean {ok.mean():.2f} deg, sd "
-                          f"{ok.std(ddof=1) if len(ok) > 1 else float('nan'):.2f}, relative error "
-                          f"{100 * abs(ok.mean() - t) / t:.3f} % against {t:.2f} (cf. paper 3.6: 32.31, 0.748 %)")
-        else:
-            console.print("[yellow]validation: no run formed a heap[/]")
+        tmap = dict(zip(ctab["condition_id"].astype(str), targets)) if len(vconds) > 1 else {}
+        for cid, _ in vconds:
+            ok = validation.loc[validation["condition_id"].astype(str) == cid, "repose_angle"].dropna()
+            where = f" ({cid})" if cid else ""
+            if len(ok):
+                t = float(tmap.get(cid, np.mean(targets)))
+                console.print(f"validation{where}: {len(ok)}/{validate} heaps, mean {ok.mean():.2f} deg, sd "
+                              f"{ok.std(ddof=1) if len(ok) > 1 else float('nan'):.2f}, relative error "
+                              f"{100 * abs(ok.mean() - t) / t:.3f} % against {t:.2f} (cf. paper 3.6: 32.31, 0.748 %)")
+            else:
+                console.print(f"[yellow]validation{where}: no run formed a heap[/]")
