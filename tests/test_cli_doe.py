@@ -175,3 +175,25 @@ def test_console_entry_point_exit_codes(tmp_path):
 def test_error_messages_keep_their_brackets(tmp_path):
     r = calib("pb", "design", "--run", tmp_path / "r", "-s", "bbd.ranges.static_friction=[0.5]")
     assert r.exit_code == 2 and "bbd.ranges.static_friction must be [low, high]" in r.output
+
+
+def test_ascent_aims_at_the_measured_angle(tmp_path):
+    """Without ascent.target the path is judged against the measured angle (the photographs'
+    mean), not the settings' placeholder target."""
+    run, toml = tmp_path / "run", tmp_path / "no_ascent_target.toml"
+    toml.write_text((STAGES / "paper.toml").read_text().replace("target = 32.84", ""))
+    assert calib("init", "--run", run, "--settings", toml).exit_code == 0
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    assert calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv").exit_code == 0
+    (run / "measure").mkdir()
+    art.write_table(run / "measure" / "conditions.parquet",
+                    pd.DataFrame({"condition_id": ["A"], "mean": [36.0], "sd": [1.0], "n": [5]}))
+    r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv")
+    assert r.exit_code == 0, r.output
+    assert "vs target 36 deg" in r.output
+    assert art.read_provenance(run / "ascent" / "path.parquet")["inputs"]["conditions"]["hash"]
+    # settings ascent.target wins over the measurement, and --target over both
+    r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv", "-s", "ascent.target=33")
+    assert "vs target 33 deg" in r.output
+    r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv", "--target", "30")
+    assert "vs target 30 deg" in r.output

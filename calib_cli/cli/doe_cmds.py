@@ -112,6 +112,23 @@ def _pb_outputs(run: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     return eff, fit
 
 
+def _ascent_target(run: Path, cfg: dict, explicit: Optional[float] = None) -> tuple[float, dict]:
+    """The ascent's target angle: --target, else settings ascent.target, else the measured angle
+    (RUN/measure/conditions.parquet; the mean over conditions where there are several), else the
+    settings target. Returns it with the input file it came from, if any (for the stage lock)."""
+    a = cfg["ascent"]
+    if explicit is not None:
+        return float(explicit), {}
+    if a["target"] is not None:
+        return float(a["target"]), {}
+    cond = run / "measure" / "conditions.parquet"
+    if cond.is_file():
+        m = art.read_table(cond, columns=["mean"], what="measured conditions")["mean"].astype(float)
+        if len(m) and np.isfinite(m).all():
+            return float(m.mean()), {"conditions": cond}
+    return float(cfg["target"]), {}
+
+
 @ascent_app.command("design")
 @handle_errors
 def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
@@ -126,7 +143,7 @@ def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt
     if not sig:
         raise CalibError("the screening found no significant factor: there is no ascent direction")
     a = cfg["ascent"]
-    target = float(a["target"] if a["target"] is not None else cfg["target"])
+    target, tin = _ascent_target(run, cfg)
     coefs = {f: float(eff.set_index("factor").loc[f, "coefficient"]) for f in sig}
     space = ParameterSpace.from_dicts(
         [{k: r[k] for k in ("low", "high", "unit")} | {"name": r["factor"]} for _, r in eff.iterrows()
@@ -134,7 +151,7 @@ def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt
     others = [f for f in eff["factor"] if f not in sig]
     fixed = _fixed_values(cfg, "ascent", others)
     st = art.Stage(run, "ascent", "design",
-                   inputs={"effects": run / "pb" / "effects.parquet", "fit": run / "pb" / "fit.parquet"},
+                   inputs={"effects": run / "pb" / "effects.parquet", "fit": run / "pb" / "fit.parquet", **tin},
                    settings={"method": a["method"], "steps": a["steps"], "target": target, "fixed": fixed})
     if st.up_to_date() and not force:
         return skipped(st)
@@ -150,7 +167,8 @@ def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt
 @ascent_app.command("analyze")
 @handle_errors
 def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional[float] = typer.Option(
-        None, help="Target angle (deg); default: settings ascent.target, else target."),
+        None, help="Target angle (deg); default: settings ascent.target, else the measured angle "
+                   "(RUN/measure/conditions.parquet), else settings target."),
         settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Relative error to the target along the path; the best step and the bracket for the BBD.
 
@@ -160,8 +178,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
     design_path = run / "ascent" / "design.parquet"
-    a = cfg["ascent"]
-    tgt = float(target if target is not None else (a["target"] if a["target"] is not None else cfg["target"]))
+    tgt, tin = _ascent_target(run, cfg, target)
     response = cfg["response"]
     if design_path.is_file():
         factors = space_from_design(design_path).names
@@ -178,6 +195,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
     else:
         data = simulated_responses(run, design_path, factors, response, allow_failed=True)
         inputs = {"design": design_path, "results": run / "simulate" / "results.parquet"}
+    inputs |= tin
     st = art.Stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
     if st.up_to_date() and not force:
         return skipped(st)
