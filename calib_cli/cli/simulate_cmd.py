@@ -153,7 +153,9 @@ def simulate_heap(
             if done.is_file():
                 done.unlink()
     cached = sum((run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests)
-    console.print(f"{len(requests)} run(s), {cached} cached; preset [bold]{preset}[/] ({pre.note})")
+    where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
+             else pre.note)
+    console.print(f"{len(requests)} run(s), {cached} cached; preset [bold]{preset}[/] ({where})")
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))
