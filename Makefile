@@ -128,7 +128,7 @@ hidden-effect: setup
 	$(CALIB) compare --run $(LAB) --set restitution=0.3 --repeats 8 $(LABSIM)
 
 # The control: the same lab with nothing hidden (the truth lies inside the starting model).
-# compare should flag no condition and diagnose find no significant effect (~20 min on 2 cores)
+# compare should flag no condition and diagnose find no significant effect (~30 min on 2 cores)
 CTRL   := sample_runs/control-lab
 control-lab: setup
 	$(CALIB) synth-lab --out $(CTRL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
