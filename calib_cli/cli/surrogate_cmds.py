@@ -200,10 +200,12 @@ def invert(
                                                     "(RUN/measure/conditions.parquet), else settings target.")] = None,
     model: ModelOpt = None,
     validate: Annotated[int, typer.Option(min=0, help="Simulations at the solution, each with its own seed "
-                                          "(paper 3.6: five).")] = 0,
+                                          "(paper 3.6: five), on the measured rig: N per measured "
+                                          "condition, or the preset's rig with --condition.")] = 0,
     preset: Annotated[str, typer.Option(help="Preset of the validation simulations.")] = "default",
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Heap-test variable of the "
-                         "validation runs, KEY=VALUE (repeatable).")] = None,
+                         "validation runs, KEY=VALUE (repeatable); given, the validation runs on the preset's "
+                         "rig with these changes instead of the measured conditions.")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Parallel validation runs.")] = 1,
     settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False,
 ):
@@ -231,8 +233,8 @@ def invert(
     if not all(np.isfinite(targets)) or not all(0 < t < 90 for t in targets):
         raise CalibError(f"target angles must lie in (0, 90) deg, got {targets}")
     inputs = {"model": run / MODELS_DIR / f"{name}.json"}
-    if target is None and cond_path.is_file():
-        inputs["conditions"] = cond_path
+    if cond_path.is_file() and (target is None or (validate and not condition)):
+        inputs["conditions"] = cond_path  # the targets, or the rig of the validation runs
     st = art.Stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": iv, "targets": targets, "model": name, "validate": validate, "preset": preset,
                              "condition": sorted(condition or [])})
