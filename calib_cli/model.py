@@ -43,7 +43,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
            "matters for fast, dynamic heap formation (a fast lift); small in slow tests"),
     Effect("wall_friction", "wall_static_friction", 0.0, 1.0, float("nan"), 0.2,
            "floor and cylinder friction distinct from the grains' own",
-           "the residual changes with the cylinder diameter (wall area per grain) and the floor material"),
+           "the residual changes with the cylinder diameter (wall area per grain), the floor material and the "
+           "heap size (on a slippery floor a bigger heap spreads further)"),
     Effect("wall_rolling", "wall_rolling_friction", 0.0, 0.5, float("nan"), 0.1,
            "rolling resistance on the floor distinct from the grains'",
            "the toe of the heap: the residual changes with the floor material and heap size"),
