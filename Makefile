@@ -136,8 +136,8 @@ control-lab: setup
 	$(call lab_rev0,$(CTRL))
 
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
-# the starting model gives the walls the grains' friction). Revision 0 only: compare, diagnose (~25 min;
-# a negative result: compare flags it, diagnose does not name it, docs/tutorial-hidden-effect.md section 7)
+# the starting model gives the walls the grains' friction). Revision 0 only: compare, diagnose ranks wall
+# friction first (~25 min; docs/tutorial-hidden-effect.md section 7)
 WALL   := sample_runs/hidden-wall
 hidden-wall: setup
 	$(CALIB) synth-lab --out $(WALL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
