@@ -280,12 +280,15 @@ def invert(
     validation = None
     if validate:
         pre = get_preset(preset)
+        vtargets: dict[str, float] = {}  # each measured condition's own target, when it is one
         if condition or not cond_path.is_file():
             vconds = [("", _condition(pre.condition, _pairs(condition, "condition")))]
         else:
             # the rig the heaps were measured on, not the preset's: a validation elsewhere validates nothing
-            ctab = art.read_table(cond_path, what="measured conditions")
-            vconds = [(str(row["condition_id"]), condition_from_row(pre.condition, row)) for _, row in ctab.iterrows()]
+            vtab = art.read_table(cond_path, columns=["condition_id", "mean"], what="measured conditions")
+            vconds = [(str(row["condition_id"]), condition_from_row(pre.condition, row)) for _, row in vtab.iterrows()]
+            if target is None:
+                vtargets = dict(zip(vtab["condition_id"].astype(str), vtab["mean"].astype(float)))
         fixed = bbd_fixed(run, cfg)
         vparams = {**fixed, **{n: float(v) for n, v in zip(params, res.best) if n in PARAMETERS}}
         # one condition keeps run index 0, so its seeds are those of a plain --validate
@@ -315,12 +318,11 @@ def invert(
                       "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
                       "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
     if validation is not None:
-        tmap = dict(zip(ctab["condition_id"].astype(str), targets)) if len(vconds) > 1 else {}
         for cid, _ in vconds:
             ok = validation.loc[validation["condition_id"].astype(str) == cid, "repose_angle"].dropna()
             where = f" ({cid})" if cid else ""
             if len(ok):
-                t = float(tmap.get(cid, np.mean(targets)))
+                t = vtargets.get(cid, float(np.mean(targets)))
                 console.print(f"validation{where}: {len(ok)}/{validate} heaps, mean {ok.mean():.2f} deg, sd "
                               f"{ok.std(ddof=1) if len(ok) > 1 else float('nan'):.2f}, relative error "
                               f"{100 * abs(ok.mean() - t) / t:.3f} % against {t:.2f} (cf. paper 3.6: 32.31, 0.748 %)")
