@@ -231,7 +231,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
             # no neutral value (a wall's friction defaults to the grains'): the effect can act either
             # way, and a forward step can land where it no longer matters (friction saturates) while
             # the missing effect lies the other way: a central difference over the same span
-            up, down = start + eff.step / 2, max(start - eff.step / 2, eff.low)
+            up, down = min(start + eff.step / 2, eff.high), max(start - eff.step / 2, eff.low)
             sim, _ = _simulate(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}")
             dn, _ = _simulate(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
                               f"cand-{e}-down")
