@@ -9,6 +9,7 @@ every simulation's cache key, so a model change never reuses runs of another mod
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,32 @@ class Effect:
     step: float  # the step away from neutral that diagnose simulates
     description: str
     signature: str  # how its misfit shows across conditions (diagnose's words)
+
+    @property
+    def two_sided(self) -> bool:
+        """No neutral value (NaN: a wall's value defaults to the grains' own), so the effect can act
+        either way from where the model stands."""
+        return math.isnan(self.neutral)
+
+    def probe(self, theta: dict[str, float]) -> tuple[float, float]:
+        """The two values of the parameter whose simulations give diagnose's sensitivity
+        g = (angle(b) - angle(a)) / (b - a).
+
+        With a neutral value: a forward step from it, (neutral, neutral + step); the model's own
+        simulations stand at a. Without one (two-sided): a central difference over the same span
+        around the value the model implies (the grains' own: wall_static_friction starts at
+        theta's static_friction), clipped to the bounds. A forward step from a calibrated 0.30 to
+        0.50 lands where friction no longer matters and misses a slipperier wall."""
+        start = self.start(theta)
+        if not self.two_sided:
+            return start, start + self.step
+        return max(start - self.step / 2, self.low), min(start + self.step / 2, self.high)
+
+    def start(self, theta: dict[str, float]) -> float:
+        """The value the model implies while the effect is absent: neutral, or the grains' own."""
+        if not self.two_sided:
+            return self.neutral
+        return float(theta.get(self.parameter.replace("wall_", ""), 0.5))
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
@@ -88,6 +115,20 @@ class Model:
             elif eff.neutral == eff.neutral:  # not NaN: a value of its own
                 out[eff.parameter] = eff.neutral
         return out
+
+    def check(self, params: dict[str, float]) -> None:
+        """Refuse a value for a parameter the model does not own: one of an absent effect away from
+        its neutral value, or one no effect owns. An absent effect's parameter at its neutral value
+        says "off", as the model does (a settings file may fix surface_energy = 0 in every revision)."""
+        owner = {e.parameter: e.name for e in EFFECTS.values()}
+        loose = sorted(set(params) - set(owner))
+        if loose:  # pin() would drop them silently
+            raise CalibError(f"{', '.join(loose)} belong(s) to no effect; the effects own {', '.join(owner)}")
+        stray = [k for k, v in params.items() if owner[k] not in self.effects and v != EFFECTS[owner[k]].neutral]
+        if stray:
+            raise CalibError(f"{', '.join(stray)} belong(s) to effect(s) "
+                             f"{', '.join(sorted({owner[k] for k in stray}))} not in the model "
+                             f"(revision {self.revision}); `calib model add` it first")
 
     def to_toml(self) -> str:
         return tomli_w.dumps({"revision": self.revision, "effects": list(self.effects), "note": self.note})

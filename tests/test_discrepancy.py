@@ -120,6 +120,30 @@ def test_model_revisions_and_pinning(tmp_path):
         Model(("levitation",))
 
 
+def test_model_refuses_values_it_would_drop():
+    m = Model(("sliding_friction", "rolling_friction", "restitution", "wall_friction"), 1)
+    m.check({"static_friction": 0.4, "wall_static_friction": 0.2, "surface_energy": 0.0})  # cohesion off: fine
+    with pytest.raises(Exception, match="cohesion not in the model"):
+        m.check({"static_friction": 0.4, "surface_energy": 0.5})
+    with pytest.raises(Exception, match="wall_rolling"):  # NaN neutral: any value means the effect is on
+        m.check({"wall_rolling_friction": 0.1})
+    with pytest.raises(Exception, match="no effect"):
+        m.check({"wall_restitution": 0.3})
+
+
+def test_diagnose_probes_forward_from_neutral_and_central_around_the_grains_value():
+    theta = {"static_friction": 0.3, "rolling_friction": 0.12, "restitution": 0.3}
+    assert EFFECTS["cohesion"].probe(theta) == (0.0, 0.5)  # forward from neutral (effect off)
+    assert not EFFECTS["cohesion"].two_sided and EFFECTS["wall_friction"].two_sided
+    # the walls default to the grains' friction: step both ways around it, over the same span
+    lo, hi = EFFECTS["wall_friction"].probe(theta)
+    assert (lo, hi) == pytest.approx((0.2, 0.4))
+    assert EFFECTS["wall_rolling"].probe(theta) == pytest.approx((0.07, 0.17))
+    # clipped to the effect's bounds on either side
+    assert EFFECTS["wall_friction"].probe({**theta, "static_friction": 0.95}) == pytest.approx((0.85, 1.0))
+    assert EFFECTS["wall_rolling"].probe({**theta, "rolling_friction": 0.0}) == pytest.approx((0.0, 0.05))
+
+
 def test_model_cli(tmp_path):
     run = str(tmp_path / "run")
     r = runner.invoke(app, ["model", "add", "cohesion", "--run", run])

@@ -207,7 +207,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "
                          f"({len(model.parameters)}): otherwise the current parameters can absorb any pattern of "
                          "residuals and no missing effect can be told apart. Measure heaps under more conditions.")
-    two_sided = [e for e in cands if math.isnan(EFFECTS[e].neutral)]
+    two_sided = [e for e in cands if EFFECTS[e].two_sided]
     n_sims = (len(model.parameters) + len(cands) + len(two_sided)) * len(conds) * repeats
     console.print(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects "
                   f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
@@ -224,21 +224,15 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     starts = {}
     for e in cands:
         eff = EFFECTS[e]
-        start = eff.neutral if not math.isnan(eff.neutral) else theta.get(eff.parameter.replace("wall_", ""), 0.5)
-        starts[e] = start
+        down, up = eff.probe(theta)
+        starts[e] = eff.start(theta)
         m2 = Model((*model.effects, e), model.revision)
-        if e in two_sided:
-            # no neutral value (a wall's friction defaults to the grains'): the effect can act either
-            # way, and a forward step can land where it no longer matters (friction saturates) while
-            # the missing effect lies the other way: a central difference over the same span
-            up, down = min(start + eff.step / 2, eff.high), max(start - eff.step / 2, eff.low)
-            sim, _ = _simulate(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}")
+        sim, _ = _simulate(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}")
+        if eff.two_sided:  # a central difference (Effect.probe): both ends simulated
             dn, _ = _simulate(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
                               f"cand-{e}-down")
             G[e] = (sim["mean"].to_numpy() - dn["mean"].to_numpy()) / (up - down)
-        else:
-            sim, _ = _simulate(run, m2, {**theta, eff.parameter: start + eff.step}, conds, preset, repeats, workers,
-                               f"cand-{e}")
+        else:  # a forward step from neutral: the model's own simulations stand there
             G[e] = (sim["mean"].to_numpy() - b) / eff.step
     J = np.column_stack(J) if J else np.zeros((len(b), 0))
     r_all, u_all = res["residual"].to_numpy(float), res["uncertainty"].to_numpy(float)

@@ -119,18 +119,13 @@ def simulate_heap(
             points.append((int(rid), {**fixed, **_params({c: row[c] for c in cols})}))
     else:
         points.append((0, fixed))
-    from ..model import EFFECTS, load_model
+    from ..model import load_model
 
     model = load_model(run)
     mhash = ""
     if model.revision >= 1:  # a model file exists: absent effects are pinned at their neutral values
-        owner = {e.parameter: e.name for e in EFFECTS.values()}
         for _, p in points:
-            stray = [k for k in p if owner.get(k) not in model.effects]
-            if stray:
-                raise CalibError(f"{', '.join(stray)} belong(s) to effect(s) "
-                                 f"{', '.join(sorted({owner[k] for k in stray}))} not in the model "
-                                 f"(revision {model.revision}); `calib model add` it first")
+            model.check(p)
         points = [(rid, model.pin(p)) for rid, p in points]
         mhash = model.hash
     crossed = [("", cond)]
