@@ -213,6 +213,11 @@ def test_loop_plumbing_on_tiny_heaps(tmp_path):
     assert r.exit_code == 0, r.output
     hist = art.read_table(run / "compare" / "history.parquet")
     assert list(hist["revision"]) == [0, 1] and "cohesion" in hist["effects"].iloc[1]
+    # a rerun of a revision replaces its row: the history stays one row per revision
+    r = runner.invoke(app, ["compare", "--run", str(run), *SIM, "--set", "surface_energy=0.6"])
+    assert r.exit_code == 0, r.output
+    hist = art.read_table(run / "compare" / "history.parquet")
+    assert list(hist["revision"]) == [0, 1] and hist["param_surface_energy"].iloc[1] == 0.6
     assert (run / "compare" / "history.png").is_file() and (run / "compare" / "residuals.png").is_file()
 
 

@@ -135,8 +135,8 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     Reads RUN/measure/conditions.parquet, RUN/invert/solution.parquet (or --set; parameters the
     BBD held fixed keep their fixed values), RUN/model.toml (without it: the default effects plus
     any the calibration switched on).
-    Writes RUN/compare/residuals.parquet, appends RUN/compare/history.parquet, and plots
-    residuals.png, history.png.
+    Writes RUN/compare/residuals.parquet, adds the revision's row to RUN/compare/history.parquet
+    (a rerun of the same revision replaces its row), and plots residuals.png, history.png.
     """
     run = check_run_dir(run)
     model, theta = _model_and_theta(run, set_)
@@ -156,10 +156,13 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     summ = summary(res, len(model.parameters))
     hist_path = run / "compare" / "history.parquet"
     hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
+    if len(hist):  # one row per revision: a rerun (more repeats, a recalibration) replaces its own
+        hist = hist[hist["revision"] != model.revision]
     hist = pd.concat([hist, pd.DataFrame([{"revision": model.revision, "effects": ",".join(model.effects),
                                            "rmse": summ["rmse"], "chi2_dof": summ["chi2_dof"],
                                            "n_conditions": summ["n_conditions"], "n_fail": summ["n_fail"],
                                            **{f"param_{k}": v for k, v in theta.items()}}])], ignore_index=True)
+    hist = hist.sort_values("revision", kind="stable").reset_index(drop=True)
     vars_ = [c for c in COND_VARS if c in table.columns and table[c].nunique() > 1]
     fig1, axes = plt.subplots(1, max(len(vars_), 1), figsize=(4.5 * max(len(vars_), 1), 4), squeeze=False)
     for ax, v in zip(axes[0], vars_ or ["condition_id"]):
