@@ -136,13 +136,22 @@ control-lab: setup
 	$(call lab_rev0,$(CTRL))
 
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
-# the starting model gives the walls the grains' friction). Revision 0 only: compare, diagnose ranks wall
-# friction first (~25 min; docs/tutorial-hidden-effect.md section 7)
+# the starting model gives the walls the grains' friction): compare, diagnose ranks wall friction first,
+# add it and recalibrate over the span diagnose stepped it (0.2-0.4), compare
+# (~40 min; docs/tutorial-hidden-effect.md section 7)
 WALL   := sample_runs/hidden-wall
+WREV1  := -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' \
+          -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
 hidden-wall: setup
 	$(CALIB) synth-lab --out $(WALL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
 		--set restitution=0.3 --set surface_energy=0 --set wall_static_friction=0.2 --hidden wall_friction $(LABCOND)
 	$(call lab_rev0,$(WALL))
+	$(CALIB) model add wall_friction --run $(WALL)
+	$(CALIB) bbd design --run $(WALL) $(WREV1)
+	$(CALIB) simulate-heap --run $(WALL) --design $(WALL)/bbd/design.parquet --conditions $(WALL)/measure/conditions.parquet $(LABSIM)
+	$(CALIB) fit-surrogate --run $(WALL) --from-simulations bbd $(WREV1)
+	$(CALIB) invert --run $(WALL) $(WREV1)
+	$(CALIB) compare --run $(WALL) --set restitution=0.3 --repeats 8 $(LABSIM)
 
 # The paper's own BBD design (Table 6, from its Tables 3 and 5) simulated with our kernel at the
 # `default` preset: does the simulated heap respond like the paper's EDEM one? (~25 min on 2 cores)
