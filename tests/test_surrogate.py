@@ -161,3 +161,40 @@ def test_the_near_optimal_set_contains_the_reported_optimum(monkeypatch):
     r = res.ranges.set_index("parameter")
     assert r.loc["a", "low"] <= 0.6 <= r.loc["a", "high"] and r.loc["a", "high"] - r.loc["a", "low"] < 0.01
     assert res.solution_set["fitness"].min() == 0.0
+
+
+def _simulated_bbd(tmp_path, lost):
+    """A run whose BBD was 'simulated' under two fill heights (a plane plus a fill effect);
+    ``lost``: (run_id, condition_id) pairs that gave no angle (a timeout)."""
+    from calib_cli.campaign import RESULTS, SOURCE_HASH
+
+    run = tmp_path / "run"
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["bbd", "design", "--run", str(run)]).exit_code == 0
+    design = art.read_table(run / "bbd" / "design.parquet")
+    rows = []
+    for _, d in design.iterrows():
+        for fill in (50.0, 100.0):
+            cid = f"H{fill:.0f}"
+            y = 20 + 10 * d["static_friction"] + 30 * d["rolling_friction"] + 5 * d["surface_energy"] - 0.05 * fill
+            bad = (int(d["run_id"]), cid) in lost
+            rows.append({"design": "bbd", "run_id": int(d["run_id"]), "repeat": 0, "condition_id": cid,
+                         "fill_height_mm": fill, "run_hash": f"{int(d['run_id'])}-{cid}", "model": "",
+                         "source": SOURCE_HASH, "status": "timeout" if bad else "ok",
+                         "repose_angle": np.nan if bad else y, **{k: d[k] for k in INP}})
+    art.write_table(run / RESULTS, pd.DataFrame(rows))
+    return run
+
+
+def test_fit_on_simulations_leaves_out_failed_runs_and_refuses_a_hole_in_the_design(tmp_path):
+    fit = ["fit-surrogate", "--from-simulations", "bbd", "-s", 'surrogate.models=["rsm"]']
+    run = _simulated_bbd(tmp_path / "a", {(3, "H50")})
+    r = runner.invoke(app, [*fit, "--run", str(run)])
+    assert r.exit_code == 0, r.output
+    assert "1 of 34 simulations of the bbd design gave no angle (timeout 1)" in " ".join(r.output.split())
+    assert len(art.read_table(run / "surrogate" / "predictions.parquet")) == 33
+    # every condition of a design point lost: the surface would guess that corner, as `bbd analyze` refuses
+    run = _simulated_bbd(tmp_path / "b", {(3, "H50"), (3, "H100")})
+    r = runner.invoke(app, [*fit, "--run", str(run)])
+    assert r.exit_code == 2 and "design run(s) 3 of bbd gave no angle under any condition" in " ".join(r.output.split())
+    assert not (run / "surrogate" / "predictions.parquet").exists()

@@ -47,10 +47,21 @@ def _simulated_training_data(run: Path, stage: str, response: str) -> tuple[pd.D
 
     model = load_model(run)
     mhash = model.hash if model.revision >= 1 else ""
-    res = res[(res["design"] == stage) & res[response].notna() & (res["model"].fillna("") == mhash)]
+    sel = res[(res["design"] == stage) & (res["model"].fillna("") == mhash)]
+    res = sel[sel[response].notna()]
     if res.empty:
         raise CalibError(f"no finished simulations of the {stage} design for model revision {model.revision} "
                          f"in {run}")
+    lost = sel[sel[response].isna()]
+    if len(lost):
+        why = ", ".join(f"{k} {v}" for k, v in lost["status"].value_counts().items()) if "status" in lost else "no angle"
+        gone = sorted(set(sel["run_id"].astype(int)) - set(res["run_id"].astype(int)))
+        if gone:  # as `bbd analyze` refuses a design with a hole: the surface would guess that corner
+            raise CalibError(f"design run(s) {', '.join(map(str, gone))} of {stage} gave no angle under any condition "
+                             f"({why}; see the status column of {res_path}): the surrogate cannot see that part "
+                             "of the design - narrow the factor ranges")
+        console.print(f"[yellow]warning:[/] {len(lost)} of {len(sel)} simulations of the {stage} design gave no "
+                      f"angle ({why}): left out of the training data")
     keys = ["run_id", "condition_id"]
     # condition variables that carry information of their own (d_max = d_min + 1, or a fill height
     # proportional to the diameter, add nothing and would make the fit singular)
