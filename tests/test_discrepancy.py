@@ -343,7 +343,7 @@ def _make_lab(tmp_path, target, sample):
     for sub in ("simulate", "lab/.runs"):
         if (root / "sample_runs" / sample / sub).is_dir():
             shutil.copytree(root / "sample_runs" / sample / sub, lab / sub)
-    var = {"hidden-effect": "LAB", "control-lab": "CTRL", "hidden-wall": "WALL"}[target]
+    var = {"hidden-effect": "LAB", "control-lab": "CTRL", "hidden-wall": "WALL", "hidden-floor": "FLOOR"}[target]
     r = subprocess.run(["make", "-C", str(root), target, f"{var}={lab}"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     return lab
@@ -383,3 +383,20 @@ def test_slippery_walls_are_found_on_dem_heaps(tmp_path):
     res = art.read_table(lab / "compare" / "residuals.parquet")
     assert hist["rmse"].iloc[1] < 1.5 * res["uncertainty"].mean()
     assert abs(art.read_table(lab / "invert" / "solution.parquet").iloc[0]["wall_static_friction"] - 0.2) < 0.05
+
+
+@pytest.mark.slow
+def test_rough_floor_is_found_on_dem_heaps(tmp_path):
+    """`make hidden-floor`: the floor's rolling resistance 0.4 against the grains' 0.15, a third
+    hidden effect whose central step was not tuned on any lab. The grains' rolling friction
+    absorbs most of it (one failing condition, RMSE 1.19 deg), yet diagnose ranks it first and
+    significant after Bonferroni over the candidates; adding it removes the failure and lowers
+    the error (measured: 1.19 -> 0.88 deg; the factor 2 is out of reach: revision 0 was already
+    within 1.3 x the noise). ~35 min on 2 cores from nothing."""
+    lab = _make_lab(tmp_path, "hidden-floor", "hidden-floor")
+    rank = art.read_table(lab / "diagnose" / "ranking.parquet")
+    assert rank.iloc[0]["effect"] == "wall_rolling" and rank.iloc[0]["p_value"] < 0.05 / len(rank)
+    assert (rank["p_value"].iloc[1:] > 0.05 / len(rank)).all()
+    hist = art.read_table(lab / "compare" / "history.parquet")
+    assert list(hist["revision"]) == [0, 1] and hist["n_fail"].iloc[1] == 0
+    assert hist["rmse"].iloc[1] < hist["rmse"].iloc[0]
