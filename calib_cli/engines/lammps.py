@@ -17,7 +17,11 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
   (`twisting sds` was tried and agreed worse, docs/physics.md);
 * walls: the floor `wall/gran zplane`, the cylinder a `region cylinder ... open 1 open 2` moving
   up at the lift speed with `wall/gran/region`; the settling drag is `fix viscous` with the
-  mean grain mass (ours is proportional to each grain's mass).
+  mean grain mass (ours is proportional to each grain's mass);
+* multi-sphere grains (``shapes``, :mod:`.clumps`): each grain of the same fill becomes a rigid
+  clump (`fix property/atom mol`, `fix rigid/small molecule`, intra-clump pairs excluded from the
+  neighbour list); the contact laws act between sub-spheres, as in EDEM's multi-sphere grains,
+  and the time step follows the smallest sub-sphere.
 """
 
 from __future__ import annotations
@@ -74,14 +78,20 @@ class _Parts:
     omg: np.ndarray
 
 
-def write_data(path: str, pos, rad, density: float, lo, hi, vel=None, omg=None) -> None:
-    """A LAMMPS data file (atom_style sphere): id type diameter density x y z [+ Velocities]."""
+def write_data(path: str, pos, rad, density, lo, hi, vel=None, omg=None, mol=None) -> None:
+    """A LAMMPS data file (atom_style sphere): id type diameter density x y z [+ Velocities]
+    [+ Molecules: the clump each atom belongs to, 0 for a lone sphere, read by ``fix property/atom mol``]."""
     n = len(rad)
+    rho = np.broadcast_to(np.asarray(density, float), (n,))
     with open(path, "w") as f:
         f.write(f"calib heap\n\n{n} atoms\n1 atom types\n\n{lo[0]} {hi[0]} xlo xhi\n{lo[1]} {hi[1]} ylo yhi\n"
                 f"{lo[2]} {hi[2]} zlo zhi\n\nAtoms # sphere\n\n")
         for i in range(n):
-            f.write(f"{i + 1} 1 {2 * rad[i]:.10g} {density:.10g} {pos[i, 0]:.10g} {pos[i, 1]:.10g} {pos[i, 2]:.10g}\n")
+            f.write(f"{i + 1} 1 {2 * rad[i]:.10g} {rho[i]:.10g} {pos[i, 0]:.10g} {pos[i, 1]:.10g} {pos[i, 2]:.10g}\n")
+        if mol is not None:
+            f.write("\nMolecules\n\n")
+            for i in range(n):
+                f.write(f"{i + 1} {int(mol[i])}\n")
         if vel is not None:
             f.write("\nVelocities\n\n")
             for i in range(n):
@@ -113,18 +123,32 @@ def _rank() -> int:
 
 
 def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: int = 0,
-                    progress=None, mpi: int = 1) -> HeapResult:
-    """The heap test in LAMMPS; ``mpi > 1`` runs it on that many MPI ranks (the mpich wheel's mpirun)."""
+                    progress=None, mpi: int = 1, shapes: tuple[str, ...] = ("sphere",)) -> HeapResult:
+    """The heap test in LAMMPS; ``mpi > 1`` runs it on that many MPI ranks (the mpich wheel's mpirun).
+
+    ``shapes`` other than spheres replace each grain of the same fill by a multi-sphere clump
+    (:mod:`.clumps`, rigid bodies: ``fix rigid/small``), in equal numbers; the results row then
+    counts sub-spheres as particles."""
     if mpi > 1:
+        if tuple(shapes) != ("sphere",):
+            raise CalibError("clumps run on one LAMMPS rank only")
         return _run_mpi(params, condition, numerics, seed, mpi)
     cond, num = condition, numerics
     cond.validate()
     pp, pw = interactions(params)
     t0 = time.perf_counter()
     parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
-    n = len(parts.rad)
     mat = Material(num.shear_modulus, num.poisson, num.density)
     E, nu, rho = mat.youngs_modulus, mat.poisson, mat.density
+    clumps = None
+    if tuple(shapes) != ("sphere",):
+        from .clumps import clump_fill
+
+        clumps = clump_fill(parts.pos, parts.rad, rho, tuple(shapes), np.random.default_rng([seed, 1]))
+        single = np.bincount(clumps.body)[clumps.body] == 1
+        mol = np.where(single, 0, clumps.body + 1)  # lone spheres integrate as spheres, not as bodies
+        parts = type(parts)(clumps.pos, clumps.rad, vel=np.zeros_like(clumps.pos))
+    n = len(parts.rad)
     Es, Gs = effective_moduli(mat, mat)
     rmin = float(parts.rad.min())
     dt_crit = min(rayleigh_time_step(rmin, rho, mat.shear_modulus, nu), jkr_time_step(rmin, rho, Es, Gs,
@@ -133,7 +157,8 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     Rc = cond.cylinder_diameter_mm * 0.5e-3
     vlift = cond.lift_speed_mm_s * 1e-3
     d_max = cond.particle_d_max_mm * 1e-3
-    masses = rho * 4 / 3 * np.pi * parts.rad**3
+    dens = clumps.density if clumps is not None else rho
+    masses = dens * 4 / 3 * np.pi * parts.rad**3
     kroll = 8 * Gs * 1e-4  # of the order of a contact's tangential stiffness
     half = max(6 * Rc, 0.15)
     ztop = float(parts.pos[:, 2].max()) + 0.1
@@ -142,25 +167,40 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
         with tempfile.TemporaryDirectory() as d:
             data = os.environ.get("CALIB_LAMMPS_DATA") or os.path.join(d, "heap.data")
             if _rank() == 0:
-                write_data(data + ".tmp", parts.pos, parts.rad, rho, (-half, -half, -0.001), (half, half, ztop))
+                write_data(data + ".tmp", parts.pos, parts.rad, dens, (-half, -half, -0.001), (half, half, ztop),
+                           mol=mol if clumps is not None else None)
                 os.replace(data + ".tmp", data)
             else:  # the other ranks wait for rank 0's file (no mpi4py needed)
                 while not os.path.exists(data):
                     time.sleep(0.05)
             model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
             wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
-            for cmd in [
-                "units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
-                "comm_modify vel yes", f"read_data {data}", "thermo_modify lost ignore",
+            if clumps is None:
+                read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
+                        "comm_modify vel yes", f"read_data {data}"]
+                integrate = ["fix nve all nve/sphere"]
+            else:
+                read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
+                        "comm_modify vel yes", "fix pmol all property/atom mol ghost yes",
+                        f"read_data {data} fix pmol NULL Molecules",
+                        "group lone molecule == 0", "group rig molecule > 0",
+                        # a sphere has 6 degrees of freedom where the default temperature counts 3, so
+                        # rigid/small's removal of the clumps' internal ones leaves it negative; unused here
+                        "thermo_style custom step", "compute_modify thermo_temp dynamic/dof yes"]
+                # rigid/small after the force fixes (walls, gravity, drag): it sums their forces on the bodies
+                integrate = ["fix nve lone nve/sphere", "fix rig rig rigid/small molecule"]
+            for cmd in read + [
+                "thermo_modify lost ignore",
                 f"neighbor {0.3 * float(parts.rad.mean()):.6g} bin", "neigh_modify delay 0 every 1 check yes",
+                *(["neigh_modify exclude molecule/intra rig"] if clumps is not None else []),
                 "pair_style granular", f"pair_coeff * * {model}",
                 "variable t0 equal 1e9", f"variable lz equal {vlift:.10g}*(time>v_t0)*(time-v_t0)",
                 f"region cyl cylinder z 0 0 {Rc:.10g} 0.0 {ztop:.10g} side in open 1 open 2 "
                 "move NULL NULL v_lz units box",
                 f"fix cylw all wall/gran/region granular {wall} region cyl",
                 f"fix floor all wall/gran granular {wall} zplane 0.0 NULL",
-                "fix grav all gravity 9.81 vector 0 0 -1", "fix nve all nve/sphere",
-                f"fix drag all viscous {num.settle_drag * float(masses.mean()):.6g}",
+                "fix grav all gravity 9.81 vector 0 0 -1",
+                f"fix drag all viscous {num.settle_drag * float(masses.mean()):.6g}", *integrate,
                 f"timestep {dt:.10g}", "run 0",
             ]:
                 lmp.command(cmd)
