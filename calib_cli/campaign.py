@@ -22,6 +22,7 @@ from . import artifacts as art
 from .dem import KERNEL_VERSION, SOURCE_HASH
 from .dem.heap import HeapCondition, Numerics, run_heap, run_key
 from .dem.render import render_side_view
+from .engines.clumps import SPHERES
 from .imaging.measure import measure_image
 
 RESULTS = Path("simulate") / "results.parquet"
@@ -42,7 +43,7 @@ class Request:
     condition_id: str = ""
     engine: str = "builtin"  # builtin | lammps
     mpi: int = 1  # MPI ranks of a LAMMPS run (the summation order, hence the trajectory, depends on it)
-    shapes: tuple[str, ...] = ("sphere",)  # grain shapes of a LAMMPS run (engines/clumps.py)
+    shapes: tuple[str, ...] = SPHERES  # grain shapes of a LAMMPS run (engines/clumps.py)
 
     @property
     def key(self) -> dict:
@@ -52,7 +53,7 @@ class Request:
             k["engine"] = self.engine
         if self.mpi > 1:
             k["mpi"] = self.mpi
-        if tuple(self.shapes) != ("sphere",):
+        if tuple(self.shapes) != SPHERES:
             k["shapes"] = list(self.shapes)
         return k
 

@@ -82,3 +82,15 @@ def test_clumps_stay_rigid_in_a_lammps_heap():
         d0 = np.linalg.norm(f.pos[idx, None] - f.pos[None, idx], axis=2)
         d1 = np.linalg.norm(x[idx, None] - x[None, idx], axis=2)
         assert np.allclose(d1, d0, atol=1e-9), f"grain {i} ({f.shape[i]}) deformed"
+
+
+def test_parse_shapes_is_canonical():
+    from calib_cli.engines.clumps import SPHERES, parse_shapes
+    from calib_cli.errors import CalibError
+
+    assert parse_shapes("paper-mix") == PAPER_MIX
+    assert parse_shapes("sphere, sphere") == SPHERES  # the plain sphere run, not an empty clump run
+    assert parse_shapes("block,sphere,block") == ("block", "sphere")
+    for bad in ("cube", "", " , "):
+        with pytest.raises(CalibError, match="unknown shape"):
+            parse_shapes(bad)

@@ -66,18 +66,6 @@ def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     return c
 
 
-def _shapes(text: str) -> tuple[str, ...]:
-    from ..engines.clumps import PAPER_MIX, SHAPES
-
-    if text.strip() == "paper-mix":
-        return PAPER_MIX
-    names = tuple(t.strip() for t in text.split(",") if t.strip())
-    bad = [n for n in names if n not in SHAPES]
-    if bad or not names:
-        raise CalibError(f"unknown shape(s) {bad or [text]}: sphere, paper-mix or a list of {', '.join(SHAPES)}")
-    return names
-
-
 def simulate_heap(
     run: RunOpt,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Parameter KEY=VALUE (repeatable): "
@@ -114,10 +102,12 @@ def simulate_heap(
         raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
     if mpi > 1 and engine != "lammps":
         raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
-    shapes = _shapes(shape)
-    if shapes != ("sphere",) and engine != "lammps":
+    from ..engines.clumps import SPHERES, parse_shapes
+
+    shapes = parse_shapes(shape)
+    if shapes != SPHERES and engine != "lammps":
         raise CalibError("--shape needs --engine lammps: the built-in kernel has spheres only")
-    if shapes != ("sphere",) and mpi > 1:
+    if shapes != SPHERES and mpi > 1:
         raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
     if engine == "lammps":
         from ..engines.lammps import open_lammps

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import CalibError
+
 
 @dataclass(frozen=True)
 class Shape:
@@ -59,6 +61,19 @@ SHAPES: dict[str, Shape] = {
 
 #: the paper's mixture (section 2.2.2 builds all four; equal numbers of grains here)
 PAPER_MIX = ("flattened", "conical", "block", "sphere")
+SPHERES = ("sphere",)
+
+
+def parse_shapes(text: str) -> tuple[str, ...]:
+    """``sphere``, ``paper-mix`` or a comma-separated list of :data:`SHAPES`, as a canonical tuple:
+    repeats dropped, and a list of spheres only is :data:`SPHERES` (the plain sphere run and its cache key)."""
+    if text.strip() == "paper-mix":
+        return PAPER_MIX
+    names = tuple(dict.fromkeys(t.strip() for t in text.split(",") if t.strip()))
+    bad = [n for n in names if n not in SHAPES]
+    if bad or not names:
+        raise CalibError(f"unknown shape(s) {bad or [text]}: sphere, paper-mix or a list of {', '.join(SHAPES)}")
+    return names
 
 _UNION: dict[str, float] = {}
 

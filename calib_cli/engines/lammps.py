@@ -42,6 +42,7 @@ from ..dem.contact import jkr_time_step, rayleigh_time_step
 from ..dem.heap import DriftMeter, HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
 from ..dem.materials import Material, effective_moduli
 from ..errors import CalibError
+from .clumps import SPHERES, clump_fill
 
 
 def open_lammps():
@@ -123,14 +124,14 @@ def _rank() -> int:
 
 
 def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: int = 0,
-                    progress=None, mpi: int = 1, shapes: tuple[str, ...] = ("sphere",)) -> HeapResult:
+                    progress=None, mpi: int = 1, shapes: tuple[str, ...] = SPHERES) -> HeapResult:
     """The heap test in LAMMPS; ``mpi > 1`` runs it on that many MPI ranks (the mpich wheel's mpirun).
 
     ``shapes`` other than spheres replace each grain of the same fill by a multi-sphere clump
     (:mod:`.clumps`, rigid bodies: ``fix rigid/small``), in equal numbers; the results row then
     counts sub-spheres as particles."""
     if mpi > 1:
-        if tuple(shapes) != ("sphere",):
+        if tuple(shapes) != SPHERES:
             raise CalibError("clumps run on one LAMMPS rank only")
         return _run_mpi(params, condition, numerics, seed, mpi)
     cond, num = condition, numerics
@@ -141,9 +142,7 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     mat = Material(num.shear_modulus, num.poisson, num.density)
     E, nu, rho = mat.youngs_modulus, mat.poisson, mat.density
     clumps = None
-    if tuple(shapes) != ("sphere",):
-        from .clumps import clump_fill
-
+    if tuple(shapes) != SPHERES:
         clumps = clump_fill(parts.pos, parts.rad, rho, tuple(shapes), np.random.default_rng([seed, 1]))
         single = np.bincount(clumps.body)[clumps.body] == 1
         mol = np.where(single, 0, clumps.body + 1)  # lone spheres integrate as spheres, not as bodies
