@@ -67,21 +67,21 @@ def main():
     t0 = time.perf_counter()
 
     def done(req, row):
-        print(f"  rig {req.design[-1]} g {req.params['surface_energy']:.3g} seed {req.repeat}: "
+        print(f"  rig {todo[req.run_id][0]} g {req.params['surface_energy']:.3g} seed {req.repeat}: "
               f"{row['repose_angle']:6.2f} deg ({row['status']}, {row['n_particles']} grains, "
               f"heap {row['heap_height_mm']:.0f} mm, {row['wall_s']:.0f} s)", flush=True)
 
     df = run_campaign(reqs, a.run, workers=a.workers, on_done=done)
     print(f"\n{len(df)} heaps in {time.perf_counter() - t0:.0f} s (cached ones count 0)")
-    df["rig"] = [r.design[-1] for r in reqs]
-    df["g"] = [r.params["surface_energy"] for r in reqs]
+    df["rig"] = [rig for rig, _, _ in todo]  # run_campaign returns the rows in request order
+    df["g"] = [g for _, g, _ in todo]
 
     def cell(rig, g):
         v = df[(df.rig == rig) & np.isclose(df.g, g) & (df.status == "ok")]
         return v.repose_angle.to_numpy(), v.heap_height_mm.to_numpy()
 
     print(f"\n{'rig':<4}{'g [J/m2]':>9}{'g / H (rel. A)':>16}{'angle [deg]':>20}{'heap [mm]':>11}  seeds")
-    for rig, g, _ in sorted({(r, g, 0) for r, g, _ in todo}):
+    for rig, g in sorted({(r, g) for r, g, _ in todo}):
         y, h = cell(rig, g)
         print(f"{rig:<4}{g:9.3g}{g / SCALE[rig]:16.3g}{y.mean():12.2f} +- {y.std(ddof=1) / np.sqrt(len(y)):4.2f}"
               f"{h.mean():11.0f}  " + ", ".join(f"{v:.1f}" for v in y))
