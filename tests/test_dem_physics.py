@@ -277,3 +277,51 @@ def test_contact_history_survives_neighbour_list_rebuilds():
     a, b = run(1e-6), run(0.5)
     assert a.n_rebuilds > 50 * max(b.n_rebuilds, 1)
     np.testing.assert_allclose(a.particles.pos, b.particles.pos, rtol=0, atol=1e-9)
+
+
+# ---------------------------------------------------------------- EDEM's 'Standard' rolling friction
+def _rolling_torques(own: float, wi, wj, delta=2e-5, mur=0.2):
+    """Torques of one Hertz pair contact (no sliding friction: rolling torques only), n = +x."""
+    from calib_cli.dem.materials import param_row
+
+    prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, own))] * 3)
+    ht = np.zeros((1, 4))
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    arm = R - delta / 2
+    out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
+                          *wi, *wj, ht, 0, prm, 0, 1e-10)
+    fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
+    return np.array(out[3:6]), np.array(out[6:9]), mur * fel * arm
+
+
+def test_standard_rolling_brakes_each_body_against_its_own_spin():
+    """EDEM 'Standard': tau_i = -mu_r F_n R_i w_i/|w_i|; the relative law (SPEC 5) sees no rolling
+    between two grains spinning alike, the Standard law brakes both."""
+    spin = (0.0, 0.0, 10.0)
+    ti, tj, t = _rolling_torques(0.0, spin, spin)
+    assert np.allclose(ti, 0) and np.allclose(tj, 0)
+    ti, tj, t = _rolling_torques(1.0, spin, spin)
+    assert ti == pytest.approx([0, 0, -t], rel=1e-9) and tj == pytest.approx([0, 0, -t], rel=1e-9)
+    # counter-rotating grains (a grain rolling over another): the two laws agree
+    for own in (0.0, 1.0):
+        ti, tj, t = _rolling_torques(own, (0, 0, 10.0), (0, 0, -10.0))
+        assert ti == pytest.approx([0, 0, -t], rel=1e-9) and tj == pytest.approx([0, 0, t], rel=1e-9)
+
+
+def test_standard_rolling_on_the_floor_is_the_relative_law():
+    """Against a wall (no spin) both laws are the same: the rolling sphere still decelerates at
+    (5/7) mu_r g."""
+    mur = 0.05
+    p = Particles([[0, 0, R * 0.9995]], [R])
+    it = Interaction(0.5, mur, 0.5, 0.0, 1.0)
+    s = System(p, material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it, gravity=(0, 0, -G), safety=0.1)
+    s.advance(int(0.02 / s.dt))
+    s.particles.vel[0] = [0.3, 0, 0]
+    s.particles.omg[0] = [0, 0.3 / R, 0]
+    ts, vs = [], []
+    for _ in range(int(0.05 / s.dt)):
+        s.advance(1)
+        ts.append(s.t)
+        vs.append(s.particles.vel[0, 0])
+    assert np.polyfit(ts[50:], vs[50:], 1)[0] == pytest.approx(-5 / 7 * mur * G, rel=0.01)

@@ -18,7 +18,7 @@ import numpy as np
 from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_a
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA = 0, 1, 2, 3, 4, 5
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN = 0, 1, 2, 3, 4, 5, 6
 
 OK, NEED_CAPACITY = 0, 1
 
@@ -119,7 +119,31 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     # the stop: without this the summed torques overshoot every step and the packing chatters
     # (rotational energy is pumped in and a heap never comes to rest).
     mur = prm[row, MU_R]
-    if mur > 0.0:
+    if mur > 0.0 and prm[row, ROLL_OWN] > 0.0:
+        # EDEM's 'Standard' model: each body is braked against its own spin, tau_i =
+        # -mu_r |F_n| R_i w_i/|w_i| (a wall has none), with the same no-reversal limit per body.
+        # It brakes a cluster turning as one, where the relative law does not, and it does not
+        # conserve angular momentum in a free collision.
+        m0 = mur * abs(Fel)
+        wi = math.sqrt(wix * wix + wiy * wiy + wiz * wiz)
+        if wi > 0.0:
+            m = m0
+            rate = m * Ri * Ii_inv * max(ci, 1.0) * dt
+            if rate > wi:
+                m *= wi / rate
+            tix -= m * Ri * wix / wi
+            tiy -= m * Ri * wiy / wi
+            tiz -= m * Ri * wiz / wi
+        wj = math.sqrt(wjx * wjx + wjy * wjy + wjz * wjz)
+        if wj > 0.0 and Ij_inv > 0.0:
+            m = m0
+            rate = m * Rj * Ij_inv * max(cj, 1.0) * dt
+            if rate > wj:
+                m *= wj / rate
+            tjx -= m * Rj * wjx / wj
+            tjy -= m * Rj * wjy / wj
+            tjz -= m * Rj * wjz / wj
+    elif mur > 0.0:
         wrx = wix - wjx
         wry = wiy - wjy
         wrz = wiz - wjz

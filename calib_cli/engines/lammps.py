@@ -137,6 +137,9 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     cond, num = condition, numerics
     cond.validate()
     pp, pw = interactions(params)
+    if pp.rolling_own_spin or pw.rolling_own_spin:
+        raise CalibError("rolling_own_spin = 1 (EDEM's Standard rolling friction) is built-in only: "
+                         "LAMMPS has no rolling law on each body's own spin")
     t0 = time.perf_counter()
     parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
     mat = Material(num.shear_modulus, num.poisson, num.density)
