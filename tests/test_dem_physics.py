@@ -325,3 +325,22 @@ def test_standard_rolling_on_the_floor_is_the_relative_law():
         ts.append(s.t)
         vs.append(s.particles.vel[0, 0])
     assert np.polyfit(ts[50:], vs[50:], 1)[0] == pytest.approx(-5 / 7 * mur * G, rel=0.01)
+
+
+@pytest.mark.parametrize("net", [0.0, 1.0])
+def test_friction_cap_repulsive_part_or_net_force(net):
+    """A sliding JKR contact carries mu_s x the repulsive part of the normal force (SPEC 5) or,
+    with friction_net_force = 1, mu_s x |net normal force|."""
+    from calib_cli.dem.materials import param_row
+
+    gamma, mu, delta = 1.0, 0.3, 1e-6
+    prm = np.vstack([param_row(MAT, MAT, Interaction(mu, 0.0, 0.5, gamma, 0.0, net))] * 3)
+    ht = np.zeros((1, 4))
+    ht[0, 3] = -1.0  # an engaged contact, no warm start
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    out = kernel._contact(1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
+                          0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ht, 0, prm, 0, 1e-6)  # sliding at 1 m/s along y
+    fel, frep, _ = normal_law(delta, R / 2, ES, gamma)
+    assert frep > 2 * abs(fel)  # near zero load the two caps differ by far
+    assert abs(out[1]) == pytest.approx(mu * (abs(fel) if net else frep), rel=1e-9)

@@ -18,7 +18,7 @@ import numpy as np
 from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_a
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN = 0, 1, 2, 3, 4, 5, 6
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET = 0, 1, 2, 3, 4, 5, 6, 7
 
 OK, NEED_CAPACITY = 0, 1
 
@@ -86,7 +86,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     ftx = -St * hx + cd * tx
     fty = -St * hy + cd * ty
     ftz = -St * hz + cd * tz
-    cap = prm[row, MU_S] * Frep
+    cap = prm[row, MU_S] * (abs(Fel) if prm[row, CAP_NET] > 0.0 else Frep)
     ft = math.sqrt(ftx * ftx + fty * fty + ftz * ftz)
     if ft > cap:
         # Coulomb: slide at the cap; the spring is rescaled to carry exactly the cap
