@@ -31,6 +31,7 @@ import numpy as np
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
 from calib_cli.dem.heap import HeapCondition, get_preset
+from factorial import effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
@@ -74,16 +75,12 @@ def main():
     df = run_campaign(reqs, a.run, workers=a.workers, on_done=done)
     print(f"\n{len(df)} heaps in {time.perf_counter() - t0:.0f} s (cached ones count 0)")
     y_all = df.repose_angle.to_numpy()
-    X = np.array(cells, float)
     print("\ncoefficients per coded unit (+- 1 SE from the seed scatter); the paper's Eq. 7: X1 2.23, X2 4.19, X3 0.29")
     print(f"{a.compare:<28}{'mean':>7}" + "".join(f"{'X' + str(i + 1) + ' ' + k:>26}" for i, k in enumerate(names))
           + f"{'seed sd':>9}")
     for law in LAWS:
         y = np.array([[y_all[i] for i, (lw, c2, s) in enumerate(todo) if lw == law and c2 == c] for c in cells])
-        m = np.nanmean(y, axis=1)
-        sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))
-        se = sd / np.sqrt(len(cells) * a.seeds)
-        b = X.T @ m / len(cells)
+        m, b, sd, se = effects(cells, y)
         print(f"{law:<28}{np.nanmean(m):7.2f}" + "".join(f"{v:19.2f} +-{se:4.2f}" for v in b) + f"{sd:9.2f}")
         print(f"{'':<28}{'':>7}  cell means: " + ", ".join(f"{v:.1f}" for v in m))
 

@@ -24,6 +24,19 @@ OK, NEED_CAPACITY = 0, 1
 
 
 @nb.njit(cache=True, inline="always")
+def _own_spin_brake(m, R, I_inv, c, wx, wy, wz, dt):
+    """EDEM 'Standard' rolling torque on one body, -m R w/|w|, limited (as the relative law) so
+    that it never reverses the body's spin within the step; nothing on a wall (I_inv = 0)."""
+    w = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if w == 0.0 or I_inv == 0.0:
+        return 0.0, 0.0, 0.0
+    rate = m * R * I_inv * max(c, 1.0) * dt
+    if rate > w:
+        m *= w / rate
+    return -m * R * wx / w, -m * R * wy / w, -m * R * wz / w
+
+
+@nb.njit(cache=True, inline="always")
 def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
              vx, vy, vz, wix, wiy, wiz, wjx, wjy, wjz, ht, k, prm, row, dt):
     """Force on i and torques on i and j of one contact (n points from j to i).
@@ -125,24 +138,14 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
         # It brakes a cluster turning as one, where the relative law does not, and it does not
         # conserve angular momentum in a free collision.
         m0 = mur * abs(Fel)
-        wi = math.sqrt(wix * wix + wiy * wiy + wiz * wiz)
-        if wi > 0.0:
-            m = m0
-            rate = m * Ri * Ii_inv * max(ci, 1.0) * dt
-            if rate > wi:
-                m *= wi / rate
-            tix -= m * Ri * wix / wi
-            tiy -= m * Ri * wiy / wi
-            tiz -= m * Ri * wiz / wi
-        wj = math.sqrt(wjx * wjx + wjy * wjy + wjz * wjz)
-        if wj > 0.0 and Ij_inv > 0.0:
-            m = m0
-            rate = m * Rj * Ij_inv * max(cj, 1.0) * dt
-            if rate > wj:
-                m *= wj / rate
-            tjx -= m * Rj * wjx / wj
-            tjy -= m * Rj * wjy / wj
-            tjz -= m * Rj * wjz / wj
+        bx, by, bz = _own_spin_brake(m0, Ri, Ii_inv, ci, wix, wiy, wiz, dt)
+        tix += bx
+        tiy += by
+        tiz += bz
+        bx, by, bz = _own_spin_brake(m0, Rj, Ij_inv, cj, wjx, wjy, wjz, dt)
+        tjx += bx
+        tjy += by
+        tjz += bz
     elif mur > 0.0:
         wrx = wix - wjx
         wry = wiy - wjy
