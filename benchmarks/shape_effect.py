@@ -23,6 +23,7 @@ import numpy as np
 
 from calib_cli.dem.heap import HeapCondition, get_preset
 from calib_cli.engines.clumps import PAPER_MIX
+from factorial import effects
 
 RIGS = {  # the photographed sample rig (sample_data/calibration) and two presets
     "calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0),
@@ -78,13 +79,9 @@ def main():
           "X1 2.23, X2 4.19, X3 0.29")
     head = [f"X{i + 1} {k}" for i, k in enumerate(names)]
     print(f"{'shape':<10}{'mean':>7}" + "".join(f"{h:>24}" for h in head) + f"{'seed sd':>9}")
-    X = np.array(cells, float)
     for s in SHAPES:
         y = np.array([[res[(s, point(c), k, a.rig)] for k in range(1, a.seeds + 1)] for c in cells])
-        m = np.nanmean(y, axis=1)
-        sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))  # pooled within-point sd
-        se = sd / np.sqrt(len(cells) * a.seeds)
-        b = X.T @ m / len(cells)
+        m, b, sd, se = effects(cells, y)
         print(f"{s:<10}{np.nanmean(m):7.2f}" + "".join(f"{v:17.2f} +-{se:4.2f}" for v in b) + f"{sd:9.2f}")
         print(f"{'':<10}{'':>7}  cell means: " + ", ".join(f"{v:.1f}" for v in m))
 

@@ -27,9 +27,9 @@ def pair(e=0.5, mu=0.0, mur=0.0, gamma=0.0, v=0.5, offset=(0.0, 0.0), w=((0, 0, 
                   safety=safety)
 
 
-def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1):
+def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1, own_spin=0.0):
     p = Particles([[0, 0, R * 0.9995]], [R])
-    it = Interaction(mu, mur, e, 0.0)
+    it = Interaction(mu, mur, e, 0.0, own_spin)
     s = System(p, material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it, gravity=grav, safety=safety)
     s.advance(int(0.02 / s.dt))  # come to rest on the floor
     return s
@@ -148,9 +148,11 @@ def test_sliding_sphere_slips_until_five_sevenths():
     assert t_stick == pytest.approx(2 * v0 / (7 * mu * G), rel=0.01)
 
 
-def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g():
+@pytest.mark.parametrize("own_spin", [0.0, 1.0])
+def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin):
+    """Against the floor (no spin) EDEM's 'Standard' law (own_spin 1) is the relative law."""
     mur = 0.05
-    s = on_floor(mu=0.5, mur=mur)
+    s = on_floor(mu=0.5, mur=mur, own_spin=own_spin)
     s.particles.vel[0] = [0.3, 0, 0]
     s.particles.omg[0] = [0, 0.3 / R, 0]
     ts, vs = [], []
@@ -277,3 +279,52 @@ def test_contact_history_survives_neighbour_list_rebuilds():
     a, b = run(1e-6), run(0.5)
     assert a.n_rebuilds > 50 * max(b.n_rebuilds, 1)
     np.testing.assert_allclose(a.particles.pos, b.particles.pos, rtol=0, atol=1e-9)
+
+
+# ---------------------------------------------------------------- EDEM's 'Standard' rolling friction
+def _rolling_torques(own: float, wi, wj, delta=2e-5, mur=0.2):
+    """Torques of one Hertz pair contact (no sliding friction: rolling torques only), n = +x."""
+    from calib_cli.dem.materials import param_row
+
+    prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, own))] * 3)
+    ht = np.zeros((1, 4))
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    arm = R - delta / 2
+    out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
+                          *wi, *wj, ht, 0, prm, 0, 1e-10)
+    fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
+    return np.array(out[3:6]), np.array(out[6:9]), mur * fel * arm
+
+
+def test_standard_rolling_brakes_each_body_against_its_own_spin():
+    """EDEM 'Standard': tau_i = -mu_r F_n R_i w_i/|w_i|; the relative law (SPEC 5) sees no rolling
+    between two grains spinning alike, the Standard law brakes both."""
+    spin = (0.0, 0.0, 10.0)
+    ti, tj, t = _rolling_torques(0.0, spin, spin)
+    assert np.allclose(ti, 0) and np.allclose(tj, 0)
+    ti, tj, t = _rolling_torques(1.0, spin, spin)
+    assert ti == pytest.approx([0, 0, -t], rel=1e-9) and tj == pytest.approx([0, 0, -t], rel=1e-9)
+    # counter-rotating grains (a grain rolling over another): the two laws agree
+    for own in (0.0, 1.0):
+        ti, tj, t = _rolling_torques(own, (0, 0, 10.0), (0, 0, -10.0))
+        assert ti == pytest.approx([0, 0, -t], rel=1e-9) and tj == pytest.approx([0, 0, t], rel=1e-9)
+
+
+@pytest.mark.parametrize("net", [0.0, 1.0])
+def test_friction_cap_repulsive_part_or_net_force(net):
+    """A sliding JKR contact carries mu_s x the repulsive part of the normal force (SPEC 5) or,
+    with friction_net_force = 1, mu_s x |net normal force|."""
+    from calib_cli.dem.materials import param_row
+
+    gamma, mu, delta = 1.0, 0.3, 1e-6
+    prm = np.vstack([param_row(MAT, MAT, Interaction(mu, 0.0, 0.5, gamma, 0.0, net))] * 3)
+    ht = np.zeros((1, 4))
+    ht[0, 3] = -1.0  # an engaged contact, no warm start
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    out = kernel._contact(1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
+                          0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ht, 0, prm, 0, 1e-6)  # sliding at 1 m/s along y
+    fel, frep, _ = normal_law(delta, R / 2, ES, gamma)
+    assert frep > 2 * abs(fel)  # near zero load the two caps differ by far
+    assert abs(out[1]) == pytest.approx(mu * (abs(fel) if net else frep), rel=1e-9)

@@ -24,9 +24,11 @@ from .system import Particles, System, Walls
 
 #: parameters the heap test takes (natural units); wall_* default to the particle values,
 #: except wall_surface_energy (default 0)
-PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution",
+PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin",
+              "friction_net_force",
               "wall_static_friction", "wall_rolling_friction", "wall_surface_energy", "wall_restitution")
-PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2}
+PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
+                     "rolling_own_spin": 0.0, "friction_net_force": 0.0}
 
 
 #: the numeric heap-test variables (columns of a conditions table); `floor` is a name

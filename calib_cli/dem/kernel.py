@@ -18,9 +18,22 @@ import numpy as np
 from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_a
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA = 0, 1, 2, 3, 4, 5
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET = 0, 1, 2, 3, 4, 5, 6, 7
 
 OK, NEED_CAPACITY = 0, 1
+
+
+@nb.njit(cache=True, inline="always")
+def _own_spin_brake(m, R, I_inv, c, wx, wy, wz, dt):
+    """EDEM 'Standard' rolling torque on one body, -m R w/|w|, limited (as the relative law) so
+    that it never reverses the body's spin within the step; nothing on a wall (I_inv = 0)."""
+    w = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if w == 0.0 or I_inv == 0.0:
+        return 0.0, 0.0, 0.0
+    rate = m * R * I_inv * max(c, 1.0) * dt
+    if rate > w:
+        m *= w / rate
+    return -m * R * wx / w, -m * R * wy / w, -m * R * wz / w
 
 
 @nb.njit(cache=True, inline="always")
@@ -86,7 +99,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     ftx = -St * hx + cd * tx
     fty = -St * hy + cd * ty
     ftz = -St * hz + cd * tz
-    cap = prm[row, MU_S] * Frep
+    cap = prm[row, MU_S] * (abs(Fel) if prm[row, CAP_NET] > 0.0 else Frep)
     ft = math.sqrt(ftx * ftx + fty * fty + ftz * ftz)
     if ft > cap:
         # Coulomb: slide at the cap; the spring is rescaled to carry exactly the cap
@@ -119,7 +132,21 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     # the stop: without this the summed torques overshoot every step and the packing chatters
     # (rotational energy is pumped in and a heap never comes to rest).
     mur = prm[row, MU_R]
-    if mur > 0.0:
+    if mur > 0.0 and prm[row, ROLL_OWN] > 0.0:
+        # EDEM's 'Standard' model: each body is braked against its own spin, tau_i =
+        # -mu_r |F_n| R_i w_i/|w_i| (a wall has none), with the same no-reversal limit per body.
+        # It brakes a cluster turning as one, where the relative law does not, and it does not
+        # conserve angular momentum in a free collision.
+        m0 = mur * abs(Fel)
+        bx, by, bz = _own_spin_brake(m0, Ri, Ii_inv, ci, wix, wiy, wiz, dt)
+        tix += bx
+        tiy += by
+        tiz += bz
+        bx, by, bz = _own_spin_brake(m0, Rj, Ij_inv, cj, wjx, wjy, wjz, dt)
+        tjx += bx
+        tjy += by
+        tjz += bz
+    elif mur > 0.0:
         wrx = wix - wjx
         wry = wiy - wjy
         wrz = wiz - wjz

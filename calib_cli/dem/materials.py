@@ -40,6 +40,12 @@ class Interaction:
     rolling_friction: float = 0.0
     restitution: float = 0.5
     surface_energy: float = 0.0  # J/m2
+    #: 0: rolling torque from the pair's relative spin (SPEC 5, Ai et al. 2011 type A, EDEM's
+    #: 'RVD'); 1: from each body's own spin (EDEM's 'Standard' rolling friction model)
+    rolling_own_spin: float = 0.0
+    #: 0: Coulomb cap mu_s x the repulsive part of the normal force (SPEC 5); 1: mu_s x |net
+    #: normal force| (a literal reading of EDEM's JKR help: a contact near zero load slides freely)
+    friction_net_force: float = 0.0
 
     def validate(self, what: str = "interaction") -> None:
         checks = [
@@ -47,6 +53,8 @@ class Interaction:
             (self.rolling_friction >= 0, "rolling_friction must be >= 0"),
             (0 < self.restitution <= 1, "restitution must lie in (0, 1]"),
             (self.surface_energy >= 0, "surface_energy must be >= 0"),
+            (self.rolling_own_spin in (0.0, 1.0), "rolling_own_spin must be 0 or 1"),
+            (self.friction_net_force in (0.0, 1.0), "friction_net_force must be 0 or 1"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -67,4 +75,5 @@ def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
 def param_row(m1: Material, m2: Material, it: Interaction) -> np.ndarray:
     Es, Gs = effective_moduli(m1, m2)
     return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
-                     it.surface_energy], dtype=np.float64)
+                     it.surface_energy, it.rolling_own_spin,
+                     it.friction_net_force], dtype=np.float64)

@@ -137,6 +137,9 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     cond, num = condition, numerics
     cond.validate()
     pp, pw = interactions(params)
+    if pp.rolling_own_spin or pw.rolling_own_spin or pp.friction_net_force or pw.friction_net_force:
+        raise CalibError("rolling_own_spin = 1 and friction_net_force = 1 are built-in only: LAMMPS has no "
+                         "rolling law on each body's own spin, and caps JKR friction at |F_ne + 2 F_pulloff|")
     t0 = time.perf_counter()
     parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
     mat = Material(num.shear_modulus, num.poisson, num.density)
