@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from calib_cli.dem import kernel
 from calib_cli.dem.contact import (hertz_contact_time, jkr_cutoff_overlap, jkr_force_of_radius,
-                                   jkr_overlap_of_radius, normal_law, rayleigh_time_step)
+                                   jkr_overlap_of_radius, normal_law, normal_law_a, rayleigh_time_step)
 from calib_cli.dem.materials import Interaction, Material, effective_moduli
 from calib_cli.dem.system import Particles, System, UnstableError, Walls
 from calib_cli.errors import CalibError
@@ -102,6 +102,18 @@ def test_jkr_curve_minimum_and_cutoff(gamma, Rs):
     assert normal_law(dc * 0.5, Rs, ES, gamma, engaged=False) == (0.0, 0.0, 0.0)
     assert normal_law(0.0, Rs, ES, gamma, engaged=False)[0] == pytest.approx(-8 / 9 * 3 * math.pi * gamma * Rs,
                                                                             rel=1e-6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(u=st.floats(0.69, 6.0), u_prev=st.floats(0.3, 8.0), gamma=st.floats(0.05, 3.0), Rs=st.floats(5e-4, 3e-3))
+def test_jkr_warm_start_finds_the_stable_root(u, u_prev, gamma, Rs):
+    # the kernel warm-starts each contact's solve from its radius at the last step, which may lie
+    # anywhere (a contact near the cutoff, a fresh impact): the root is the same to 1e-12
+    s = (math.pi * gamma / ES * Rs**2) ** (1 / 3)
+    d = jkr_overlap_of_radius(u * s, Rs, ES, gamma)
+    f, frep, a = normal_law_a(d, Rs, ES, gamma, u_prev * s)
+    assert a == pytest.approx(u * s, rel=1e-12)
+    assert f == pytest.approx(jkr_force_of_radius(u * s, Rs, ES, gamma), rel=1e-10, abs=1e-12 * gamma * Rs)
 
 
 def test_jkr_pair_settles_at_zero_load_overlap():
@@ -287,7 +299,7 @@ def _rolling_torques(own: float, wi, wj, delta=2e-5, mur=0.2):
     from calib_cli.dem.materials import param_row
 
     prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, own))] * 3)
-    ht = np.zeros((1, 4))
+    ht = np.zeros((1, kernel.HIST))
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)
     arm = R - delta / 2
@@ -319,7 +331,7 @@ def test_friction_cap_repulsive_part_or_net_force(net):
 
     gamma, mu, delta = 1.0, 0.3, 1e-6
     prm = np.vstack([param_row(MAT, MAT, Interaction(mu, 0.0, 0.5, gamma, 0.0, net))] * 3)
-    ht = np.zeros((1, 4))
+    ht = np.zeros((1, kernel.HIST))
     ht[0, 3] = -1.0  # an engaged contact, no warm start
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)

@@ -77,10 +77,12 @@ def test_render_side_view_silhouette():
 
 
 def test_tiny_heap_runs_and_is_deterministic():
-    params = {"static_friction": 0.5, "rolling_friction": 0.3, "restitution": 0.3}
-    # seed 4: this 3-grain-high heap from seed 3 sits on the column check's border
-    a = run_heap(params, TINY, TINY_NUM, seed=4)
-    b = run_heap(params, TINY, TINY_NUM, seed=4)
+    # at mu_s 0.5 / mu_r 0.3 this 4-grain-high fill stands as a "column" for some seeds (height
+    # 0.8 of the fill, base inside 1.5 cylinder radii): a border case; at 0.3 / 0.1 seeds 0-5 all
+    # slump into heaps (height 0.44-0.57 of the fill)
+    params = {"static_friction": 0.3, "rolling_friction": 0.1, "restitution": 0.3}
+    a = run_heap(params, TINY, TINY_NUM, seed=0)
+    b = run_heap(params, TINY, TINY_NUM, seed=0)
     assert a.status in ("ok", "timeout") and np.isfinite(a.angle.angle)
     assert a.angle.angle == b.angle.angle
     assert a.system.max_overlap < 0.1 and len(a.energy) > 3

@@ -45,29 +45,72 @@ def jkr_cutoff_overlap(Rs, Es, gamma):
     return DELTA_CUT * k ** (2.0 / 3.0) * Rs ** (1.0 / 3.0)
 
 
-@nb.njit(cache=True, inline="always")
-def _jkr_u(dt, guess):
-    """Stable-branch root u of u^2 - 2 sqrt(u) = dt by Newton.
+#: s = sqrt(u) at the turning point of delta(u) (u^3 = 1/4): every stable-branch root lies above it
+S_TURN = 0.25 ** (1.0 / 6.0)
 
-    g is convex, so from the right Newton converges monotonically; a warm start
-    (the contact's previous u) usually needs two iterations. A guess near the
-    turning point (g' ~ 0, u^3 = 1/4) is replaced by a start right of the root.
+
+def jkr_constants(Es, gamma):
+    """Per-interaction constants of :func:`normal_law_core`: (k^(1/3), 4 sqrt(pi g E* k^(1/3))), k = pi g / E*."""
+    if gamma <= 0.0:
+        return 0.0, 0.0
+    k13 = float(np.cbrt(math.pi * gamma / Es))
+    return k13, 4.0 * math.sqrt(math.pi * gamma * Es * k13)
+
+
+@nb.njit(cache=True, inline="always")
+def _jkr_s(dt, guess):
+    """Stable-branch root s = sqrt(u) of h(s) = s^4 - 2 s - dt (u^2 - 2 sqrt(u) = dt).
+
+    In s the equation is a polynomial, so an iteration costs one division and no square
+    root. Halley's step (cubic convergence: from a warm start, the contact's previous s,
+    two iterations) falls back to Newton's, which from the right of the root on this convex
+    h converges monotonically, whenever Halley's would leave the stable branch. A guess
+    near the turning point (h' ~ 0) is replaced by a start right of the root.
     """
-    u = guess
-    if u < 0.7:
-        u = math.sqrt(max(dt, 0.0)) + 1.6
+    s = guess
+    if s < 0.8367:  # u < 0.7
+        s = math.sqrt(math.sqrt(max(dt, 0.0)) + 1.6)
     for _ in range(60):
-        su = math.sqrt(u)
-        g = u * u - 2.0 * su - dt
-        dg = 2.0 * u - 1.0 / su
-        du = g / dg
-        u -= du
-        if abs(du) < 1e-13 * u:
+        s2 = s * s
+        s3 = s2 * s
+        h = s3 * s - 2.0 * s - dt
+        h1 = 4.0 * s3 - 2.0
+        den = 2.0 * h1 * h1 - 12.0 * h * s2
+        ds = 2.0 * h * h1 / den if den > 0.0 else h / h1
+        if not s - ds > S_TURN:
+            ds = h / h1
+        s -= ds
+        if abs(ds) < 1e-8 * s:
             break
-    return u
+    return s
 
 
 @nb.njit(cache=True, inline="always")
+def normal_law_core(delta, Rs, r13, Es, gamma, k13, att, a_prev):
+    """:func:`normal_law_a` with its constants precomputed: r13 = R*^(1/3), and (k13, att)
+    from :func:`jkr_constants` (the kernel keeps them in its interaction rows)."""
+    if gamma <= 0.0:
+        if delta <= 0.0:
+            return 0.0, 0.0, 0.0
+        a = math.sqrt(Rs * delta)
+        f = 4.0 / 3.0 * Es * a * a * a / Rs
+        return f, f, a
+    if a_prev == 0.0 and delta < 0.0:
+        return 0.0, 0.0, 0.0
+    kr = k13 * r13
+    dt = delta / (kr * k13)
+    if dt < DELTA_CUT:
+        return 0.0, 0.0, 0.0
+    unit = kr * r13  # a = u unit = s^2 unit
+    s = _jkr_s(dt, math.sqrt(a_prev / unit) if a_prev > 0.0 else 0.0)
+    a = s * s * unit
+    frep = 4.0 * Es * a * a * a / (3.0 * Rs)
+    # 4 sqrt(pi g E* a) a, with sqrt(a) = s sqrt(k13) r13
+    f = frep - att * r13 * s * a
+    return f, frep, a
+
+
+@nb.njit(cache=True)
 def normal_law_a(delta, Rs, Es, gamma, a_prev):
     """(F, F_rep, a): elastic normal force, its repulsive part 4E*a^3/(3R*), contact radius.
 
@@ -79,24 +122,12 @@ def normal_law_a(delta, Rs, Es, gamma, a_prev):
     5/3 pi g R* at delta_c in both directions, and the discrete jumps pumped energy into
     a settled cohesive packing (it never came to rest). All zero outside contact.
     """
-    if gamma <= 0.0:
-        if delta <= 0.0:
-            return 0.0, 0.0, 0.0
-        a = math.sqrt(Rs * delta)
-        f = 4.0 / 3.0 * Es * a * a * a / Rs
-        return f, f, a
-    if a_prev == 0.0 and delta < 0.0:
-        return 0.0, 0.0, 0.0
-    k13 = np.cbrt(math.pi * gamma / Es)
-    r13 = np.cbrt(Rs)
-    dt = delta / (k13 * k13 * r13)
-    if dt < DELTA_CUT:
-        return 0.0, 0.0, 0.0
-    unit = k13 * r13 * r13
-    a = _jkr_u(dt, a_prev / unit) * unit
-    frep = 4.0 * Es * a * a * a / (3.0 * Rs)
-    f = frep - 4.0 * math.sqrt(math.pi * gamma * Es * a) * a
-    return f, frep, a
+    k13 = 0.0
+    att = 0.0
+    if gamma > 0.0:
+        k13 = np.cbrt(math.pi * gamma / Es)
+        att = 4.0 * math.sqrt(math.pi * gamma * Es * k13)
+    return normal_law_core(delta, Rs, np.cbrt(Rs), Es, gamma, k13, att, a_prev)
 
 
 @nb.njit(cache=True)

@@ -4,7 +4,8 @@ Everything that runs per step is compiled (``cache=True``, so a second process
 does not recompile). A chunk of steps runs without returning to Python.
 
 Interaction parameter rows (``prm[row]``): 0 particle-particle, 1 floor, 2 cylinder;
-columns ``E*, G*, mu_s, mu_r, beta, gamma``. Wall geometry ``geo``:
+columns ``E*, G*, mu_s, mu_r, beta, gamma``, the two law switches, and the derived constants
+``k^(1/3), 4 sqrt(pi g E* k^(1/3))`` (JKR, :func:`.contact.jkr_constants`) and ``sqrt(4 G*/E*)``. Wall geometry ``geo``:
 ``[cylinder radius, rim height z_edge, lift speed, cylinder on (1/0), floor on (1/0), drag (1/s)]``.
 """
 
@@ -15,12 +16,14 @@ import math
 import numba as nb
 import numpy as np
 
-from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_a
+from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_core
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET = 0, 1, 2, 3, 4, 5, 6, 7
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET, K13, ATT, T_RATIO = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
 
 OK, NEED_CAPACITY = 0, 1
+#: columns of a contact's history row: tangential spring (3), contact radius, cached R*^(1/3)
+HIST = 5
 
 
 @nb.njit(cache=True, inline="always")
@@ -47,11 +50,18 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     contacts each particle had at the last evaluation (see the rolling limit below).
     Returns (fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, overlap). (vx, vy, vz) is v_i - v_j.
     ``ht[k, :3]`` is the tangential spring, ``ht[k, 3]`` the contact radius a of the last
-    step; both updated in place.
+    step; both updated in place. ``ht[k, 4]`` caches R*^(1/3) (0: not yet computed).
     """
     Es = prm[row, E_S]
     a_old = ht[k, 3]
-    Fel, Frep, a = normal_law_a(delta, Rs, Es, prm[row, GAMMA], a_old)
+    gamma = prm[row, GAMMA]
+    r13 = ht[k, 4]
+    if r13 == 0.0 and gamma > 0.0:
+        # R*^(1/3) is fixed for a pair (or a particle on a wall): a cube root per contact and
+        # step was a fifth of the step's time
+        r13 = np.cbrt(Rs)
+        ht[k, 4] = r13
+    Fel, Frep, a = normal_law_core(delta, Rs, r13, Es, gamma, prm[row, K13], prm[row, ATT], a_old)
     ht[k, 3] = a
     if a == 0.0:
         ht[k, 0] = 0.0
@@ -72,7 +82,8 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     tz = rz - vn * nz
     # normal: elastic (Hertz/JKR) + damping -2 sqrt(5/6) beta sqrt(S_n m*) v_n, S_n = 2 E* a
     Sn = 2.0 * Es * a
-    Fn = Fel + 2.0 * SQRT_5_6 * beta * math.sqrt(Sn * ms) * vn
+    cn = 2.0 * SQRT_5_6 * beta * math.sqrt(Sn * ms)
+    Fn = Fel + cn * vn
     # tangential spring, rotated into the current tangent plane (magnitude kept) and
     # rescaled by a_old / a: Mindlin-Deresiewicz's incremental law dF_t = -S_t(a) d(delta_t).
     # The total form F_t = -S_t(a) delta_t creates energy whenever a changes at fixed
@@ -95,7 +106,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     hy += ty * dt
     hz += tz * dt
     St = 8.0 * prm[row, G_S] * a
-    cd = 2.0 * SQRT_5_6 * beta * math.sqrt(St * ms)
+    cd = cn * prm[row, T_RATIO]  # 2 sqrt(5/6) beta sqrt(S_t m*), S_t / S_n = 4 G* / E*
     ftx = -St * hx + cd * tx
     fty = -St * hy + cd * ty
     ftz = -St * hz + cd * tz
@@ -108,9 +119,10 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
             ftx *= s
             fty *= s
             ftz *= s
-        hx = -ftx / St
-        hy = -fty / St
-        hz = -ftz / St
+        inv = -1.0 / St
+        hx = ftx * inv
+        hy = fty * inv
+        hz = ftz * inv
     ht[k, 0] = hx
     ht[k, 1] = hy
     ht[k, 2] = hz
@@ -156,7 +168,8 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
             rate = m * (Ri * Ii_inv * max(ci, 1.0) + Rj * Ij_inv * max(cj, 1.0)) * dt
             if rate > wr:
                 m *= wr / rate
-            ux, uy, uz = wrx / wr, wry / wr, wrz / wr
+            inv = 1.0 / wr
+            ux, uy, uz = wrx * inv, wry * inv, wrz * inv
             tix -= m * Ri * ux
             tiy -= m * Ri * uy
             tiz -= m * Ri * uz
@@ -251,10 +264,10 @@ def transfer_history(oi, oj, oh, no, ni, nj, nh, nn):
         while a < no and (oi[a] < ni[k] or (oi[a] == ni[k] and oj[a] < nj[k])):
             a += 1
         if a < no and oi[a] == ni[k] and oj[a] == nj[k]:
-            for c in range(4):
+            for c in range(HIST):
                 nh[k, c] = oh[a, c]
         else:
-            for c in range(4):
+            for c in range(HIST):
                 nh[k, c] = 0.0
 
 
@@ -294,12 +307,13 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
         reach = Ri + Rj + dc_max
         pf[k, 10] = 0.0
         if d2 >= reach * reach:
-            for c in range(4):
+            for c in range(4):  # spring and contact radius; the cached R*^(1/3) stays valid
                 ht[k, c] = 0.0
             continue
         Rs = Ri * Rj / (Ri + Rj)
         d = math.sqrt(d2)
-        nx, ny, nz = dx / d, dy / d, dz / d
+        inv = 1.0 / d
+        nx, ny, nz = dx * inv, dy * inv, dz * inv
         ms = mass[i] * mass[j] / (mass[i] + mass[j])
         delta = Ri + Rj - d
         fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = _contact(

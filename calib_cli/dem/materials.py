@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import CalibError
-from .contact import damping_ratio
+from .contact import damping_ratio, jkr_constants
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,7 @@ def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
 
 def param_row(m1: Material, m2: Material, it: Interaction) -> np.ndarray:
     Es, Gs = effective_moduli(m1, m2)
+    k13, att = jkr_constants(Es, it.surface_energy)
     return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
-                     it.surface_energy, it.rolling_own_spin,
-                     it.friction_net_force], dtype=np.float64)
+                     it.surface_energy, it.rolling_own_spin, it.friction_net_force,
+                     k13, att, math.sqrt(4.0 * Gs / Es)], dtype=np.float64)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import CalibError
 from . import kernel
+from .kernel import HIST
 from .contact import jkr_cutoff_overlap, jkr_time_step, rayleigh_time_step
 from .materials import Interaction, Material, param_row
 
@@ -101,8 +102,8 @@ class System:
         self.grav = np.asarray(self.gravity, dtype=np.float64)
         self.force = np.zeros((n, 3))
         self.torque = np.zeros((n, 3))
-        self.hf = np.zeros((n, 4))
-        self.hc = np.zeros((n, 4))
+        self.hf = np.zeros((n, HIST))
+        self.hc = np.zeros((n, HIST))
         self.ncont = np.zeros(n)
         self.cnew = np.zeros(n)
         self._alloc(16 * n + 64)
@@ -113,11 +114,11 @@ class System:
 
     def _alloc(self, cap: int, keep: int = 0):
         old = getattr(self, "pi", None)
-        pi, pj, ht = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, 4))
+        pi, pj, ht = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, HIST))
         if old is not None and keep:
             pi[:keep], pj[:keep], ht[:keep] = self.pi[:keep], self.pj[:keep], self.ht[:keep]
         self.pi, self.pj, self.ht = pi, pj, ht
-        self.spare_i, self.spare_j, self.spare_h = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, 4))
+        self.spare_i, self.spare_j, self.spare_h = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, HIST))
         self.pf = np.zeros((cap, 11))
         if not hasattr(self, "npairs"):
             self.npairs = np.zeros(1, np.int64)
