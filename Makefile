@@ -89,7 +89,7 @@ calibration: setup
 	$(CALIB) simulate-heap --run $(CAL) --design $(CAL)/bbd/design.parquet $(CCOND) $(CSIM)
 	$(CALIB) bbd analyze --run $(CAL)
 	$(CALIB) fit-surrogate --run $(CAL)
-	$(CALIB) invert --run $(CAL) --validate 3 $(CSIM)
+	$(CALIB) invert --run $(CAL) --validate 5 $(CSIM)
 	$(CALIB) compare --run $(CAL) --repeats 3 $(CSIM)
 	$(CALIB) report --run $(CAL)
 

@@ -20,7 +20,7 @@ SECTIONS = [
      ["anova.parquet", "coefficients.parquet", "fit.parquet"], "*.png"),
     ("surrogate", "Surrogates", "3.5.1-3.5.2, Table 9", ["metrics.parquet"], "*.png"),
     ("invert", "Inversion", "3.5.3-3.6, Eq. 11, Fig. 9", ["solution.parquet", "ranges.parquet",
-                                                          "validation.parquet"], "*.png"),
+                                                          "refinement.parquet", "validation.parquet"], "*.png"),
     ("simulate", "Simulations", "2.2", ["results.parquet"], None),
 ]
 

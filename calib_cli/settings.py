@@ -72,6 +72,11 @@ DEFAULTS: dict[str, Any] = {
         "tolerance": 0.25,
         "samples": 20000,
         "restarts": 10,
+        # with --validate: corrections of the surrogate by the validation heaps (0: the paper's
+        # single validation, no correction)
+        "refine": 0,
+        # a round is accepted when every |z| (compare's statistic) is at most this
+        "refine_z": 1.0,
     },
 }
 
@@ -174,6 +179,8 @@ def validate(s: Mapping) -> None:
         raise CalibError("invert.crossover and invert.mutation must lie in [0, 1]")
     if int(iv["generations"]) < 1 or int(iv["population"]) < 2 or float(iv["tolerance"]) <= 0:
         raise CalibError("invert needs generations >= 1, population >= 2 and a positive tolerance")
+    if int(iv["refine"]) < 0 or not float(iv["refine_z"]) > 0:
+        raise CalibError("invert.refine must be >= 0 and invert.refine_z > 0")
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"] or len(rng) != 2:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")

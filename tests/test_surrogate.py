@@ -133,6 +133,17 @@ def test_cli_fit_predict_invert(tmp_path):
     assert list(val["condition_id"]) == ["rig40"] and "validation (rig40)" in r.output
     sims = art.read_table(run / "simulate" / "results.parquet")
     assert list(sims[["cylinder_diameter_mm", "fill_height_mm"]].iloc[0]) == [40.0, 40.0]
+    # one correction at most: every round's heaps are kept, the refinement table says which round won
+    r = runner.invoke(app, ["invert", "--run", str(run), "--model", "rsm", "--validate", "1", "--refine", "1",
+                            "--preset", "smoke"])
+    assert r.exit_code == 0, r.output
+    ref = art.read_table(run / "invert" / "refinement.parquet")
+    val = art.read_table(run / "invert" / "validation.parquet")
+    assert set(val["round"]) == set(ref["round"]) and len(val) == len(ref) <= 2
+    assert "Refinement by simulation" in r.output
+    chosen = art.read_provenance(run / "invert" / "refinement.parquet")["chosen_round"]
+    sol = art.read_table(run / "invert" / "solution.parquet").iloc[0]
+    assert sol["rolling_friction"] == ref.loc[ref["round"] == chosen, "rolling_friction"].iloc[0]
     r = runner.invoke(app, ["report", "--run", str(run)])
     assert r.exit_code == 0
     page = (run / "report.html").read_text()
@@ -198,3 +209,77 @@ def test_fit_on_simulations_leaves_out_failed_runs_and_refuses_a_hole_in_the_des
     r = runner.invoke(app, [*fit, "--run", str(run)])
     assert r.exit_code == 2 and "design run(s) 3 of bbd gave no angle under any condition" in " ".join(r.output.split())
     assert not (run / "surrogate" / "predictions.parquet").exists()
+
+
+def _refine_problem(bias):
+    """A plane surrogate f = 30 + 10 a + 5 b that the 'simulator' y = f + bias(a, b) contradicts."""
+    from calib_cli.discrepancy.stats import residual_table
+    from calib_cli.surrogate import inversion as inv
+
+    names, lo, hi, target = ["a", "b"], [0.0, 0.0], [1.0, 1.0], [38.0]
+
+    def f(P):
+        P = np.atleast_2d(P)
+        return (30.0 + 10.0 * P[:, 0] + 5.0 * P[:, 1])[:, None]
+
+    calls = []
+
+    def simulate(x, k):
+        calls.append(k)
+        y = float(f(x)[0, 0] + bias(x))
+        sim = pd.DataFrame({"condition_id": ["c"], "mean": [y], "sd": [1.0], "n": [3]})
+        rt = residual_table([target[0]], [1.0], [5], [y], [1.0], [3])
+        return pd.concat([sim, rt], axis=1)
+
+    def reinvert(d, x):
+        again = inv.invert(lambda P: f(P) + d[None, :], names, lo, hi, target, samples=1024, restarts=2)
+        return inv.nearest(again.solution_set, names, lo, hi, x)
+
+    x0 = inv.invert(f, names, lo, hi, target, samples=1024, restarts=2).best
+    return inv.refine(f, simulate, reinvert, x0, target, names, rounds=4), calls, f, bias
+
+
+def test_refinement_corrects_a_wrong_surrogate_until_the_simulations_agree():
+    """The surrogate is 3 deg too steep and its slope in a 20 % off: the first validation fails,
+    output space mapping moves the point until the simulated angle meets the target within 1 sd."""
+    ref, calls, f, bias = _refine_problem(lambda x: -3.0 - 2.0 * x[0])
+    r0 = ref.rounds[ref.rounds["round"] == 0].iloc[0]
+    assert r0["fails"] and abs(r0["bias"] - bias(r0[["a", "b"]].to_numpy(float))) < 1e-9
+    assert ref.accepted and ref.best_round >= 1 and calls == list(range(ref.best_round + 1))
+    y = f(ref.best)[0, 0] + bias(ref.best)
+    u = ref.rounds.loc[ref.rounds["round"] == ref.best_round, "uncertainty"].iloc[0]
+    assert abs(y - 38.0) <= u
+    # every round is recorded with its parameters, prediction and correction
+    assert {"round", "a", "b", "target", "predicted", "bias", "z", "fails"} <= set(ref.rounds.columns)
+
+
+def test_refinement_stops_at_once_when_the_first_validation_agrees():
+    ref, calls, _, _ = _refine_problem(lambda x: 0.5)
+    assert ref.accepted and ref.best_round == 0 and calls == [0] and len(ref.rounds) == 1
+
+
+def test_refinement_that_cannot_reach_the_target_keeps_the_closest_round():
+    """No point of the box reaches 38 deg (the simulator is 30 deg lower everywhere): not accepted,
+    and the chosen round is the one with the smallest |z|."""
+    ref, calls, _, _ = _refine_problem(lambda x: -30.0)
+    assert not ref.accepted and calls == [0, 1, 2, 3, 4]
+    worst = ref.rounds.groupby("round")["z"].apply(lambda z: z.abs().max())
+    assert ref.best_round == int(worst.idxmin())
+
+
+def test_nearest_point_of_a_set_is_measured_in_coded_units():
+    from calib_cli.surrogate.inversion import nearest
+
+    s = pd.DataFrame({"a": [0.0, 10.0], "b": [0.5, 0.0]})
+    # a spans 0-100, b 0-1: (10, 0) is 0.1 + 0.0 coded from (0, 0); (0, 0.5) is 0.5 away
+    assert list(nearest(s, ["a", "b"], [0, 0], [100, 1], [0.0, 0.0])) == [10.0, 0.0]
+
+
+def test_cli_refine_needs_validation_heaps(tmp_path):
+    run = tmp_path / "run"
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["bbd", "analyze", "--run", str(run), "--responses",
+                               str(PAPER / "table7_bbd.csv")]).exit_code == 0
+    assert runner.invoke(app, ["fit-surrogate", "--run", str(run)]).exit_code == 0
+    r = runner.invoke(app, ["invert", "--run", str(run), "--target", "32.07", "--refine", "2"])
+    assert r.exit_code == 2 and "--validate" in r.output and not (run / "invert").exists()

@@ -18,7 +18,9 @@ from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, get_preset  # noqa: E402
 from ..errors import CalibError  # noqa: E402
+from ..discrepancy.stats import residual_table  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
+from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, bbd_fixed, check_run_dir, console,  # noqa: E402
@@ -218,13 +220,18 @@ def invert(
                          "validation runs, KEY=VALUE (repeatable); given, the validation runs on the preset's "
                          "rig with these changes instead of the measured conditions.")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Parallel validation runs.")] = 1,
+    refine: Annotated[Optional[int], typer.Option(min=0, help="With --validate: at most this many corrections "
+                      "when the validation misses a target by more than invert.refine_z combined sd: its error "
+                      "there is added to the surrogate, which is inverted again nearest the last point (output space "
+                      "mapping). Default: settings invert.refine.")] = None,
     settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False,
 ):
     """GA inversion of the surrogate to the target angle within the fitted ranges (paper Eq. 11, Fig. 9),
-    the set of near-optimal parameters, and optional validation simulations (paper 3.6).
+    the set of near-optimal parameters, and optional validation simulations (paper 3.6), optionally
+    refined where the validation shows the surrogate wrong.
 
     Reads RUN/surrogate/. Writes RUN/invert/solution.parquet, history.parquet, solution_set.parquet,
-    ranges.parquet, fitness.png and, with --validate, validation.parquet.
+    ranges.parquet, fitness.png and, with --validate, validation.parquet (and with --refine, refinement.parquet).
     """
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
@@ -243,11 +250,15 @@ def invert(
         targets, tsource = [float(cfg["target"])], "settings target"
     if not all(np.isfinite(targets)) or not all(0 < t < 90 for t in targets):
         raise CalibError(f"target angles must lie in (0, 90) deg, got {targets}")
+    n_refine = int(iv["refine"] if refine is None else refine)
+    if n_refine and not validate:
+        raise CalibError("--refine corrects the inversion from validation heaps: give --validate N too")
     inputs = {"model": run / MODELS_DIR / f"{name}.json"}
     if cond_path.is_file() and (target is None or (validate and not condition)):
         inputs["conditions"] = cond_path  # the targets, or the rig of the validation runs
     st = art.Stage(run, "invert", "solve", inputs=inputs,
-                   settings={"invert": iv, "targets": targets, "model": name, "validate": validate, "preset": preset,
+                   settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
+                             "preset": preset,
                              "condition": sorted(condition or [])})
     if st.up_to_date() and not force:
         return skipped(st)
@@ -271,14 +282,12 @@ def invert(
         # one condition (or a surrogate without condition inputs): the same prediction for every target
         def predict_all(P):
             return np.repeat(m.predict(np.atleast_2d(P))[:, None], len(targets), axis=1)
-    res = invert_surrogate(predict_all, params, lows, highs, targets, int(iv["generations"]),
-                           int(iv["population"]), float(iv["crossover"]), float(iv["mutation"]), int(iv["seed"]),
-                           float(iv["tolerance"]), int(iv["samples"]), int(iv["restarts"]))
-    preds = predict_all(res.best[None, :])[0]
-    pred = float(np.mean(preds))
-    sol = pd.DataFrame([{**dict(zip(params, res.best.tolist())), "predicted_angle": pred, "fitness": res.fitness,
-                         "model": name, "target": float(np.mean(targets))}])
-    per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
+    def solve(predict):
+        return invert_surrogate(predict, params, lows, highs, targets, int(iv["generations"]), int(iv["population"]),
+                                float(iv["crossover"]), float(iv["mutation"]), int(iv["seed"]),
+                                float(iv["tolerance"]), int(iv["samples"]), int(iv["restarts"]))
+
+    res = solve(predict_all)
     hist = pd.DataFrame({"generation": np.arange(1, len(res.ga.best) + 1), "best": res.ga.best, "mean": res.ga.mean})
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(hist["generation"], hist["best"], label="best")
@@ -288,29 +297,66 @@ def invert(
     ax.set_ylabel("fitness: RMSE to target [deg]")
     ax.set_title(f"GA inversion of the {name} surrogate (cf. paper Fig. 9)")
     ax.legend()
-    validation = None
+    best_x, validation, refinement, chosen = res.best, None, None, 0
     if validate:
         pre = get_preset(preset)
         vtargets: dict[str, float] = {}  # each measured condition's own target, when it is one
+        vtab = None
         if condition or not cond_path.is_file():
             vconds = [("", _condition(pre.condition, _pairs(condition, "condition")))]
         else:
             # the rig the heaps were measured on, not the preset's: a validation elsewhere validates nothing
-            vtab = art.read_table(cond_path, columns=["condition_id", "mean"], what="measured conditions")
+            vtab = art.read_table(cond_path, columns=["condition_id", "mean", "sd", "n"], what="measured conditions")
             vconds = [(str(row["condition_id"]), condition_from_row(pre.condition, row)) for _, row in vtab.iterrows()]
             if target is None:
                 vtargets = dict(zip(vtab["condition_id"].astype(str), vtab["mean"].astype(float)))
+        if n_refine and len(vconds) != len(targets):
+            raise CalibError(f"--refine compares each validation condition with its own target: {len(vconds)} "
+                             f"validation condition(s) but {len(targets)} target(s) (drop --target)")
         fixed = bbd_fixed(run, cfg)
-        vparams = {**fixed, **{n: float(v) for n, v in zip(params, res.best) if n in PARAMETERS}}
-        # one condition keeps run index 0, so its seeds are those of a plain --validate
-        reqs = [Request(vparams, c, pre.numerics, derive_seed(int(iv["seed"]), i if len(vconds) > 1 else 0, r),
-                        preset, "validate", i, r, condition_id=cid)
-                for i, (cid, c) in enumerate(vconds, start=1) for r in range(validate)]
-        rows = run_campaign(reqs, run, workers)
-        validation = rows[["condition_id", "repeat", "seed", "status", "repose_angle", "angle_coords", "angle_image",
-                           "wall_s"]]
+        rounds: list[pd.DataFrame] = []
+
+        def simulate_round(x, k):
+            vparams = {**fixed, **{n: float(v) for n, v in zip(params, x) if n in PARAMETERS}}
+            # round 0 keeps the seeds of a plain --validate (one condition keeps run index 0); each
+            # correction round draws fresh ones
+            reqs = [Request(vparams, c, pre.numerics, derive_seed(int(iv["seed"]), i if len(vconds) > 1 else 0,
+                                                                  r + k * validate),
+                            preset, "validate", i, r + k * validate, condition_id=cid)
+                    for i, (cid, c) in enumerate(vconds, start=1) for r in range(validate)]
+            rows = run_campaign(reqs, run, workers).copy()
+            rows.insert(0, "round", k)
+            rounds.append(rows)
+            ids = [cid for cid, _ in vconds]
+            g = rows.groupby(rows["condition_id"].astype(str))["repose_angle"]
+            sim = pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "n": g.count()}).reindex(ids)
+            if vtab is not None and target is None:
+                m = vtab.set_index(vtab["condition_id"].astype(str)).reindex(ids)
+                mm, ms, mn = m["mean"], m["sd"], m["n"]
+            else:  # a bare target angle: no measured scatter to add
+                mm, ms, mn = np.full(len(ids), float(np.mean(targets))), np.full(len(ids), np.nan), np.zeros(len(ids))
+            rt = residual_table(mm, ms, mn, sim["mean"], sim["sd"], sim["n"])
+            return pd.concat([pd.DataFrame({"condition_id": ids}), sim.reset_index(drop=True), rt], axis=1)
+
+        def reinvert(bias, x):
+            again = solve(lambda P: predict_all(P) + bias[None, :])
+            return nearest(again.solution_set, params, lows, highs, x)
+
+        ref = refine_by_simulation(predict_all, simulate_round, reinvert, res.best, targets, params, n_refine,
+                                   float(iv["refine_z"]))
+        best_x, chosen = ref.best, ref.best_round
+        validation = pd.concat(rounds, ignore_index=True)[["round", "condition_id", "repeat", "seed", "status",
+                                                           "repose_angle", "angle_coords", "angle_image", "wall_s"]]
+        if n_refine:
+            refinement = ref.rounds
+    preds = predict_all(best_x[None, :])[0]
+    pred = float(np.mean(preds))
+    fit_at = float(np.sqrt(np.mean((preds - np.asarray(targets, float)) ** 2)))
+    sol = pd.DataFrame([{**dict(zip(params, best_x.tolist())), "predicted_angle": pred, "fitness": fit_at,
+                         "model": name, "target": float(np.mean(targets))}])
+    per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
     with st.commit() as out:
-        out.table("solution.parquet", sol, targets=targets, target_source=tsource)
+        out.table("solution.parquet", sol, targets=targets, target_source=tsource, refine_round=chosen)
         out.table("predicted_conditions.parquet", per_cond)
         out.table("history.parquet", hist)
         out.table("solution_set.parquet", res.solution_set, tolerance=float(iv["tolerance"]))
@@ -318,7 +364,10 @@ def invert(
         out.figure("fitness.png", fig)
         if validation is not None:
             out.table("validation.parquet", validation)
-    console.print(df_table(sol, f"GA optimum (targets from {tsource})"))
+        if refinement is not None:
+            out.table("refinement.parquet", refinement, accepted=bool(ref.accepted), chosen_round=chosen)
+    title = "GA optimum" if chosen == 0 else f"Solution of refinement round {chosen}"
+    console.print(df_table(sol, f"{title} (targets from {tsource})"))
     if len(targets) > 1:
         console.print(df_table(per_cond, "per condition: measured target and predicted angle at the optimum"))
     console.print(df_table(res.ranges, f"Near-optimal set: {len(res.solution_set)} points within "
@@ -328,9 +377,22 @@ def invert(
         console.print(f"[yellow]warning:[/] not identifiable from the data given: {', '.join(wide)} can vary over "
                       "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
                       "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
+    if refinement is not None:
+        cols = ["round", *params, *(["condition_id"] if len(vconds) > 1 else []), "mean", "z", "predicted", "bias"]
+        show = refinement[cols].rename(columns={"mean": "simulated"})
+        console.print(df_table(show, f"Refinement by simulation: {int(refinement['round'].max())} correction(s)"))
+        if ref.accepted:
+            console.print(f"round {chosen}'s heaps agree with every target (|z| <= {float(iv['refine_z']):g}): its "
+                          "parameters are the solution")
+        else:
+            console.print(f"[yellow]warning:[/] no round's heaps lie within {float(iv['refine_z']):g} combined sd of "
+                          "every target; the "
+                          f"solution is round {chosen}'s, the closest. The surrogate is wrong where the targets "
+                          "lie: simulate more there (a narrower BBD around the solution) or add conditions.")
     if validation is not None:
+        shown = validation[validation["round"] == chosen]
         for cid, _ in vconds:
-            ok = validation.loc[validation["condition_id"].astype(str) == cid, "repose_angle"].dropna()
+            ok = shown.loc[shown["condition_id"].astype(str) == cid, "repose_angle"].dropna()
             where = f" ({cid})" if cid else ""
             if len(ok):
                 t = vtargets.get(cid, float(np.mean(targets)))

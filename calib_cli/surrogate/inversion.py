@@ -65,3 +65,62 @@ def invert(predict: Callable[[np.ndarray], np.ndarray], names: Sequence[str], lo
                      "width_fraction": float((col.max() - col.min()) / (hi[j] - lo[j]))})
     ranges = pd.DataFrame(rows)
     return Inversion(ga.x, ga.f, ga, sset, ranges, bool((ranges["width_fraction"] <= identifiable_fraction).all()))
+
+
+def nearest(solution_set: pd.DataFrame, names: Sequence[str], lows, highs, x) -> np.ndarray:
+    """The point of a near-optimal set closest to ``x`` in coded units (each parameter over its range)."""
+    lo, hi = np.asarray(lows, float), np.asarray(highs, float)
+    P = solution_set[list(names)].to_numpy(float)
+    d = np.sum(((P - np.asarray(x, float)[None, :]) / (hi - lo)[None, :]) ** 2, axis=1)
+    return P[int(np.argmin(d))]
+
+
+@dataclass
+class Refinement:
+    rounds: pd.DataFrame  # round, parameters, condition_id, target, predicted, bias, simulated mean/sd/n, z, fails
+    best: np.ndarray  # the parameters of the chosen round
+    best_round: int
+    accepted: bool  # every condition of the chosen round has |z| <= accept_z
+
+
+def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.ndarray, int], pd.DataFrame],
+           reinvert: Callable[[np.ndarray, np.ndarray], np.ndarray], x0, targets, names: Sequence[str],
+           rounds: int, accept_z: float = 1.0) -> Refinement:
+    """Validate the inversion by simulation and correct the surrogate where it is wrong: output space
+    mapping (Bandler et al., IEEE Trans. MTT 52(1), 2004; Koziel, Bandler & Madsen, ibid. 54(10), 2006).
+
+    Round k simulates at x_k (``simulate(x, k)`` -> per condition ``mean``, ``sd``, ``n`` and ``z``, the
+    residual over its combined uncertainty as in ``compare``, in the order of ``targets``). If any
+    |z| > ``accept_z``, the surrogate's error there,
+    d_c = y_c(x_k) - f_c(x_k), is added to it and the corrected surrogate f + d is inverted again;
+    ``reinvert(d, x_k)`` returns x_(k+1), the near-optimal point of f + d closest to x_k (the correction
+    is measured at x_k and holds near it). Stops at the first round with every |z| <= ``accept_z`` or
+    after ``rounds`` corrections; the chosen round is the accepted one, else the one with the smallest
+    max |z|. ``accept_z`` is 1 rather than compare's 2: ``compare`` judges the solution on fresh heaps,
+    and a point accepted at the edge of the band fails it about half the time.
+    """
+    t = np.atleast_1d(np.asarray(targets, float))
+    x = np.asarray(x0, float)
+    tabs = []
+    for k in range(int(rounds) + 1):
+        f = np.asarray(predict(x[None, :]), float).reshape(-1)
+        sim = simulate(x, k).reset_index(drop=True)
+        y = sim["mean"].to_numpy(float)
+        tab = sim.copy()
+        tab.insert(0, "round", k)
+        for j, n in enumerate(names):
+            tab.insert(1 + j, n, float(x[j]))
+        tab["target"] = t
+        tab["predicted"] = f
+        tab["bias"] = y - f
+        tabs.append(tab)
+        z = tab["z"].to_numpy(float)
+        if np.all(np.abs(z) <= accept_z) or k == int(rounds) or not np.isfinite(y).all():
+            break  # accepted, out of rounds, or a condition formed no heap: nothing to correct with
+        x = np.asarray(reinvert(y - f, x), float)
+    allr = pd.concat(tabs, ignore_index=True)
+    worst = allr.groupby("round")["z"].apply(lambda z: float(np.nanmax(np.abs(z))) if z.notna().any() else np.inf)
+    ok = worst[worst <= accept_z].index
+    k = int(ok[0]) if len(ok) else int(worst.idxmin())
+    xb = allr.loc[allr["round"] == k, list(names)].iloc[0].to_numpy(float)
+    return Refinement(allr, xb, k, bool(len(ok)))
