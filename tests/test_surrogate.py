@@ -283,3 +283,15 @@ def test_cli_refine_needs_validation_heaps(tmp_path):
     assert runner.invoke(app, ["fit-surrogate", "--run", str(run)]).exit_code == 0
     r = runner.invoke(app, ["invert", "--run", str(run), "--target", "32.07", "--refine", "2"])
     assert r.exit_code == 2 and "--validate" in r.output and not (run / "invert").exists()
+
+
+def test_one_target_serves_every_validation_condition():
+    """`invert --target T --validate N` on a run measured under two conditions: no refinement, and
+    each condition's heaps are compared with the one target."""
+    from calib_cli.surrogate.inversion import refine
+
+    sim = pd.DataFrame({"condition_id": ["a", "b"], "mean": [30.0, 31.0], "sd": [1.0, 1.0], "n": [3, 3],
+                        "z": [0.1, -0.2], "fails": [False, False]})
+    ref = refine(lambda P: np.array([[30.5]]), lambda x, k: sim, None, [0.2, 0.3], [30.5], ["p", "q"], rounds=0)
+    assert list(ref.rounds["target"]) == [30.5, 30.5] and list(ref.rounds["bias"]) == [-0.5, 0.5]
+    assert ref.accepted and ref.best_round == 0

@@ -103,14 +103,16 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
     x = np.asarray(x0, float)
     tabs = []
     for k in range(int(rounds) + 1):
-        f = np.asarray(predict(x[None, :]), float).reshape(-1)
         sim = simulate(x, k).reset_index(drop=True)
         y = sim["mean"].to_numpy(float)
+        # one target (a bare --target) serves every validation condition
+        f = np.broadcast_to(np.asarray(predict(x[None, :]), float).reshape(-1), y.shape)
+        tk = np.broadcast_to(t, y.shape)
         tab = sim.copy()
         tab.insert(0, "round", k)
         for j, n in enumerate(names):
             tab.insert(1 + j, n, float(x[j]))
-        tab["target"] = t
+        tab["target"] = tk
         tab["predicted"] = f
         tab["bias"] = y - f
         tabs.append(tab)
