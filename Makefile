@@ -117,13 +117,14 @@ $(CALIB) diagnose --run $(1) --repeats 2 $(LABSIM)
 endef
 
 # revision 1 on the lab in $(1): add effect $(2), recalibrate with the settings overrides in the variable
-# named $(3) (a name: the overrides hold commas), restitution held at the BBD's 0.3, compare
+# named $(3) (a name: the overrides hold commas), restitution held at the BBD's 0.3; the inversion is
+# checked with 4 heaps per condition and corrected up to twice where they miss (invert --refine), compare
 define lab_rev1
 $(CALIB) model add $(2) --run $(1)
 $(CALIB) bbd design --run $(1) $($(3))
 $(CALIB) simulate-heap --run $(1) --design $(1)/bbd/design.parquet --conditions $(1)/measure/conditions.parquet $(LABSIM)
 $(CALIB) fit-surrogate --run $(1) --from-simulations bbd $($(3))
-$(CALIB) invert --run $(1) $($(3))
+$(CALIB) invert --run $(1) --validate 4 --refine 2 $(LABSIM) $($(3))
 $(CALIB) compare --run $(1) --set restitution=0.3 --repeats 8 $(LABSIM)
 endef
 

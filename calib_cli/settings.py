@@ -75,7 +75,7 @@ DEFAULTS: dict[str, Any] = {
         # with --validate: corrections of the surrogate by the validation heaps (0: the paper's
         # single validation, no correction)
         "refine": 0,
-        # a round is accepted when every |z| (compare's statistic) is at most this
+        # a round is accepted when the rms over the conditions of z (compare's statistic) is at most this
         "refine_z": 1.0,
     },
 }

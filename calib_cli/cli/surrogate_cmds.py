@@ -221,7 +221,7 @@ def invert(
                          "rig with these changes instead of the measured conditions.")] = None,
     workers: Annotated[int, typer.Option(min=1, help="Parallel validation runs.")] = 1,
     refine: Annotated[Optional[int], typer.Option(min=0, help="With --validate: at most this many corrections "
-                      "when the validation misses a target by more than invert.refine_z combined sd: its error "
+                      "when the validation misses the targets by more than invert.refine_z combined sd (rms z): its error "
                       "there is added to the surrogate, which is inverted again nearest the last point (output space "
                       "mapping). Default: settings invert.refine.")] = None,
     settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False,
@@ -382,11 +382,11 @@ def invert(
         show = refinement[cols].rename(columns={"mean": "simulated"})
         console.print(df_table(show, f"Refinement by simulation: {int(refinement['round'].max())} correction(s)"))
         if ref.accepted:
-            console.print(f"round {chosen}'s heaps agree with every target (|z| <= {float(iv['refine_z']):g}): its "
+            console.print(f"round {chosen}'s heaps agree with the targets (rms z <= {float(iv['refine_z']):g}): its "
                           "parameters are the solution")
         else:
-            console.print(f"[yellow]warning:[/] no round's heaps lie within {float(iv['refine_z']):g} combined sd of "
-                          "every target; the "
+            console.print(f"[yellow]warning:[/] no round's heaps lie within {float(iv['refine_z']):g} combined sd "
+                          "(rms z) of the targets; the "
                           f"solution is round {chosen}'s, the closest. The surrogate is wrong where the targets "
                           "lie: simulate more there (a narrower BBD around the solution) or add conditions.")
     if validation is not None:
