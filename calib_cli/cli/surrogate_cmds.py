@@ -365,7 +365,8 @@ def invert(
         if validation is not None:
             out.table("validation.parquet", validation)
         if refinement is not None:
-            out.table("refinement.parquet", refinement, accepted=bool(ref.accepted), chosen_round=chosen)
+            out.table("refinement.parquet", refinement, accepted=bool(ref.accepted), chosen_round=chosen,
+                      stalled=bool(ref.stalled))
     title = "GA optimum" if chosen == 0 else f"Solution of refinement round {chosen}"
     console.print(df_table(sol, f"{title} (targets from {tsource})"))
     if len(targets) > 1:
@@ -381,6 +382,9 @@ def invert(
         cols = ["round", *params, *(["condition_id"] if len(vconds) > 1 else []), "mean", "z", "predicted", "bias"]
         show = refinement[cols].rename(columns={"mean": "simulated"})
         console.print(df_table(show, f"Refinement by simulation: {int(refinement['round'].max())} correction(s)"))
+        if ref.stalled:
+            console.print(f"refinement stopped: the correction from round {int(refinement['round'].max())} returned "
+                          "the point just simulated")
         if ref.accepted:
             console.print(f"round {chosen}'s heaps agree with the targets (rms z <= {float(iv['refine_z']):g}): its "
                           "parameters are the solution")

@@ -86,6 +86,7 @@ class Refinement:
     best: np.ndarray  # the parameters of the chosen round
     best_round: int
     accepted: bool  # the chosen round's rms z over the conditions is at most accept_z
+    stalled: bool = False  # stopped because a correction returned the point just simulated
 
 
 def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.ndarray, int], pd.DataFrame],
@@ -100,7 +101,9 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
     d_c = y_c(x_k) - f_c(x_k), is added to it and the corrected surrogate f + d is inverted again;
     ``reinvert(d, x_k)`` returns x_(k+1), the near-optimal point of f + d closest to x_k (the correction
     is measured at x_k and holds near it). Stops at the first round with rms z <= ``accept_z`` or after
-    ``rounds`` corrections; the chosen round is the accepted one, else the one with the smallest rms z.
+    ``rounds`` corrections, or when a correction returns x_k itself (the corrected surrogate can do no
+    better there; another round would only re-measure x_k and keep the luckiest draw); the chosen round
+    is the accepted one, else the one with the smallest rms z.
     ``accept_z`` is 1 rather than compare's 2: ``compare`` judges the solution on fresh heaps, and a
     point accepted at the edge of the band fails it about half the time. With several conditions the
     rms (E z^2 = 1 at a perfect fit) rather than the largest |z|: six conditions all within one sd
@@ -108,7 +111,7 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
     """
     t = np.atleast_1d(np.asarray(targets, float))
     x = np.asarray(x0, float)
-    tabs = []
+    tabs, stalled = [], False
     for k in range(int(rounds) + 1):
         sim = simulate(x, k).reset_index(drop=True)
         y = sim["mean"].to_numpy(float)
@@ -126,10 +129,14 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
         z = tab["z"].to_numpy(float)
         if _rms(z) <= accept_z or k == int(rounds) or not np.isfinite(y).all():
             break  # accepted, out of rounds, or a condition formed no heap: nothing to correct with
-        x = np.asarray(reinvert(y - f, x), float)
+        x_new = np.asarray(reinvert(y - f, x), float)
+        if np.allclose(x_new, x, rtol=0.0, atol=1e-12):
+            stalled = True  # the corrected surrogate keeps the point: another round would only re-measure it
+            break
+        x = x_new
     allr = pd.concat(tabs, ignore_index=True)
     score = allr.groupby("round")["z"].apply(lambda z: _rms(z.to_numpy(float)))
     ok = score[score <= accept_z].index
     k = int(ok[0]) if len(ok) else int(score.idxmin())
     xb = allr.loc[allr["round"] == k, list(names)].iloc[0].to_numpy(float)
-    return Refinement(allr, xb, k, bool(len(ok)))
+    return Refinement(allr, xb, k, bool(len(ok)), stalled)
