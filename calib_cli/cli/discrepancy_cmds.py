@@ -18,7 +18,8 @@ import typer  # noqa: E402
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
-from ..discrepancy.stats import at_bounds, confounded, residual_table, score_effects, summary, trends  # noqa: E402
+from ..discrepancy.stats import (at_bounds, confounded, per_condition, residual_table, score_effects,  # noqa: E402
+                                 summary, trends)
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import (RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings,
@@ -121,9 +122,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
                                 pre.numerics, derive_seed(seed, i, r), preset, tag, i, r, model.hash,
                                 str(row["condition_id"])))
     rows = run_campaign(reqs, run, workers)
-    g = rows.groupby("condition_id")["repose_angle"]
-    out = pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "n": g.count()})
-    return out.reindex(conds["condition_id"].astype(str)), rows
+    return per_condition(rows, conds["condition_id"]), rows
 
 
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,

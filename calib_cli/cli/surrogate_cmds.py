@@ -18,7 +18,7 @@ from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, get_preset  # noqa: E402
 from ..errors import CalibError  # noqa: E402
-from ..discrepancy.stats import residual_table  # noqa: E402
+from ..discrepancy.stats import per_condition, residual_table  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
@@ -328,8 +328,7 @@ def invert(
             rows.insert(0, "round", k)
             rounds.append(rows)
             ids = [cid for cid, _ in vconds]
-            g = rows.groupby(rows["condition_id"].astype(str))["repose_angle"]
-            sim = pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "n": g.count()}).reindex(ids)
+            sim = per_condition(rows, ids)
             if vtab is not None and target is None:
                 m = vtab.set_index(vtab["condition_id"].astype(str)).reindex(ids)
                 mm, ms, mn = m["mean"], m["sd"], m["n"]

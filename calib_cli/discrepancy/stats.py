@@ -46,6 +46,14 @@ def _pooled_var(sd, n) -> np.ndarray:
     return np.full(len(sd), float(np.sum((n[ok] - 1) * sd[ok] ** 2) / np.sum(n[ok] - 1)))
 
 
+def per_condition(rows: pd.DataFrame, ids) -> pd.DataFrame:
+    """Mean, sd (ddof 1) and n of the simulated ``repose_angle`` per ``condition_id``, in the order of ``ids``
+    (a condition without a heap gets NaN)."""
+    g = rows.groupby(rows["condition_id"].astype(str))["repose_angle"]
+    return pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "n": g.count()}).reindex(
+        pd.Index([str(i) for i in ids], name="condition_id"))
+
+
 def residual_table(measured, measured_sd, measured_n, simulated, simulated_sd, simulated_n,
                    pool: bool = True) -> pd.DataFrame:
     m, s = np.asarray(measured, float), np.asarray(simulated, float)
