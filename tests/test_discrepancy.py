@@ -8,7 +8,8 @@ from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
 from calib_cli.cli import app
-from calib_cli.discrepancy.stats import residual_table, score_effects, summary, trends
+from calib_cli.discrepancy.stats import (difference_se, per_condition, residual_table, score_effects,
+                                        signature_noise, summary, trends)
 from calib_cli.model import EFFECTS, Model, load_model, save_model
 
 runner = CliRunner()
@@ -91,6 +92,25 @@ def test_pooled_scatter_keeps_the_false_failure_rate_near_nominal():
     rate = {k: v / (6 * n_labs) for k, v in fails.items()}
     assert 0.04 <= rate[True] <= 0.08
     assert rate[False] > 1.5 * rate[True]
+
+
+def test_difference_se_pools_the_scatter_of_both_ends():
+    rows = pd.DataFrame({"condition_id": ["a"] * 4 + ["b"] * 4, "repose_angle": [30, 32, 34, 36, 20, 22, 24, 26.0]})
+    a = per_condition(rows, ["a", "b"])
+    b = per_condition(rows.assign(repose_angle=rows["repose_angle"] - 1.0), ["a", "b"])
+    sd = np.std([30, 32, 34, 36.0], ddof=1)  # every group has the same sd
+    assert np.allclose(difference_se(a, b, 0.5), np.sqrt(2 * sd**2 / 4) / 0.5)
+    assert np.isnan(difference_se(a, per_condition(rows[rows["condition_id"] == "a"], ["a", "b"]), 1.0)[1])
+
+
+def test_signature_noise_flags_noise_at_the_nominal_rate_and_resolves_a_signal():
+    rng = np.random.default_rng(3)
+    se = np.array([0.5, 1.0, 2.0, 1.0, 0.7, 1.5])
+    p = np.array([signature_noise(rng.normal(0, se), se)[1] for _ in range(4000)])
+    assert abs(np.mean(p < 0.05) - 0.05) < 0.012  # a pure-noise signature is "resolved" 5 % of the time
+    x2, p1 = signature_noise(4 * se + rng.normal(0, se), se)
+    assert p1 < 1e-6 and x2 > 50
+    assert np.isnan(signature_noise([1.0, 2.0], [np.nan, 0.0])[1])
 
 
 def test_residuals_and_summary():
@@ -228,7 +248,8 @@ def test_diagnose_end_to_end_on_tiny_heaps(tmp_path):
     r = runner.invoke(app, ["diagnose", "--run", str(run), *SIM])
     assert r.exit_code == 0, r.output
     rank = art.read_table(run / "diagnose" / "ranking.parquet")
-    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "evidence"]
+    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "signature_p", "evidence"]
+    assert rank["signature_p"].between(0, 1).all()
     assert set(rank["effect"]) == set(EFFECTS) - {"sliding_friction", "rolling_friction", "restitution"}
     assert "simulations" in r.output  # the cost is printed before it starts
 

@@ -18,8 +18,8 @@ import typer  # noqa: E402
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
-from ..discrepancy.stats import (at_bounds, confounded, per_condition, residual_table, score_effects,  # noqa: E402
-                                 summary, trends)
+from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
+                                 score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import (RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings,
@@ -223,7 +223,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sim, _ = _simulate(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
                            workers, f"sens-{e}")
         J.append((sim["mean"].to_numpy() - b) / h)
-    starts = {}
+    starts, G_se = {}, {}
     for e in cands:
         eff = EFFECTS[e]
         down, up = eff.probe(theta)
@@ -234,8 +234,10 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
             dn, _ = _simulate(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
                               f"cand-{e}-down")
             G[e] = (sim["mean"].to_numpy() - dn["mean"].to_numpy()) / (up - down)
+            G_se[e] = difference_se(sim, dn, up - down)
         else:  # a forward step from neutral: the model's own simulations stand there
             G[e] = (sim["mean"].to_numpy() - b) / eff.step
+            G_se[e] = difference_se(sim, base, eff.step)
     J = np.column_stack(J) if J else np.zeros((len(b), 0))
     r_all, u_all = res["residual"].to_numpy(float), res["uncertainty"].to_numpy(float)
     ok = np.isfinite(r_all) & np.isfinite(u_all) & np.all(np.isfinite(J), axis=1)
@@ -247,7 +249,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
                       "or the uncertainty is unknown")
     if ok.sum() <= J.shape[1]:
         raise CalibError(f"only {int(ok.sum())} usable condition(s) for {J.shape[1]} parameters: cannot diagnose")
-    J, G = J[ok], {k: g[ok] for k, g in G.items()}
+    J, G, G_se = J[ok], {k: g[ok] for k, g in G.items()}, {k: v[ok] for k, v in G_se.items()}
     # the current parameters can absorb misfit only within the ranges the calibration searched
     sp = space_from_design(run / "bbd" / "design.parquet")
     ranges = {}
@@ -272,6 +274,13 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     for a, c in confounded(u_all[ok], J[:, free], G):
         console.print(f"[yellow]warning:[/] {a} and {c} leave the same signature across these conditions: "
                       "the data cannot tell them apart; add conditions that separate them")
+    # a signature within the scatter of the heaps that measured it ranks noise (discrepancy/stats.py)
+    ranking["signature_p"] = [signature_noise(G[e], G_se[e])[1] for e in ranking["effect"]]
+    for _, r in ranking.iterrows():
+        if not r["signature_p"] < alpha:
+            console.print(f"[yellow]warning:[/] {r['effect']}'s signature is not resolved from the pile-to-pile "
+                          f"scatter with {repeats} heap(s) a step (p = {r['signature_p']:.2g} that it is zero): its "
+                          "rank is noise; rerun with more --repeats (cached heaps are reused)")
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
     top = tr.sort_values("p_value").iloc[0] if len(tr) else None
     words = []
@@ -280,6 +289,9 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sig = "significant" if r["p_value"] < alpha else "not significant"
         txt = (f"{sig} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the misfit; "
                f"its signature: {eff.signature}")
+        if not r["signature_p"] < alpha:
+            txt += (f"; its signature is within the simulation noise (p = {r['signature_p']:.2g}): "
+                    "the rank is unreliable")
         if top is not None and r["p_value"] < alpha:
             way = "grows" if top["slope"] > 0 else "falls"
             txt += f"; observed: the residual {way} with {top['variable']} (p = {top['p_value']:.3g})"
@@ -293,11 +305,12 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
     with st.commit() as out:
-        out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "evidence"]],
+        out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
+                                              "evidence"]],
                   model_revision=model.revision)
         out.table("sensitivities.parquet", sens)
         out.table("trends.parquet", tr)
-    console.print(df_table(ranking[["effect", "score", "p_value", "explained_fraction"]],
+    console.print(df_table(ranking[["effect", "score", "p_value", "explained_fraction", "signature_p"]],
                            f"missing effects, ranked (model revision {model.revision})"))
     for _, r in ranking.iterrows():
         console.print(f"[bold]{r['effect']}[/]: {r['evidence']}")
