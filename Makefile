@@ -107,7 +107,8 @@ REV1   := -s 'bbd.factors=["static_friction","rolling_friction","surface_energy"
 # revision 0 on the lab in $(1)/lab: calibrate on every condition at once, compare, diagnose with
 # $(2) heaps per condition and step. A small missing effect needs more: the wall and floor labs' rev-0
 # errors (~1.2 deg) are a third of the cohesion lab's, and with 2 heaps a step their diagnose ranked
-# noise (wall friction last, p 0.76); with 6 it ranked wall friction first (p 3e-5)
+# noise (wall friction last, p 0.76); with 6 it ranked wall friction first (p 3e-5). The committed
+# sample_runs/hidden-wall and hidden-floor were made with 2 and are still to be regenerated
 define lab_rev0
 $(CALIB) init --run $(1) --settings stages/hidden-effect.toml
 $(CALIB) measure-angle --run $(1) --images $(1)/lab --conditions $(1)/lab/conditions.csv

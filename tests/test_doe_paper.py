@@ -183,7 +183,11 @@ def test_rsm_predict_matches_fitted_and_equation(rsm, table7):
     assert rsm.equation().startswith("Y = 33.91 + 1.9*static_friction + 5.985*rolling_friction")
     named = bbd.QuadraticRSM().fit(table7, ParameterSpace.from_data(table7, BBD_FACTORS,
                                                                      factor_space(load_settings(), BBD_FACTORS)))
-    assert named.equation().startswith("Y = 33.91 + 1.9X1 + 5.985X2 + 1.117X3 - 1.365X1X2")
+    # X3's coefficient is 1.1175 exactly (the paper prints 1.12): its 4th digit is a rounding tie that
+    # float noise settles either way between numpy/statsmodels versions, so the tie is checked numerically
+    eq = named.equation()
+    assert eq.startswith("Y = 33.91 + 1.9X1 + 5.985X2 + 1.11") and "X3 - 1.365X1X2" in eq
+    assert abs(named.coef_.iloc[3] - 1.1175) < 1e-9
 
 
 def test_bbd_design_shape():
