@@ -10,6 +10,8 @@ index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every fin
 from __future__ import annotations
 
 import concurrent.futures as cf
+import functools
+import platform
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping
@@ -68,6 +70,26 @@ def derive_seed(base: int, run_id: int, repeat: int) -> int:
     return int(np.random.SeedSequence([int(base), int(run_id), int(repeat)]).generate_state(1)[0] & 0x7FFFFFFF)
 
 
+@functools.cache
+def host() -> str:
+    """What, besides the inputs in the run hash, the heap's last bits depend on: the CPU's
+    instruction set as numpy dispatches on it, numpy's and numba's versions.
+
+    numpy sends float64 transcendental ufuncs (cbrt, power, ...) to Intel's SVML on AVX-512
+    CPUs and to libm elsewhere; they differ in the last place, and a heap amplifies that until it
+    settles differently (docs/performance.md, "Reproducibility").
+    """
+    import numba
+
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as cpu
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as cpu
+
+    simd = next((f for f in ("AVX512_SKX", "AVX512F", "AVX2", "ASIMD", "SSE42") if cpu.get(f)), "baseline")
+    return f"{platform.machine()} {simd} numpy {np.__version__} numba {numba.__version__}"
+
+
 def _row(req: Request, res, img) -> dict:
     """The results row. The primary angle is the rendered side view's, measured by the same
     code as the photographs (SPEC 5), falling back to the coordinate angle."""
@@ -96,7 +118,7 @@ def _row(req: Request, res, img) -> dict:
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
         "t_settled": res.t_settled, "t_lift_end": res.t_lift_end, "max_overlap": s.max_overlap,
         "wall_s": res.wall_s, "particle_steps_per_s": s.n * s.n_steps / max(res.wall_s, 1e-9),
-        "kernel": KERNEL_VERSION, "source": SOURCE_HASH, "version": __version__,
+        "kernel": KERNEL_VERSION, "source": SOURCE_HASH, "version": __version__, "host": host(),
     }
 
 

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
-from calib_cli.campaign import Request, derive_seed, load_results, run_campaign
+from calib_cli.campaign import Request, derive_seed, host, load_results, run_campaign
 from calib_cli.cli import app
 from calib_cli.dem.angle import repose_angle_coords
 from calib_cli.dem.heap import DRIFT_WINDOW, DriftMeter, HeapCondition, Numerics, fill_cylinder, interactions, run_heap
@@ -125,6 +125,11 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
     assert rows.iloc[0]["wall_s"] == res.iloc[0]["wall_s"]
     for sub in ("state.parquet", "side.png", "particles.vtp", "result.json"):
         assert (tmp_path / "simulate" / "runs" / rows.iloc[1]["run_hash"] / sub).is_file()
+    # each row says what its last bits depend on beyond the run hash (docs/performance.md)
+    import numba
+
+    assert rows.iloc[1]["host"] == host()
+    assert f"numpy {np.__version__}" in host() and f"numba {numba.__version__}" in host()
 
 
 def test_seeds_differ_per_run_and_repeat():

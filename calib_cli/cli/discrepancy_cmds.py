@@ -276,11 +276,6 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
                       "the data cannot tell them apart; add conditions that separate them")
     # a signature within the scatter of the heaps that measured it ranks noise (discrepancy/stats.py)
     ranking["signature_p"] = [signature_noise(G[e], G_se[e])[1] for e in ranking["effect"]]
-    for _, r in ranking.iterrows():
-        if not r["signature_p"] < alpha:
-            console.print(f"[yellow]warning:[/] {r['effect']}'s signature is not resolved from the pile-to-pile "
-                          f"scatter with {repeats} heap(s) a step (p = {r['signature_p']:.2g} that it is zero): its "
-                          "rank is noise; rerun with more --repeats (cached heaps are reused)")
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
     top = tr.sort_values("p_value").iloc[0] if len(tr) else None
     words = []
@@ -289,7 +284,10 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sig = "significant" if r["p_value"] < alpha else "not significant"
         txt = (f"{sig} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the misfit; "
                f"its signature: {eff.signature}")
-        if not r["signature_p"] < alpha:
+        if not r["signature_p"] < alpha:  # NaN (one heap a step: no scatter to judge by) counts as unresolved
+            console.print(f"[yellow]warning:[/] {r['effect']}'s signature is not resolved from the pile-to-pile "
+                          f"scatter with {repeats} heap(s) a step (p = {r['signature_p']:.2g} that it is zero): its "
+                          "rank is noise; rerun with more --repeats (cached heaps are reused)")
             txt += (f"; its signature is within the simulation noise (p = {r['signature_p']:.2g}): "
                     "the rank is unreliable")
         if top is not None and r["p_value"] < alpha:

@@ -1,0 +1,63 @@
+"""Re-simulate committed heaps on this machine and compare them with the committed results, bit for bit.
+
+    python benchmarks/reproduce_heaps.py sample_runs/smoke --limit 12
+    NUMBA_CPU_NAME=generic python benchmarks/reproduce_heaps.py sample_runs/smoke --limit 12
+
+Every row of ``RUN/simulate/results.parquet`` holds what determines its heap (parameters,
+condition, preset, seed, kernel source hash); this runs the same heap with the kernel of this
+tree, one process and one numba thread (as a campaign worker does), and prints, per heap, the
+committed and the new coordinate angle and step count. A heap is a chaotic many-body system: a
+difference of one unit in the last place anywhere grows until the heap settles differently, so
+the figure that matters is how many heaps come out bitwise equal. Rows made by another kernel
+source are skipped (their run hash would not match either).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import platform
+import sys
+from pathlib import Path
+
+import numba
+import numpy as np
+import pandas as pd
+
+from calib_cli.campaign import Request
+from calib_cli.dem import SOURCE_HASH, heap
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path)
+    ap.add_argument("--limit", type=int, default=12, help="heaps to re-simulate (the first N of this kernel)")
+    args = ap.parse_args()
+    res = pd.read_parquet(args.run / "simulate" / "results.parquet")
+    res = res[(res["source"] == SOURCE_HASH) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    if res.empty:
+        sys.exit(f"no builtin heaps of this kernel source ({SOURCE_HASH}) in {args.run}")
+    numba.set_num_threads(1)
+    cond_fields = [f.name for f in dataclasses.fields(heap.HeapCondition)]
+    print(f"{platform.processor() or platform.machine()}  numba {numba.__version__}  numpy {np.__version__}  "
+          f"NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}")
+    equal, diffs = 0, []
+    rows = res.drop_duplicates("run_hash").head(args.limit)
+    for _, row in rows.iterrows():
+        params = {k: float(row[k]) for k in heap.PARAMETERS if k in row and pd.notna(row[k])}
+        cond = heap.HeapCondition(**{k: row[k] for k in cond_fields})
+        num = heap.get_preset(row["preset"]).numerics
+        if Request(params, cond, num, int(row["seed"]), model=row["model"]).hash != row["run_hash"]:
+            sys.exit(f"run {row['run_hash']}: its inputs could not be rebuilt from the results row")
+        r = heap.run_heap(params, cond, num, int(row["seed"]))
+        same = r.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
+        equal += same
+        diffs.append(r.angle.angle - row["angle_coords"])
+        print(f"{row['run_hash']}  committed {row['angle_coords']:7.3f} deg {row['n_steps']:6d} steps   "
+              f"here {r.angle.angle:7.3f} deg {r.n_steps:6d} steps   {'bitwise equal' if same else 'DIFFERENT'}")
+    d = np.abs(np.array(diffs))
+    print(f"{equal} of {len(rows)} heaps bitwise equal; mean |difference| {d.mean():.2f} deg, max {d.max():.2f} deg")
+
+
+if __name__ == "__main__":
+    main()
