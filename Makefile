@@ -107,8 +107,8 @@ REV1   := -s 'bbd.factors=["static_friction","rolling_friction","surface_energy"
 # revision 0 on the lab in $(1)/lab: calibrate on every condition at once, compare, diagnose with
 # $(2) heaps per condition and step. A small missing effect needs more: the wall and floor labs' rev-0
 # errors (~1.2 deg) are a third of the cohesion lab's, and with 2 heaps a step their diagnose ranked
-# noise (wall friction last, p 0.76); with 6 it ranked wall friction first (p 3e-5). The committed
-# sample_runs/hidden-wall and hidden-floor were made with 2 and are still to be regenerated
+# noise (wall friction last, p 0.76); with 6 it ranked wall friction first (p 3e-5, and 2e-6 on the
+# committed sample run)
 define lab_rev0
 $(CALIB) init --run $(1) --settings stages/hidden-effect.toml
 $(CALIB) measure-angle --run $(1) --images $(1)/lab --conditions $(1)/lab/conditions.csv
@@ -149,7 +149,7 @@ control-lab: setup
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
 # the starting model gives the walls the grains' friction): compare, diagnose ranks wall friction first,
 # add it and recalibrate over the span diagnose stepped it (0.2-0.4), compare
-# (~40 min; docs/tutorial-hidden-effect.md section 7)
+# (~90 min on 2 cores from nothing; docs/tutorial-hidden-effect.md section 7)
 WALL   := sample_runs/hidden-wall
 WREV1  := -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' \
           -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
@@ -162,7 +162,7 @@ hidden-wall: setup
 # A third hidden effect: a rough floor (rolling resistance 0.4 on the floor and cylinder against the
 # grains' 0.15; the starting model gives the walls the grains' rolling friction): compare, diagnose, add
 # it and recalibrate over 0.1-0.5 (its declared range less the end where grains never stop rolling on
-# the floor), compare (~35 min; docs/tutorial-hidden-effect.md section 8)
+# the floor), compare (~110 min on 2 cores from nothing; docs/tutorial-hidden-effect.md section 8)
 FLOOR  := sample_runs/hidden-floor
 FREV1  := -s 'bbd.factors=["static_friction","rolling_friction","wall_rolling_friction"]' \
           -s factors.wall_rolling_friction.low=0.1 -s factors.wall_rolling_friction.high=0.5
