@@ -13,11 +13,12 @@ SIM    := --preset smoke --workers 2
 
 setup: $(VENV)/.installed
 
-# torch is pinned (==2.13.0, CPU wheel) in pyproject.toml: an unpinned torch pulls a multi-GB CUDA build
-$(VENV)/.installed: pyproject.toml
+# torch is pinned (==2.13.0, CPU wheel) in pyproject.toml: an unpinned torch pulls a multi-GB CUDA build.
+# constraints.txt pins the numerical stack the sample runs were made with (a heap's last bits depend on it)
+$(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
-	$(VENV)/bin/pip install -q -e '.[test]'
+	$(VENV)/bin/pip install -q -c constraints.txt -e '.[test]'
 	touch $@
 
 test: setup
@@ -27,7 +28,7 @@ test-all: setup
 	$(PY) -m pytest -q
 
 # the main job on the shipped sample data: the paper's chain on its published tables, then a
-# whole calibration from the sample photographs on simulations at the `default` numerics (~10 min)
+# whole calibration from the sample photographs on simulations at the `default` numerics (9-18 min)
 calibrate: paper calibration
 
 # Table 1 -> target, Tables 3 and 5 -> screening and ascent, into run directory $(1)

@@ -2,6 +2,7 @@
 
     python benchmarks/reproduce_heaps.py sample_runs/smoke --limit 12
     NUMBA_CPU_NAME=generic python benchmarks/reproduce_heaps.py sample_runs/smoke --limit 12
+    python benchmarks/reproduce_heaps.py sample_runs/smoke --query "surface_energy == 0"
 
 Every row of ``RUN/simulate/results.parquet`` holds what determines its heap (parameters,
 condition, preset, seed, kernel source hash); this runs the same heap with the kernel of this
@@ -25,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import Request
+from calib_cli.cli.simulate_cmd import condition_from_row
 from calib_cli.dem import SOURCE_HASH, heap
 
 
@@ -32,21 +34,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path)
     ap.add_argument("--limit", type=int, default=12, help="heaps to re-simulate (the first N of this kernel)")
+    ap.add_argument("--query", default="", help="a pandas query on the results rows, e.g. 'surface_energy == 0'")
     args = ap.parse_args()
     res = pd.read_parquet(args.run / "simulate" / "results.parquet")
     res = res[(res["source"] == SOURCE_HASH) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    if args.query:
+        res = res.query(args.query)
     if res.empty:
-        sys.exit(f"no builtin heaps of this kernel source ({SOURCE_HASH}) in {args.run}")
+        sys.exit(f"no builtin heaps of this kernel source ({SOURCE_HASH}) in {args.run} {args.query}")
     numba.set_num_threads(1)
-    cond_fields = [f.name for f in dataclasses.fields(heap.HeapCondition)]
     print(f"{platform.processor() or platform.machine()}  numba {numba.__version__}  numpy {np.__version__}  "
           f"NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}")
     equal, diffs = 0, []
     rows = res.drop_duplicates("run_hash").head(args.limit)
     for _, row in rows.iterrows():
         params = {k: float(row[k]) for k in heap.PARAMETERS if k in row and pd.notna(row[k])}
-        cond = heap.HeapCondition(**{k: row[k] for k in cond_fields})
-        num = heap.get_preset(row["preset"]).numerics
+        preset = heap.get_preset(row["preset"])
+        cond, num = condition_from_row(preset.condition, row), preset.numerics
+        if "floor" in row and isinstance(row["floor"], str):  # not a conditions-table variable, but keyed
+            cond = dataclasses.replace(cond, floor=row["floor"])
         if Request(params, cond, num, int(row["seed"]), model=row["model"]).hash != row["run_hash"]:
             sys.exit(f"run {row['run_hash']}: its inputs could not be rebuilt from the results row")
         r = heap.run_heap(params, cond, num, int(row["seed"]))

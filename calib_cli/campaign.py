@@ -76,8 +76,8 @@ def host() -> str:
     instruction set as numpy dispatches on it, numpy's and numba's versions.
 
     numpy sends float64 transcendental ufuncs (cbrt, power, ...) to Intel's SVML on AVX-512
-    CPUs and to libm elsewhere; they differ in the last place, and a heap amplifies that until it
-    settles differently (docs/performance.md, "Reproducibility").
+    CPUs and to libm elsewhere, which can differ in the last place, and a heap amplifies any such
+    difference until it settles differently (docs/performance.md, "Reproducibility").
     """
     import numba
 
