@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import platform
 import sys
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import numba
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import Request
+from calib_cli.campaign import Request, host
 from calib_cli.cli.simulate_cmd import condition_from_row
 from calib_cli.dem import SOURCE_HASH, heap
 
@@ -43,8 +42,9 @@ def main() -> None:
     if res.empty:
         sys.exit(f"no builtin heaps of this kernel source ({SOURCE_HASH}) in {args.run} {args.query}")
     numba.set_num_threads(1)
-    print(f"{platform.processor() or platform.machine()}  numba {numba.__version__}  numpy {np.__version__}  "
-          f"NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}")
+    made = sorted(res["host"].dropna().unique()) if "host" in res else []
+    print(f"here: {host()}, NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}; "
+          f"made on: {', '.join(made) or 'not recorded (rows made before the host column)'}")
     equal, diffs = 0, []
     rows = res.drop_duplicates("run_hash").head(args.limit)
     for _, row in rows.iterrows():
