@@ -12,7 +12,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import statsmodels.api as sm
 
 DEFAULT_BAND = (0.15, 0.85)
 
@@ -34,6 +33,8 @@ NO_FIT = FlankFit(float("nan"), float("nan"), float("nan"), float("nan"), 0)
 
 
 def _rlm(r, h):
+    import statsmodels.api as sm  # here, not at the top: it costs ~2 s of every calib command's start-up
+
     X = sm.add_constant(r)
     try:
         res = sm.RLM(h, X, M=sm.robust.norms.HuberT()).fit()

@@ -20,7 +20,6 @@ from typing import Sequence
 
 import numpy as np
 import pandas as pd
-import statsmodels.api as sm
 from scipy import stats
 
 from ..errors import CalibError
@@ -77,6 +76,8 @@ def fit_linear(
     A = np.column_stack([np.ones(n), X])
     if np.linalg.matrix_rank(A) < p:
         raise CalibError("the design cannot separate the model terms (singular design matrix)")
+    import statsmodels.api as sm  # here, not at the top: start-up of the commands that fit nothing
+
     res = sm.OLS(y, A).fit()
     names = ["Intercept", *terms]
     coef = pd.Series(res.params, index=names)
