@@ -33,7 +33,7 @@ NO_FIT = FlankFit(float("nan"), float("nan"), float("nan"), float("nan"), 0)
 
 
 def _rlm(r, h):
-    import statsmodels.api as sm  # here, not at the top: it costs ~2 s of every calib command's start-up
+    import statsmodels.api as sm  # here, not at the top: it cost ~1 s of every calib command's start-up
 
     X = sm.add_constant(r)
     try:
