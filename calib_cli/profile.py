@@ -1,7 +1,7 @@
 """Heap-profile geometry shared by the image path and the particle-coordinate path.
 
 A flank is the part of the top profile h(r) between the toe and the apex; its angle is
-``atan(|dh/dr|)`` of a robust straight-line fit (Huber IRLS, statsmodels RLM) over a
+``atan(|dh/dr|)`` of a robust straight-line fit (Huber IRLS, statsmodels' RLM algorithm) over a
 height band that excludes the rounded apex and the toe (default 15-85 % of the
 heap height), as the paper's Fig. 3 does with a tangent to the contour.
 """
@@ -32,13 +32,75 @@ class FlankFit:
 NO_FIT = FlankFit(float("nan"), float("nan"), float("nan"), float("nan"), 0)
 
 
-def _rlm(r, h):
-    import statsmodels.api as sm  # here, not at the top: it cost ~1 s of every calib command's start-up
+HUBER_T = 1.345  # statsmodels.robust.norms.HuberT's default tuning constant
+MAD_C = 0.6744897501960817  # statsmodels.robust.scale.Gaussian.ppf(3/4): MAD -> sd of a normal
 
-    X = sm.add_constant(r)
+
+def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-8) -> np.ndarray:
+    """(intercept, slope) of ``sm.RLM(h, add_constant(r), M=HuberT()).fit()``, bit for bit.
+
+    statsmodels' IRLS step for step: OLS start by pseudo-inverse (SVD, cut-off 1e-15), scale
+    = MAD of the residuals about 0, Huber weights min(1, t/|z|), weighted refit, stop when the
+    deviance sum rho((h - fit) / s_w) (s_w = the weighted residual variance, as statsmodels
+    has it) changes by <= tol or after maxiter fits. Written out because statsmodels' per-fit
+    overhead made these two-parameter fits ~15 % of a heap's run time: the rest phase fits
+    the flanks every chunk to measure creep (docs/performance.md). tests/test_profile.py
+    checks that the parameters equal statsmodels' exactly.
+    """
+    n = r.shape[0]
+    X = np.empty((n, 2))
+    X[:, 0] = 1.0
+    X[:, 1] = r
+    df = n - 2
+    t, half_t2, k = HUBER_T, 0.5 * HUBER_T**2, n // 2
+
+    def solve(x, y):  # statsmodels.tools.pinv_extended(x) @ y
+        u, s, vt = np.linalg.svd(x, False)
+        s = np.where(s > 1e-15 * s[0], 1.0 / s, 0.0)
+        return np.dot(vt.T, s[:, None] * u.T).dot(y)
+
+    def mad(resid):  # statsmodels.robust.scale.mad(resid, center=0): median(|resid| / c)
+        e = np.abs(resid) / MAD_C
+        if n % 2:
+            return np.partition(e, k)[k]
+        p = np.partition(e, (k - 1, k))
+        return (p[k - 1] + p[k]) / 2.0
+
+    def deviance(fitted, wresid):
+        z = (h - fitted) / (np.dot(wresid, wresid) / df)
+        a = np.abs(z)
+        return np.where(a <= t, 0.5 * z**2, a * t - half_t2).sum()
+
+    with np.errstate(divide="ignore", invalid="ignore"):  # an exact line: statsmodels divides by 0 too
+        params = solve(X, h)
+        fitted = X.dot(params)
+        resid = h - fitted
+        scale = mad(resid)
+        prev = deviance(fitted, h - X.dot(params))
+        it = 1
+        while scale != 0.0:  # statsmodels stops (with a warning) on a perfect fit
+            a = np.abs(resid / scale)
+            small = a <= t
+            wh = np.sqrt(np.where(small, 1.0, t / np.where(small, 1.0, a)))
+            if not np.isfinite(wh).all():
+                raise ValueError("non-finite IRLS weights")
+            wendog, wexog = wh * h, wh[:, None] * X
+            params = solve(wexog, wendog)
+            fitted = X.dot(params)
+            resid = h - fitted
+            scale = mad(resid)
+            dev = deviance(fitted, wendog - wexog.dot(params))
+            it += 1
+            if not (abs(dev - prev) > tol and it < maxiter):
+                break
+            prev = dev
+    return params
+
+
+def _rlm(r, h):
     try:
-        res = sm.RLM(h, X, M=sm.robust.norms.HuberT()).fit()
-        return float(res.params[0]), float(res.params[1])
+        c0, c1 = huber_line(r, h)
+        return float(c0), float(c1)
     except (ValueError, np.linalg.LinAlgError):
         c1, c0 = np.polyfit(r, h, 1)
         return float(c0), float(c1)

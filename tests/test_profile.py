@@ -1,0 +1,60 @@
+"""profile.huber_line: statsmodels' RLM (HuberT, MAD scale) written out, equal to it bit for bit."""
+
+import warnings
+
+import numpy as np
+import pytest
+import statsmodels.api as sm
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from calib_cli import artifacts as art
+from calib_cli import profile
+from calib_cli.dem.angle import repose_angle_coords
+from calib_cli.imaging.measure import measure_image
+from calib_cli.imaging.synth import SynthOptions, synth_heap
+
+
+def statsmodels_rlm(r, h):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a perfect fit warns (scale 0)
+        return sm.RLM(h, sm.add_constant(r), M=sm.robust.norms.HuberT()).fit().params
+
+
+@settings(max_examples=300, deadline=None)
+@given(n=st.integers(3, 400), slope=st.floats(-3, 3), noise=st.sampled_from([0.0, 1e-4, 2e-3, 0.05]),
+       outliers=st.integers(0, 8), rounding=st.sampled_from([None, 3, 4]), seed=st.integers(0, 2**31))
+def test_huber_line_equals_statsmodels_bitwise(n, slope, noise, outliers, rounding, seed):
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(0.0, 0.05, n)
+    h = 0.03 + slope * r + rng.normal(0.0, noise, n) if noise else 0.03 + slope * r
+    h[rng.integers(0, n, min(outliers, n))] += rng.normal(0.0, 0.01, min(outliers, n))
+    if rounding:  # pixel-like quantised heights: ties in the MAD's median
+        h = np.round(h, rounding)
+    np.testing.assert_array_equal(profile.huber_line(r, h), statsmodels_rlm(r, h))
+
+
+def _with_statsmodels(monkeypatch):
+    monkeypatch.setattr(profile, "huber_line", lambda r, h: statsmodels_rlm(r, h))
+
+
+def test_heap_and_image_angles_unchanged_from_statsmodels(monkeypatch):
+    """The real callers: the coordinate angle of a simulated heap (committed example state)
+    and the image angle of synthetic photographs give the same bits with either fit."""
+    state = art.read_table("sample_runs/smoke/simulate/runs/example/state.parquet")
+    pos, rad = state[["x", "y", "z"]].to_numpy(), state["radius"].to_numpy()
+    images = [synth_heap(a, SynthOptions(), seed=s) for a, s in ((25, 0), (38, 1))]
+    ours = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
+    _with_statsmodels(monkeypatch)
+    ref = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
+    assert ours[0].angle == ref[0].angle and ours[0].sd == ref[0].sd
+    for a, b in zip(ours[1:], ref[1:]):
+        assert (a.repose_angle, a.angle_left, a.angle_right) == (b.repose_angle, b.angle_left, b.angle_right)
+
+
+def test_exact_line_and_degenerate_input():
+    r = np.linspace(0.0, 0.04, 9)
+    c0, c1 = profile.huber_line(r, 0.03 - 0.7 * r)
+    assert c1 == pytest.approx(-0.7, abs=1e-12) and c0 == pytest.approx(0.03, abs=1e-12)
+    fit = profile.fit_flank(r, np.full(9, np.nan), 0.03)
+    assert not fit.ok
