@@ -184,6 +184,26 @@ def test_dask_local_cluster_gives_the_process_pool_results(tmp_path):
     pd.testing.assert_frame_equal(a[cols].reset_index(drop=True), b[cols].reset_index(drop=True))
 
 
+def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
+    """A heap's bits do not depend on the numba thread count, even when it changes between chunks
+    (pair forces are summed in pair order): a campaign's results do not depend on how it ran."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs 2 numba threads")
+    params = {"static_friction": 0.3, "rolling_friction": 0.1, "surface_energy": 0.5, "restitution": 0.3}
+    try:
+        numba.set_num_threads(1)
+        a = run_heap(params, TINY, TINY_NUM, seed=3)
+        flip = iter(range(10**6))
+        b = run_heap(params, TINY, TINY_NUM, seed=3, progress=lambda *_: numba.set_num_threads(1 + next(flip) % 2))
+        assert next(flip) > 4  # the thread count changed many times
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    np.testing.assert_array_equal(a.system.particles.pos, b.system.particles.pos)
+    assert a.angle.angle == b.angle.angle and a.system.n_steps == b.system.n_steps
+
+
 def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
     from calib_cli.campaign import current_results
     from calib_cli.dem import SOURCE_HASH
