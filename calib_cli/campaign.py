@@ -72,22 +72,30 @@ def derive_seed(base: int, run_id: int, repeat: int) -> int:
 
 @functools.cache
 def host() -> str:
-    """What, besides the inputs in the run hash, the heap's last bits depend on: the CPU's
-    instruction set as numpy dispatches on it, numpy's and numba's versions.
+    """What, besides the inputs in the run hash, the heap's last bits depend on: the instruction
+    set numpy dispatches its ufunc loops on, numpy's and numba's versions.
 
-    numpy sends float64 transcendental ufuncs (cbrt, power, ...) to Intel's SVML on AVX-512
-    CPUs and to libm elsewhere, which can differ in the last place, and a heap amplifies any such
-    difference until it settles differently (docs/performance.md, "Reproducibility").
+    numpy sends float64 transcendental ufuncs (cbrt, power, ...) to AVX-512 loops (Intel's
+    SVML) where the CPU has AVX-512 and to others elsewhere, which differ in the last place,
+    and a heap amplifies any such difference until it settles differently (docs/performance.md,
+    "Reproducibility": verified by switching numpy's AVX-512 loops off on one machine).
     """
     import numba
 
+    return f"{platform.machine()} {simd_level()} numpy {np.__version__} numba {numba.__version__}"
+
+
+def simd_level() -> str:
+    """The highest of numpy's dispatch targets this CPU (and NPY_DISABLE_CPU_FEATURES) enables,
+    e.g. X86_V3 (AVX2) or AVX512_ICL; the baseline if none."""
     try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__ as targets
         from numpy._core._multiarray_umath import __cpu_features__ as cpu
     except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_dispatch__ as targets
         from numpy.core._multiarray_umath import __cpu_features__ as cpu
-
-    simd = next((f for f in ("AVX512_SKX", "AVX512F", "AVX2", "ASIMD", "SSE42") if cpu.get(f)), "baseline")
-    return f"{platform.machine()} {simd} numpy {np.__version__} numba {numba.__version__}"
+    on = [t for t in targets if cpu.get(t)]
+    return on[-1] if on else "baseline"
 
 
 def _row(req: Request, res, img) -> dict:

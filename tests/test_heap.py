@@ -132,6 +132,24 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
     assert f"numpy {np.__version__}" in host() and f"numba {numba.__version__}" in host()
 
 
+def test_host_reports_the_simd_level_numpy_dispatches_on():
+    """The level in the host column follows numpy's dispatch, NPY_DISABLE_CPU_FEATURES included
+    (which is how performance.md's "Reproducibility" shows that the SIMD level changes heaps)."""
+    import os
+    import subprocess
+    import sys
+
+    from numpy._core._multiarray_umath import __cpu_dispatch__ as targets
+
+    def level(**env):
+        code = "from calib_cli.campaign import simd_level; print(simd_level())"
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                              env={**os.environ, **env}).stdout.strip()
+
+    assert level() in list(targets) + ["baseline"]
+    assert level(NPY_DISABLE_CPU_FEATURES=" ".join(targets)) == "baseline"
+
+
 def test_seeds_differ_per_run_and_repeat():
     seeds = {derive_seed(0, r, k) for r in range(1, 13) for k in range(3)}
     assert len(seeds) == 36
