@@ -1,14 +1,17 @@
 """Does a heap depend on the SIMD level numpy dispatches on? The same heaps, twice, side by side.
 
     python benchmarks/simd_invariance.py --heaps 8
+    python benchmarks/simd_invariance.py --heaps 8 --as baseline
 
 Runs the same `smoke` heaps (a spread of friction, rolling friction and cohesion, fixed seeds)
-in two processes at once, one numba thread each: one with numpy as this CPU sets it up, one
-with every numpy dispatch target switched off (``NPY_DISABLE_CPU_FEATURES``), as numpy runs on
-an older CPU. On a CPU with AVX-512 this is the difference between a machine with AVX-512 and
-one without, measured on one machine. Prints per heap the angle and step count of each and
-whether the final particle positions are bitwise equal. A heap amplifies a difference of one
-unit in the last place until it settles differently, so only "equal" means portable.
+in two processes at once, one numba thread each: A as this CPU sets the libraries up, B as
+they run on a CPU without AVX-512 (``--as avx2``: numpy's AVX-512 dispatch targets off with
+``NPY_DISABLE_CPU_FEATURES``, OpenCV's with ``OPENCV_CPU_DISABLE``, OpenBLAS on its Haswell
+kernels) or with numpy on its baseline (``--as baseline``). On an AVX-512 CPU this measures on
+one machine the difference between two machines. Prints per heap the angle and step count of
+each and whether the final particle positions, the coordinate angle, its creep rate and the
+rendered side view's angle are bitwise equal. A heap amplifies a difference of one unit in the
+last place until it settles differently, so only "equal" means portable.
 """
 
 from __future__ import annotations
@@ -24,13 +27,17 @@ import hashlib, json, sys
 import numba
 from calib_cli.campaign import host
 from calib_cli.dem import heap
+from calib_cli.dem.render import render_side_view
+from calib_cli.imaging.measure import measure_image
 numba.set_num_threads(1)
 p = heap.get_preset("smoke")
 out = []
 for i, prm in enumerate(json.loads(sys.argv[1])):
     r = heap.run_heap(prm, p.condition, p.numerics, seed=100 + i)
-    out.append(dict(angle=r.angle.angle, steps=r.n_steps,
-                    pos=hashlib.sha256(r.system.particles.pos.tobytes()).hexdigest()))
+    q = r.system.particles
+    img = measure_image(render_side_view(q.pos, q.rad).image)
+    out.append(dict(angle=r.angle.angle, steps=r.n_steps, drift=r.angle_drift, image=img.repose_angle,
+                    pos=hashlib.sha256(q.pos.tobytes()).hexdigest()))
 print(json.dumps(dict(host=host(), heaps=out)))
 """
 
@@ -48,24 +55,31 @@ def points(n: int) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--heaps", type=int, default=8)
+    ap.add_argument("--as", dest="mode", choices=["avx2", "baseline"], default="avx2")
     a = ap.parse_args()
     from numpy._core._multiarray_umath import __cpu_dispatch__ as targets
 
     prm = points(a.heaps)
-    env_off = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(targets), "NUMBA_NUM_THREADS": "1"}
     env_on = {**os.environ, "NUMBA_NUM_THREADS": "1"}
+    if a.mode == "avx2":
+        env_off = {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(t for t in targets if t not in ("X86_V3", "AVX2")),
+                   "OPENCV_CPU_DISABLE": "AVX512-SKX", "OPENBLAS_CORETYPE": "Haswell"}
+    else:
+        env_off = {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(targets)}
     procs = [subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(prm)], env=e, stdout=subprocess.PIPE, text=True)
              for e in (env_on, env_off)]
     on, off = (json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs)
-    print(f"A: {on['host']}\nB: {off['host']} (NPY_DISABLE_CPU_FEATURES: every numpy dispatch target)")
+    off_env = {k: v for k, v in env_off.items() if k not in env_on}
+    print(f"A: {on['host']}\nB: {off['host']} {off_env}")
     equal = 0
     for p, x, y in zip(prm, on["heaps"], off["heaps"]):
-        same = x["pos"] == y["pos"]
-        equal += same
+        diff = [k for k in ("pos", "steps", "angle", "drift", "image")
+                if not (x[k] == y[k] or (x[k] != x[k] and y[k] != y[k]))]  # NaN equals NaN here
+        equal += not diff
         print(f"mu_s {p['static_friction']:.3f} mu_r {p['rolling_friction']:.3f} g {p['surface_energy']:.3f} | "
               f"A {x['angle']:6.3f} deg {x['steps']:6d} steps | B {y['angle']:6.3f} deg {y['steps']:6d} steps | "
-              f"{'bitwise equal' if same else 'DIFFERENT'}")
-    print(f"{equal} of {len(prm)} heaps bitwise equal")
+              f"{'bitwise equal' if not diff else 'DIFFERENT: ' + ', '.join(diff)}")
+    print(f"{equal} of {len(prm)} heaps bitwise equal (positions, steps, coordinate angle, creep rate, image angle)")
 
 
 if __name__ == "__main__":
