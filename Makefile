@@ -28,7 +28,7 @@ test-all: setup
 	$(PY) -m pytest -q
 
 # the main job on the shipped sample data: the paper's chain on its published tables, then a
-# whole calibration from the sample photographs on simulations at the `default` numerics (~16 min; ~18 with the install)
+# whole calibration from the sample photographs on simulations at the `default` numerics (~8 min; ~9 with the install)
 calibrate: paper calibration
 
 # Table 1 -> target, Tables 3 and 5 -> screening and ascent, into run directory $(1)
