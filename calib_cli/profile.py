@@ -43,9 +43,9 @@ def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-
     = MAD of the residuals about 0, Huber weights min(1, t/|z|), weighted refit, stop when the
     deviance sum rho((h - fit) / s_w) (s_w = the weighted residual variance, as statsmodels
     has it) changes by <= tol or after maxiter fits. Written out because statsmodels' per-fit
-    overhead made these two-parameter fits ~15 % of a heap's run time: the rest phase fits
-    the flanks every chunk to measure creep (docs/performance.md). tests/test_profile.py
-    checks that the parameters equal statsmodels' exactly.
+    overhead made it 3x slower, ~5 % of a heap's run time: the rest phase fits the flanks
+    every chunk to measure creep (docs/performance.md). tests/test_profile.py checks that the
+    parameters equal statsmodels' exactly.
     """
     n = r.shape[0]
     X = np.empty((n, 2))

@@ -1,6 +1,7 @@
 """profile.huber_line: statsmodels' RLM (HuberT, MAD scale) written out, equal to it bit for bit."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,18 +35,17 @@ def test_huber_line_equals_statsmodels_bitwise(n, slope, noise, outliers, roundi
     np.testing.assert_array_equal(profile.huber_line(r, h), statsmodels_rlm(r, h))
 
 
-def _with_statsmodels(monkeypatch):
-    monkeypatch.setattr(profile, "huber_line", lambda r, h: statsmodels_rlm(r, h))
+EXAMPLE = Path(__file__).resolve().parents[1] / "sample_runs/smoke/simulate/runs/example/state.parquet"
 
 
 def test_heap_and_image_angles_unchanged_from_statsmodels(monkeypatch):
     """The real callers: the coordinate angle of a simulated heap (committed example state)
     and the image angle of synthetic photographs give the same bits with either fit."""
-    state = art.read_table("sample_runs/smoke/simulate/runs/example/state.parquet")
+    state = art.read_table(EXAMPLE)
     pos, rad = state[["x", "y", "z"]].to_numpy(), state["radius"].to_numpy()
     images = [synth_heap(a, SynthOptions(), seed=s) for a, s in ((25, 0), (38, 1))]
     ours = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
-    _with_statsmodels(monkeypatch)
+    monkeypatch.setattr(profile, "huber_line", statsmodels_rlm)
     ref = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
     assert ours[0].angle == ref[0].angle and ours[0].sd == ref[0].sd
     for a, b in zip(ours[1:], ref[1:]):
