@@ -22,6 +22,8 @@ import os
 import subprocess
 import sys
 
+from calib_cli.campaign import numpy_dispatch_targets
+
 CHILD = """
 import hashlib, json, sys
 import numba
@@ -57,8 +59,7 @@ def main() -> None:
     ap.add_argument("--heaps", type=int, default=8)
     ap.add_argument("--as", dest="mode", choices=["avx2", "baseline"], default="avx2")
     a = ap.parse_args()
-    from numpy._core._multiarray_umath import __cpu_dispatch__ as targets
-
+    targets = numpy_dispatch_targets()
     prm = points(a.heaps)
     env_on = {**os.environ, "NUMBA_NUM_THREADS": "1"}
     if a.mode == "avx2":

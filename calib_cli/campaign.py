@@ -85,15 +85,25 @@ def host() -> str:
     return f"{platform.machine()} {simd_level()} numpy {np.__version__} numba {numba.__version__}"
 
 
+def _numpy_cpu() -> tuple[list[str], dict]:
+    """numpy's dispatch targets (lowest first) and the CPU features it found."""
+    try:
+        from numpy._core import _multiarray_umath as m
+    except ImportError:  # numpy < 2
+        from numpy.core import _multiarray_umath as m
+    return list(m.__cpu_dispatch__), dict(m.__cpu_features__)
+
+
+def numpy_dispatch_targets() -> list[str]:
+    """The SIMD targets numpy can dispatch its ufunc loops on, lowest first (NPY_DISABLE_CPU_FEATURES
+    takes names from this list)."""
+    return _numpy_cpu()[0]
+
+
 def simd_level() -> str:
     """The highest of numpy's dispatch targets this CPU (and NPY_DISABLE_CPU_FEATURES) enables,
     e.g. X86_V3 (AVX2) or AVX512_ICL; the baseline if none."""
-    try:
-        from numpy._core._multiarray_umath import __cpu_dispatch__ as targets
-        from numpy._core._multiarray_umath import __cpu_features__ as cpu
-    except ImportError:  # numpy < 2
-        from numpy.core._multiarray_umath import __cpu_dispatch__ as targets
-        from numpy.core._multiarray_umath import __cpu_features__ as cpu
+    targets, cpu = _numpy_cpu()
     on = [t for t in targets if cpu.get(t)]
     return on[-1] if on else "baseline"
 

@@ -66,17 +66,16 @@ def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-
         p = np.partition(e, (k - 1, k))
         return (p[k - 1] + p[k]) / 2.0
 
-    def deviance(fitted, wresid):
-        z = (h - fitted) / (np.dot(wresid, wresid) / df)
+    def deviance(resid, wresid):
+        z = resid / (np.dot(wresid, wresid) / df)
         a = np.abs(z)
         return np.where(a <= t, 0.5 * z**2, a * t - half_t2).sum()
 
     with np.errstate(divide="ignore", invalid="ignore"):  # an exact line: statsmodels divides by 0 too
         params = solve(X, h)
-        fitted = X.dot(params)
-        resid = h - fitted
+        resid = h - X.dot(params)
         scale = mad(resid)
-        prev = deviance(fitted, h - X.dot(params))
+        prev = deviance(resid, resid)  # unit weights: the weighted residuals are the residuals
         it = 1
         while scale != 0.0:  # statsmodels stops (with a warning) on a perfect fit
             a = np.abs(resid / scale)
@@ -86,10 +85,9 @@ def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-
                 raise ValueError("non-finite IRLS weights")
             wendog, wexog = wh * h, wh[:, None] * X
             params = solve(wexog, wendog)
-            fitted = X.dot(params)
-            resid = h - fitted
+            resid = h - X.dot(params)
             scale = mad(resid)
-            dev = deviance(fitted, wendog - wexog.dot(params))
+            dev = deviance(resid, wendog - wexog.dot(params))
             it += 1
             if not (abs(dev - prev) > tol and it < maxiter):
                 break
