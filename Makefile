@@ -136,7 +136,7 @@ endef
 hidden-effect: setup
 	$(CALIB) synth-lab --out $(LAB)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
 		--set restitution=0.3 --set surface_energy=0.6 --hidden cohesion $(LABCOND)
-	$(call lab_rev0,$(LAB),2)
+	$(call lab_rev0,$(LAB),6)
 	$(call lab_rev1,$(LAB),cohesion,REV1)
 
 # The control: the same lab with nothing hidden (the truth lies inside the starting model).
@@ -145,7 +145,7 @@ CTRL   := sample_runs/control-lab
 control-lab: setup
 	$(CALIB) synth-lab --out $(CTRL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
 		--set restitution=0.3 --set surface_energy=0 --hidden none $(LABCOND)
-	$(call lab_rev0,$(CTRL),2)
+	$(call lab_rev0,$(CTRL),6)
 
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
 # the starting model gives the walls the grains' friction): compare, diagnose ranks wall friction first,

@@ -36,28 +36,62 @@ HUBER_T = 1.345  # statsmodels.robust.norms.HuberT's default tuning constant
 MAD_C = 0.6744897501960817  # statsmodels.robust.scale.Gaussian.ppf(3/4): MAD -> sd of a normal
 
 
-def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-8) -> np.ndarray:
-    """(intercept, slope) of ``sm.RLM(h, add_constant(r), M=HuberT()).fit()``, bit for bit.
+def line_fit(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> tuple[float, float]:
+    """(intercept, slope) of the (weighted) least-squares line, from numpy's own pairwise sums
+    about the means: no BLAS or LAPACK, whose kernels are picked by CPU and differ in the last
+    place from machine to machine (docs/performance.md, "Reproducibility")."""
+    w = np.ones(len(x)) if w is None else w
+    sw = np.sum(w)
+    xb, yb = np.sum(w * x) / sw, np.sum(w * y) / sw
+    dx = x - xb
+    slope = np.sum(w * dx * (y - yb)) / np.sum(w * dx * dx)
+    return float(yb - slope * xb), float(slope)
 
-    statsmodels' IRLS step for step: OLS start by pseudo-inverse (SVD, cut-off 1e-15), scale
-    = MAD of the residuals about 0, Huber weights min(1, t/|z|), weighted refit, stop when the
-    deviance sum rho((h - fit) / s_w) (s_w = the weighted residual variance, as statsmodels
-    has it) changes by <= tol or after maxiter fits. Written out because statsmodels' per-fit
-    overhead made it 3x slower, ~5 % of a heap's run time: the rest phase fits the flanks
-    every chunk to measure creep (docs/performance.md). tests/test_profile.py checks that the
-    parameters equal statsmodels' exactly.
+
+def lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least squares by the normal equations, their entries summed by numpy and solved by
+    Gaussian elimination with partial pivoting in Python floats: for a few well-conditioned
+    columns (an illumination field), without BLAS or LAPACK (see :func:`line_fit`)."""
+    k = A.shape[1]
+    M = [[float(np.sum(A[:, i] * A[:, j])) for j in range(k)] + [float(np.sum(A[:, i] * b))] for i in range(k)]
+    for c in range(k):
+        piv = max(range(c, k), key=lambda i: abs(M[i][c]))
+        M[c], M[piv] = M[piv], M[c]
+        if M[c][c] == 0.0:
+            raise np.linalg.LinAlgError("singular normal equations")
+        for i in range(c + 1, k):
+            f = M[i][c] / M[c][c]
+            M[i] = [a - f * p for a, p in zip(M[i], M[c])]
+    x = [0.0] * k
+    for i in reversed(range(k)):
+        x[i] = (M[i][k] - sum(M[i][j] * x[j] for j in range(i + 1, k))) / M[i][i]
+    return np.array(x)
+
+
+def combine(A: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """A @ coef column by column (no BLAS; see :func:`line_fit`)."""
+    out = A[:, 0] * coef[0]
+    for j in range(1, A.shape[1]):
+        out = out + A[:, j] * coef[j]
+    return out
+
+
+def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-8) -> np.ndarray:
+    """(intercept, slope) of ``sm.RLM(h, add_constant(r), M=HuberT()).fit()``, solved portably.
+
+    statsmodels' IRLS step for step: OLS start, scale = MAD of the residuals about 0, Huber
+    weights min(1, t/|z|), weighted refit, stop when the deviance sum rho((h - fit) / s_w)
+    (s_w = the weighted residual variance, as statsmodels has it) changes by <= tol or after
+    maxiter fits. Each weighted least-squares line is solved in closed form from numpy's own
+    (pairwise) sums, not by an SVD in OpenBLAS as statsmodels does: OpenBLAS picks its kernels
+    by CPU and they differ in the last place, so a heap's measured angle would depend on the
+    machine (docs/performance.md, "Reproducibility"). Written out, too, because statsmodels'
+    per-fit overhead made it 3x slower, ~5 % of a heap's run time (the rest phase fits the
+    flanks every chunk to measure creep). Agrees with statsmodels to rounding (tests/test_profile.py).
     """
     n = r.shape[0]
-    X = np.empty((n, 2))
-    X[:, 0] = 1.0
-    X[:, 1] = r
     df = n - 2
     t, half_t2, k = HUBER_T, 0.5 * HUBER_T**2, n // 2
-
-    def solve(x, y):  # statsmodels.tools.pinv_extended(x) @ y
-        u, s, vt = np.linalg.svd(x, False)
-        s = np.where(s > 1e-15 * s[0], 1.0 / s, 0.0)
-        return np.dot(vt.T, s[:, None] * u.T).dot(y)
 
     def mad(resid):  # statsmodels.robust.scale.mad(resid, center=0): median(|resid| / c)
         e = np.abs(resid) / MAD_C
@@ -67,32 +101,31 @@ def huber_line(r: np.ndarray, h: np.ndarray, maxiter: int = 50, tol: float = 1e-
         return (p[k - 1] + p[k]) / 2.0
 
     def deviance(resid, wresid):
-        z = resid / (np.dot(wresid, wresid) / df)
+        z = resid / (np.sum(wresid * wresid) / df)
         a = np.abs(z)
-        return np.where(a <= t, 0.5 * z**2, a * t - half_t2).sum()
+        return np.sum(np.where(a <= t, 0.5 * z * z, a * t - half_t2))
 
     with np.errstate(divide="ignore", invalid="ignore"):  # an exact line: statsmodels divides by 0 too
-        params = solve(X, h)
-        resid = h - X.dot(params)
+        c0, c1 = line_fit(r, h)
+        resid = h - (c0 + c1 * r)
         scale = mad(resid)
-        prev = deviance(resid, resid)  # unit weights: the weighted residuals are the residuals
+        prev = deviance(resid, resid)
         it = 1
         while scale != 0.0:  # statsmodels stops (with a warning) on a perfect fit
             a = np.abs(resid / scale)
             small = a <= t
-            wh = np.sqrt(np.where(small, 1.0, t / np.where(small, 1.0, a)))
-            if not np.isfinite(wh).all():
+            w = np.where(small, 1.0, t / np.where(small, 1.0, a))
+            if not np.isfinite(w).all():
                 raise ValueError("non-finite IRLS weights")
-            wendog, wexog = wh * h, wh[:, None] * X
-            params = solve(wexog, wendog)
-            resid = h - X.dot(params)
+            c0, c1 = line_fit(r, h, w)
+            resid = h - (c0 + c1 * r)
             scale = mad(resid)
-            dev = deviance(resid, wendog - wexog.dot(params))
+            dev = deviance(resid, np.sqrt(w) * resid)
             it += 1
             if not (abs(dev - prev) > tol and it < maxiter):
                 break
             prev = dev
-    return params
+    return np.array([c0, c1])
 
 
 def _rlm(r, h):

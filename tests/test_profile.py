@@ -1,4 +1,4 @@
-"""profile.huber_line: statsmodels' RLM (HuberT, MAD scale) written out, equal to it bit for bit."""
+"""profile.huber_line: statsmodels' RLM (HuberT, MAD scale) written out without BLAS, equal to it to rounding."""
 
 import warnings
 from pathlib import Path
@@ -25,31 +25,33 @@ def statsmodels_rlm(r, h):
 @settings(max_examples=300, deadline=None)
 @given(n=st.integers(3, 400), slope=st.floats(-3, 3), noise=st.sampled_from([0.0, 1e-4, 2e-3, 0.05]),
        outliers=st.integers(0, 8), rounding=st.sampled_from([None, 3, 4]), seed=st.integers(0, 2**31))
-def test_huber_line_equals_statsmodels_bitwise(n, slope, noise, outliers, rounding, seed):
+def test_huber_line_equals_statsmodels(n, slope, noise, outliers, rounding, seed):
     rng = np.random.default_rng(seed)
     r = rng.uniform(0.0, 0.05, n)
     h = 0.03 + slope * r + rng.normal(0.0, noise, n) if noise else 0.03 + slope * r
     h[rng.integers(0, n, min(outliers, n))] += rng.normal(0.0, 0.01, min(outliers, n))
     if rounding:  # pixel-like quantised heights: ties in the MAD's median
         h = np.round(h, rounding)
-    np.testing.assert_array_equal(profile.huber_line(r, h), statsmodels_rlm(r, h))
+    np.testing.assert_allclose(profile.huber_line(r, h), statsmodels_rlm(r, h), rtol=1e-9, atol=1e-12)
 
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "sample_runs/smoke/simulate/runs/example/state.parquet"
 
 
-def test_heap_and_image_angles_unchanged_from_statsmodels(monkeypatch):
+def test_heap_and_image_angles_agree_with_statsmodels(monkeypatch):
     """The real callers: the coordinate angle of a simulated heap (committed example state)
-    and the image angle of synthetic photographs give the same bits with either fit."""
+    and the image angle of synthetic photographs agree to rounding with either fit."""
     state = art.read_table(EXAMPLE)
     pos, rad = state[["x", "y", "z"]].to_numpy(), state["radius"].to_numpy()
     images = [synth_heap(a, SynthOptions(), seed=s) for a, s in ((25, 0), (38, 1))]
     ours = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
     monkeypatch.setattr(profile, "huber_line", statsmodels_rlm)
     ref = [repose_angle_coords(pos, rad)] + [measure_image(im) for im in images]
-    assert ours[0].angle == ref[0].angle and ours[0].sd == ref[0].sd
+    close = dict(rel=0, abs=1e-9)  # degrees
+    assert ours[0].angle == pytest.approx(ref[0].angle, **close) and ours[0].sd == pytest.approx(ref[0].sd, **close)
     for a, b in zip(ours[1:], ref[1:]):
-        assert (a.repose_angle, a.angle_left, a.angle_right) == (b.repose_angle, b.angle_left, b.angle_right)
+        assert (a.repose_angle, a.angle_left, a.angle_right) == pytest.approx(
+            (b.repose_angle, b.angle_left, b.angle_right), **close)
 
 
 def test_exact_line_and_degenerate_input():

@@ -8,9 +8,11 @@ the mean over sectors, with their sd.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from ..profile import DEFAULT_BAND, fit_flank
@@ -28,6 +30,17 @@ class CoordAngle:
     profile_h: np.ndarray
 
 
+@nb.njit(cache=True)
+def azimuthal_sector(x, y, sectors):
+    """Sector index floor((atan2(y, x) + pi) / 2pi * sectors) mod sectors, with libm's atan2:
+    numpy's np.arctan2 runs SVML code on AVX-512 CPUs, which differs from other CPUs' in the
+    last place, and a grain on a sector boundary would change sector with the machine."""
+    out = np.empty(x.shape[0], np.int64)
+    for i in range(x.shape[0]):
+        out[i] = int((math.atan2(y[i], x[i]) + math.pi) / (2.0 * math.pi) * sectors) % sectors
+    return out
+
+
 def top_profile(pos, rad, center=(0.0, 0.0), sectors: int = 8, bin_width: float | None = None,
                 r_max: float | None = None):
     """Surface points per azimuthal sector and radial bin: the highest particle top (z + R)
@@ -40,7 +53,7 @@ def top_profile(pos, rad, center=(0.0, 0.0), sectors: int = 8, bin_width: float 
     bw = bin_width or 2.0 * float(np.mean(rad))
     rm = r_max or float(r.max()) + bw
     nb = max(int(np.ceil(rm / bw)), 1)
-    sec = ((np.arctan2(y, x) + np.pi) / (2 * np.pi) * sectors).astype(int) % sectors
+    sec = azimuthal_sector(x, y, sectors)
     b = np.minimum((r / bw).astype(int), nb - 1)
     order = np.lexsort((top, b, sec))
     cell = sec[order] * nb + b[order]

@@ -49,11 +49,17 @@ def jkr_cutoff_overlap(Rs, Es, gamma):
 S_TURN = 0.25 ** (1.0 / 6.0)
 
 
+@nb.njit(cache=True)
 def jkr_constants(Es, gamma):
-    """Per-interaction constants of :func:`normal_law_core`: (k^(1/3), 4 sqrt(pi g E* k^(1/3))), k = pi g / E*."""
+    """Per-interaction constants of :func:`normal_law_core`: (k^(1/3), 4 sqrt(pi g E* k^(1/3))), k = pi g / E*.
+
+    Compiled, so that the cube root is libm's, as everywhere in the kernel: numpy's own
+    np.cbrt runs SVML code on CPUs with AVX-512 and other code elsewhere, which differ in the
+    last place (docs/performance.md, "Reproducibility"), and a heap amplifies that until it
+    settles differently."""
     if gamma <= 0.0:
         return 0.0, 0.0
-    k13 = float(np.cbrt(math.pi * gamma / Es))
+    k13 = np.cbrt(math.pi * gamma / Es)
     return k13, 4.0 * math.sqrt(math.pi * gamma * Es * k13)
 
 
@@ -122,11 +128,7 @@ def normal_law_a(delta, Rs, Es, gamma, a_prev):
     5/3 pi g R* at delta_c in both directions, and the discrete jumps pumped energy into
     a settled cohesive packing (it never came to rest). All zero outside contact.
     """
-    k13 = 0.0
-    att = 0.0
-    if gamma > 0.0:
-        k13 = np.cbrt(math.pi * gamma / Es)
-        att = 4.0 * math.sqrt(math.pi * gamma * Es * k13)
+    k13, att = jkr_constants(Es, gamma)
     return normal_law_core(delta, Rs, np.cbrt(Rs), Es, gamma, k13, att, a_prev)
 
 

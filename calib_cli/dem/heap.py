@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import CalibError
 from . import KERNEL_VERSION
+from ..profile import line_fit
 from .angle import CoordAngle, repose_angle_coords
 from .materials import Interaction, Material
 from .system import Particles, System, Walls
@@ -203,7 +204,9 @@ class DriftMeter:
             return float("nan")
         t, a = np.array(self.samples[-64:]).T
         t, a = t[t >= t[-1] - DRIFT_WINDOW], a[t >= t[-1] - DRIFT_WINDOW]
-        return float(np.polyfit(t, a, 1)[0]) if len(t) >= 3 and np.ptp(t) > 0 else float("nan")
+        if len(t) < 3 or np.ptp(t) <= 0:
+            return float("nan")
+        return line_fit(t, a)[1]  # not np.polyfit: its LAPACK solve differs by CPU in the last place
 
 
 def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None, numerics: Numerics | None = None,

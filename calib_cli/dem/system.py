@@ -76,8 +76,10 @@ class System:
             it.validate(w)
         p = self.particles
         n = len(p.rad)
-        self.mass = self.material.density * 4.0 / 3.0 * np.pi * p.rad**3
-        self.inv_inertia = 1.0 / (0.4 * self.mass * p.rad**2)
+        # products, not rad**3: numpy's float64 power runs SVML code on AVX-512 CPUs, which
+        # differs from other CPUs' in the last place (docs/performance.md, "Reproducibility")
+        self.mass = self.material.density * 4.0 / 3.0 * np.pi * (p.rad * p.rad * p.rad)
+        self.inv_inertia = 1.0 / (0.4 * self.mass * (p.rad * p.rad))
         self.prm = np.vstack([param_row(self.material, self.material, self.pp),
                               param_row(self.material, self.wall_material, self.floor),
                               param_row(self.material, self.wall_material, self.cylinder)])

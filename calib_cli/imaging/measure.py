@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..profile import DEFAULT_BAND, fit_flank
+from ..profile import DEFAULT_BAND, combine, fit_flank, line_fit, lstsq
 
 
 @dataclass
@@ -63,13 +63,14 @@ def _flatten(gray: np.ndarray, fg: np.ndarray) -> np.ndarray:
     x, y = xs / w - 0.5, ys / h - 0.5
     A = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
     b = gray[ys, xs].astype(float)
-    coef = np.linalg.lstsq(A, b, rcond=None)[0]
+    # BLAS-free solves (profile.lstsq): a photograph's angle is the same on every machine
+    coef = lstsq(A, b)
     for _ in range(3):  # reweight: drop pixels far from the fit (shadows, stray grains)
-        r = b - A @ coef
+        r = b - combine(A, coef)
         keep = np.abs(r) < 2.5 * (np.median(np.abs(r)) * 1.4826 + 1e-9)
         if keep.sum() < 20:
             break
-        coef = np.linalg.lstsq(A[keep], b[keep], rcond=None)[0]
+        coef = lstsq(A[keep], b[keep])
     X, Y = np.meshgrid(np.arange(w) / w - 0.5, np.arange(h) / h - 0.5)
     field_ = coef[0] + coef[1] * X + coef[2] * Y + coef[3] * X * X + coef[4] * X * Y + coef[5] * Y * Y
     field_ = np.maximum(field_, 1.0)
@@ -94,7 +95,7 @@ def _robust_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     for _ in range(3):
         if keep.sum() < 2:
             break
-        b, a = np.polyfit(x[keep], y[keep], 1)
+        a, b = line_fit(x[keep], y[keep])
         r = np.abs(y - (a + b * x))
         keep = r <= max(2.5 * np.median(r[keep]) * 1.4826, 1.0)
     return a, b
