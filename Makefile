@@ -142,7 +142,8 @@ hidden-effect: setup
 	$(call lab_rev1,$(LAB),cohesion,REV1)
 
 # The control: the same lab with nothing hidden (the truth lies inside the starting model).
-# compare should flag no condition and diagnose find no significant effect (~30 min on 2 cores)
+# compare should flag no condition and diagnose find no significant effect (30 min on 2 cores with the
+# hidden-effect run's revision-0 BBD heaps in its cache; ~37 min from nothing, an estimate)
 CTRL   := sample_runs/control-lab
 control-lab: setup
 	$(CALIB) synth-lab --out $(CTRL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
