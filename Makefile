@@ -177,7 +177,7 @@ hidden-floor: setup
 	$(call lab_rev1,$(FLOOR),wall_rolling,FREV1)
 
 # The paper's own BBD design (Table 6, from its Tables 3 and 5) simulated with our kernel at the
-# `default` preset: does the simulated heap respond like the paper's EDEM one? (~25 min on 2 cores)
+# `default` preset: does the simulated heap respond like the paper's EDEM one? (~12 min on 2 cores)
 DBBD   := sample_runs/default-bbd
 default-bbd: setup
 	$(call paper_screening,$(DBBD))
