@@ -187,7 +187,7 @@ default-bbd: setup
 	$(CALIB) report --run $(DBBD)
 
 # The same design with the surface-energy range halved (0.44-0.81 J/m2): how the order of
-# influence changes when cohesion matters less (docs/physics.md; ~19 min on 2 cores)
+# influence changes when cohesion matters less (docs/physics.md; ~10 min on 2 cores)
 DBBD2  := sample_runs/default-bbd-half-g
 default-bbd-half-g: setup
 	$(call paper_screening,$(DBBD2))
