@@ -54,32 +54,44 @@ def points(n: int) -> list[dict]:
     return out
 
 
+def environments(mode: str = "avx2") -> tuple[dict, dict]:
+    """(as this CPU sets the libraries up, as on a CPU without AVX-512 or with numpy on its baseline)."""
+    targets = numpy_dispatch_targets()
+    env_on = {**os.environ, "NUMBA_NUM_THREADS": "1"}
+    if mode == "avx2":
+        return env_on, {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(t for t in targets if t not in ("X86_V3", "AVX2")),
+                        "OPENCV_CPU_DISABLE": "AVX512-SKX", "OPENBLAS_CORETYPE": "Haswell"}
+    return env_on, {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(targets)}
+
+
+def compare(prm: list[dict], mode: str = "avx2") -> tuple[dict, dict, list[list[str]]]:
+    """Simulate the heaps at `prm` in two processes at once (:func:`environments`); return both
+    outputs and, per heap, the quantities that differ (empty: bitwise equal)."""
+    envs = environments(mode)
+    procs = [subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(prm)], env=e, stdout=subprocess.PIPE, text=True)
+             for e in envs]
+    on, off = (json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs)
+    diffs = [[k for k in ("pos", "steps", "angle", "drift", "image")
+              if not (x[k] == y[k] or (x[k] != x[k] and y[k] != y[k]))]  # NaN equals NaN here
+             for x, y in zip(on["heaps"], off["heaps"])]
+    return on, off, diffs
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--heaps", type=int, default=8)
     ap.add_argument("--as", dest="mode", choices=["avx2", "baseline"], default="avx2")
     a = ap.parse_args()
-    targets = numpy_dispatch_targets()
     prm = points(a.heaps)
-    env_on = {**os.environ, "NUMBA_NUM_THREADS": "1"}
-    if a.mode == "avx2":
-        env_off = {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(t for t in targets if t not in ("X86_V3", "AVX2")),
-                   "OPENCV_CPU_DISABLE": "AVX512-SKX", "OPENBLAS_CORETYPE": "Haswell"}
-    else:
-        env_off = {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(targets)}
-    procs = [subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(prm)], env=e, stdout=subprocess.PIPE, text=True)
-             for e in (env_on, env_off)]
-    on, off = (json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs)
+    env_on, env_off = environments(a.mode)
+    on, off, diffs = compare(prm, a.mode)
     off_env = {k: v for k, v in env_off.items() if k not in env_on}
     print(f"A: {on['host']}\nB: {off['host']} {off_env}")
-    equal = 0
-    for p, x, y in zip(prm, on["heaps"], off["heaps"]):
-        diff = [k for k in ("pos", "steps", "angle", "drift", "image")
-                if not (x[k] == y[k] or (x[k] != x[k] and y[k] != y[k]))]  # NaN equals NaN here
-        equal += not diff
+    for p, x, y, diff in zip(prm, on["heaps"], off["heaps"], diffs):
         print(f"mu_s {p['static_friction']:.3f} mu_r {p['rolling_friction']:.3f} g {p['surface_energy']:.3f} | "
               f"A {x['angle']:6.3f} deg {x['steps']:6d} steps | B {y['angle']:6.3f} deg {y['steps']:6d} steps | "
               f"{'bitwise equal' if not diff else 'DIFFERENT: ' + ', '.join(diff)}")
+    equal = sum(not d for d in diffs)
     print(f"{equal} of {len(prm)} heaps bitwise equal (positions, steps, coordinate angle, creep rate, image angle)")
 
 

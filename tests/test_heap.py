@@ -234,3 +234,26 @@ def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
     art.write_table(tmp_path / "simulate" / "results.parquet", rows)
     cur = current_results(tmp_path)
     assert sorted(cur["run_hash"]) == ["a", "c"]  # the old kernel's row is not a repeat, nor is a duplicate
+
+
+def test_a_heap_does_not_depend_on_numpys_simd_level():
+    """The same two smoke heaps (one cohesive) in two processes, one with every numpy dispatch
+    target below AVX-512 kept and OpenBLAS/OpenCV set down (as on an AVX2 CPU), come out bitwise
+    equal: positions, step count, coordinate angle, creep rate, image angle (docs/performance.md,
+    "Reproducibility"; `benchmarks/simd_invariance.py` is the longer check). On a CPU without
+    AVX-512 both processes run the same loops, so the test cannot tell anything there."""
+    import importlib.util
+    from pathlib import Path
+
+    from calib_cli.campaign import numpy_dispatch_targets
+
+    if not {"AVX512F", "AVX512_SKX", "AVX512_ICL", "X86_V4"} & set(numpy_dispatch_targets()):
+        pytest.skip("numpy dispatches on no AVX-512 target here: nothing to switch off")
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "simd_invariance.py"
+    spec = importlib.util.spec_from_file_location("simd_invariance", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    on, off, diffs = mod.compare(mod.points(3)[1:], "avx2")
+    assert on["host"] != off["host"]  # the two really ran different loops
+    assert all(h["angle"] == h["angle"] for h in on["heaps"])  # both formed heaps
+    assert diffs == [[], []]
