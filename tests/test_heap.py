@@ -237,9 +237,9 @@ def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
 
 
 def test_a_heap_does_not_depend_on_numpys_simd_level():
-    """The same two smoke heaps (one cohesive) in two processes, one with every numpy dispatch
-    target below AVX-512 kept and OpenBLAS/OpenCV set down (as on an AVX2 CPU), come out bitwise
-    equal: positions, step count, coordinate angle, creep rate, image angle (docs/performance.md,
+    """The same two smoke heaps (one cohesive) in two processes, one as this CPU runs and one
+    with numpy's AVX-512 targets switched off and OpenBLAS/OpenCV set down (as on an AVX2 CPU),
+    come out bitwise equal: positions, step count, coordinate angle, creep rate, image angle (docs/performance.md,
     "Reproducibility"; `benchmarks/simd_invariance.py` is the longer check). On a CPU without
     AVX-512 both processes run the same loops, so the test cannot tell anything there."""
     import importlib.util
