@@ -141,6 +141,10 @@ hidden-effect: setup
 	$(call lab_rev0,$(LAB),6)
 	$(call lab_rev1,$(LAB),cohesion,REV1)
 
+# The other labs share the hidden-effect lab's revision-0 Box-Behnken heaps (the same requests):
+# where that run directory has finished them, they are copied, not recomputed (docs/campaigns.md)
+control-lab hidden-wall hidden-floor: export CALIB_REUSE = $(LAB)
+
 # The control: the same lab with nothing hidden (the truth lies inside the starting model).
 # compare should flag no condition and diagnose find no significant effect (30 min on 2 cores with the
 # hidden-effect run's revision-0 BBD heaps in its cache; ~37 min from nothing, an estimate)

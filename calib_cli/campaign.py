@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import functools
+import os
 import platform
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping
@@ -29,6 +31,9 @@ from .imaging.measure import measure_image
 
 RESULTS = Path("simulate") / "results.parquet"
 RUNS = Path("simulate") / "runs"
+#: environment variable: other run directories (os.pathsep-separated) whose finished runs a
+#: campaign copies instead of recomputing (docs/campaigns.md)
+REUSE_ENV = "CALIB_REUSE"
 
 
 @dataclass(frozen=True)
@@ -207,6 +212,34 @@ def _save_index(run_dir: Path, rows: list[dict]) -> None:
     art.write_table(Path(run_dir) / RESULTS, df, {"stage": "simulate", "version": __version__})
 
 
+def reusable(run_hash: str, run_dir: Path) -> Path | None:
+    """The folder of a finished run with this hash in a run directory named in $CALIB_REUSE, if any.
+
+    The hash covers everything that determines the run (model, parameters, condition, numerics,
+    seed, kernel source), so that run is the one this campaign would compute, bit for bit."""
+    for other in filter(None, os.environ.get(REUSE_ENV, "").split(os.pathsep)):
+        src = Path(other) / RUNS / run_hash
+        if (src / "result.json").is_file() and src.resolve() != (Path(run_dir) / RUNS / run_hash).resolve():
+            return src
+    return None
+
+
+def _reuse(run_hash: str, run_dir: Path) -> bool:
+    """Copy the :func:`reusable` run into this run directory; the index row then takes its labels
+    (design, run id, repeat, condition) from the request. Copied to a staging name and renamed, so
+    a copy cut short is never taken for a finished run."""
+    src = reusable(run_hash, run_dir)
+    if src is None:
+        return False
+    dst = Path(run_dir) / RUNS / run_hash
+    tmp = dst.with_name(f".{run_hash}.staging-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(src, tmp)
+    shutil.rmtree(dst, ignore_errors=True)  # an unfinished run's leftovers
+    tmp.rename(dst)
+    return True
+
+
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
                  on_progress: Callable | None = None, dask: str | None = None) -> pd.DataFrame:
@@ -237,7 +270,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     todo = []
     for i, req in enumerate(requests):
         done = run_dir / RUNS / req.hash / "result.json"
-        if done.is_file():
+        if done.is_file() or _reuse(req.hash, run_dir):
             finish(i, art.read_json(done))
         else:
             todo.append(i)

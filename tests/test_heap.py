@@ -1,6 +1,7 @@
 """Heap scenario, angle from coordinates, rendering, cached campaigns, simulate-heap CLI."""
 
 import math
+import os
 
 import numpy as np
 import pandas as pd
@@ -257,3 +258,35 @@ def test_a_heap_does_not_depend_on_numpys_simd_level():
     assert on["host"] != off["host"]  # the two really ran different loops
     assert all(h["angle"] == h["angle"] for h in on["heaps"])  # both formed heaps
     assert diffs == [[], []]
+
+
+def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkeypatch):
+    """$CALIB_REUSE: a run another run directory has finished is copied, not recomputed, and the
+    row takes this request's labels (docs/campaigns.md)."""
+    import calib_cli.campaign as campaign
+
+    reqs = [Request({"static_friction": mu}, TINY, TINY_NUM, derive_seed(0, i, 0), "tiny", "", i)
+            for i, mu in enumerate([0.3, 0.6], start=1)]
+    a = run_campaign(reqs, tmp_path / "a")
+    relabelled = [Request(r.params, r.condition, r.numerics, r.seed, r.preset, design="other", run_id=r.run_id + 10)
+                  for r in reqs]
+    assert [r.hash for r in relabelled] == [r.hash for r in reqs]  # labels are not part of the key
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("recomputed a run another run directory had finished")
+
+    monkeypatch.setattr(campaign, "execute", no_simulation)
+    monkeypatch.setenv("CALIB_REUSE", os.pathsep.join([str(tmp_path / "missing"), str(tmp_path / "a")]))
+    b = run_campaign(relabelled, tmp_path / "b")
+    cols = ["run_hash", "repose_angle", "angle_coords", "n_steps", "status", "wall_s"]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
+    assert list(b["design"]) == ["other", "other"] and list(b["run_id"]) == [11, 12]
+    for h in b["run_hash"]:
+        assert (tmp_path / "b" / "simulate" / "runs" / h / "state.parquet").is_file()
+    assert not list((tmp_path / "b" / "simulate" / "runs").glob(".*staging*"))
+    # a run that no directory named has finished is still computed
+    monkeypatch.undo()
+    monkeypatch.setenv("CALIB_REUSE", str(tmp_path / "b"))
+    c = run_campaign([Request({"static_friction": 0.45}, TINY, TINY_NUM, derive_seed(0, 3, 0), "tiny", "", 3)],
+                     tmp_path / "c")
+    assert len(c) == 1 and c.iloc[0]["run_hash"] not in set(b["run_hash"])

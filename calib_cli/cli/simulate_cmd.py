@@ -12,7 +12,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .. import artifacts as art
-from ..campaign import Request, derive_seed, run_campaign
+from ..campaign import REUSE_ENV, Request, derive_seed, reusable, run_campaign
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, get_preset, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
@@ -157,10 +157,12 @@ def simulate_heap(
             done = run / "simulate" / "runs" / req.hash / "result.json"
             if done.is_file():
                 done.unlink()
-    cached = sum((run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests)
+    done = [(run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests]
+    copied = sum(not d and reusable(r.hash, run) is not None for d, r in zip(done, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
-    console.print(f"{len(requests)} run(s), {cached} cached; preset [bold]{preset}[/] ({where})")
+    also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
+    console.print(f"{len(requests)} run(s), {sum(done)} cached{also}; preset [bold]{preset}[/] ({where})")
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))
