@@ -242,8 +242,12 @@ def _reuse(run_hash: str, run_dir: Path) -> bool:
 
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
-                 on_progress: Callable | None = None, dask: str | None = None) -> pd.DataFrame:
+                 on_progress: Callable | None = None, dask: str | None = None,
+                 reuse: bool = True) -> pd.DataFrame:
     """Run every request (cached ones are loaded, not recomputed); return their rows.
+
+    With ``reuse``, runs that the run directories in $CALIB_REUSE have finished are copied
+    (:func:`reusable`); ``reuse=False`` is for ``--force``, which asks for them to be recomputed.
 
     Executors: in-process (workers = 1), a local process pool (workers > 1), or a Dask cluster
     (``dask`` = a scheduler address, or "local" for a LocalCluster of ``workers`` processes).
@@ -270,7 +274,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     todo = []
     for i, req in enumerate(requests):
         done = run_dir / RUNS / req.hash / "result.json"
-        if done.is_file() or _reuse(req.hash, run_dir):
+        if done.is_file() or (reuse and _reuse(req.hash, run_dir)):
             finish(i, art.read_json(done))
         else:
             todo.append(i)

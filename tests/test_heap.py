@@ -284,6 +284,8 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
     for h in b["run_hash"]:
         assert (tmp_path / "b" / "simulate" / "runs" / h / "state.parquet").is_file()
     assert not list((tmp_path / "b" / "simulate" / "runs").glob(".*staging*"))
+    with pytest.raises(AssertionError, match="recomputed"):  # --force: recompute, do not copy
+        run_campaign(relabelled, tmp_path / "d", reuse=False)
     # a run that no directory named has finished is still computed
     monkeypatch.undo()
     monkeypatch.setenv("CALIB_REUSE", str(tmp_path / "b"))

@@ -157,12 +157,12 @@ def simulate_heap(
             done = run / "simulate" / "runs" / req.hash / "result.json"
             if done.is_file():
                 done.unlink()
-    done = [(run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests]
-    copied = sum(not d and reusable(r.hash, run) is not None for d, r in zip(done, requests))
+    have = [(run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests]
+    copied = 0 if force else sum(not h and reusable(r.hash, run) is not None for h, r in zip(have, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
-    console.print(f"{len(requests)} run(s), {sum(done)} cached{also}; preset [bold]{preset}[/] ({where})")
+    console.print(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})")
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))
@@ -175,7 +175,8 @@ def simulate_heap(
             prog.advance(total)
             prog.update(inner, completed=0)
 
-        rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress, dask=dask)
+        rows = run_campaign(requests, run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
+                            reuse=not force)
     show = rows[["run_id", "repeat", *[c for c in PARAMETERS if c in rows.columns], "status", "repose_angle",
                  "angle_drift_deg_s", "n_particles", "wall_s"]]
     console.print(df_table(show, f"simulate-heap -> {run / 'simulate' / 'results.parquet'}"))
