@@ -212,14 +212,15 @@ def _save_index(run_dir: Path, rows: list[dict]) -> None:
     art.write_table(Path(run_dir) / RESULTS, df, {"stage": "simulate", "version": __version__})
 
 
-def reusable(run_hash: str, run_dir: Path) -> Path | None:
-    """The folder of a finished run with this hash in a run directory named in $CALIB_REUSE, if any.
+def reusable(run_hash: str) -> Path | None:
+    """The folder of a finished run with this hash in a run directory named in $CALIB_REUSE, if any
+    (asked only for runs the campaign's own directory lacks, so naming it there is harmless).
 
     The hash covers everything that determines the run (model, parameters, condition, numerics,
     seed, kernel source), so that run is the one this campaign would compute, bit for bit."""
     for other in filter(None, os.environ.get(REUSE_ENV, "").split(os.pathsep)):
         src = Path(other) / RUNS / run_hash
-        if (src / "result.json").is_file() and src.resolve() != (Path(run_dir) / RUNS / run_hash).resolve():
+        if (src / "result.json").is_file():
             return src
     return None
 
@@ -228,7 +229,7 @@ def _reuse(run_hash: str, run_dir: Path) -> bool:
     """Copy the :func:`reusable` run into this run directory; the index row then takes its labels
     (design, run id, repeat, condition) from the request. Copied to a staging name and renamed, so
     a copy cut short is never taken for a finished run."""
-    src = reusable(run_hash, run_dir)
+    src = reusable(run_hash)
     if src is None:
         return False
     dst = Path(run_dir) / RUNS / run_hash

@@ -12,7 +12,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .. import artifacts as art
-from ..campaign import REUSE_ENV, Request, derive_seed, reusable, run_campaign
+from ..campaign import REUSE_ENV, RUNS, Request, derive_seed, reusable, run_campaign
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, get_preset, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
@@ -157,8 +157,8 @@ def simulate_heap(
             done = run / "simulate" / "runs" / req.hash / "result.json"
             if done.is_file():
                 done.unlink()
-    have = [(run / "simulate" / "runs" / r.hash / "result.json").is_file() for r in requests]
-    copied = 0 if force else sum(not h and reusable(r.hash, run) is not None for h, r in zip(have, requests))
+    have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
+    copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
