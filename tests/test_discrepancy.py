@@ -248,9 +248,13 @@ def test_diagnose_end_to_end_on_tiny_heaps(tmp_path):
     r = runner.invoke(app, ["diagnose", "--run", str(run), *SIM])
     assert r.exit_code == 0, r.output
     rank = art.read_table(run / "diagnose" / "ranking.parquet")
-    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "signature_p", "evidence"]
-    # one heap a step (SIM) leaves the scatter unknown: no signature counts as resolved
+    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "signature_p", "verdict",
+                                  "evidence"]
+    # one heap a step (SIM) leaves the scatter unknown: no signature counts as resolved, so no
+    # candidate can be called significant
     assert rank["signature_p"].isna().all() and "not resolved" in r.output
+    assert not (rank["verdict"] == "significant").any()
+    assert ((rank["verdict"] == "unresolved") == (rank["p_value"] < 0.05)).all()
     assert set(rank["effect"]) == set(EFFECTS) - {"sliding_friction", "rolling_friction", "restitution"}
     assert "simulations" in r.output  # the cost is printed before it starts
 
@@ -352,10 +356,12 @@ def test_hidden_cohesion_is_found_on_dem_heaps(hidden_effect_lab):
     rank = art.read_table(lab / "diagnose" / "ranking.parquet").set_index("effect")
     assert rank["score"].idxmax() == "cohesion"
     assert rank.loc["cohesion", "p_value"] < 0.01 and rank.loc["cohesion", "signature_p"] < 0.01
+    assert rank.loc["cohesion", "verdict"] == "significant"
     # another candidate may pass the bar only with a signature diagnose flags as noise (wall
-    # friction on the sample run: p 0.002, signature p 0.84)
+    # friction on the sample run: p 0.002, signature p 0.84, verdict "unresolved")
     others = rank.drop("cohesion")
     assert (others.loc[others["p_value"] < 0.05 / len(rank), "signature_p"] > 0.05).all()
+    assert (others["verdict"] != "significant").all()
     hist = art.read_table(lab / "compare" / "history.parquet")
     assert list(hist["revision"]) == [0, 1]
     assert hist["n_fail"].iloc[0] >= 2 and hist["n_fail"].iloc[1] == 0

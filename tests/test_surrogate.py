@@ -313,3 +313,26 @@ def test_refinement_stops_when_the_correction_keeps_the_point():
     ref = refine(lambda P: np.array([[30.0]]), simulate, lambda d, x: x.copy(), [0.2, 0.3], [30.0], ["p", "q"],
                  rounds=3)
     assert calls == [0] and ref.stalled and not ref.accepted and ref.best_round == 0
+
+
+def test_refinement_stops_when_the_correction_moves_the_point_less_than_its_tolerance():
+    """A correction of 0.0002 (seen on the hidden-effect lab) re-measures the same heaps in all but
+    name: within ``xtol`` it counts as keeping the point; with no tolerance it is another round."""
+    from calib_cli.surrogate.inversion import refine
+
+    def run(xtol):
+        calls = []
+
+        def simulate(x, k):
+            calls.append(k)
+            return pd.DataFrame({"condition_id": ["a"], "mean": [31.0], "sd": [1.0], "n": [4], "z": [-1.5],
+                                 "fails": [False]})
+
+        ref = refine(lambda P: np.array([[30.0]]), simulate, lambda d, x: x + np.array([0.0002, 0.0]),
+                     [0.2, 0.3], [30.0], ["p", "q"], rounds=3, xtol=xtol)
+        return ref, calls
+
+    ref, calls = run(np.array([0.003, 0.003]))
+    assert calls == [0] and ref.stalled and ref.best_round == 0
+    ref, calls = run(0.0)
+    assert calls == [0, 1, 2, 3] and not ref.stalled

@@ -198,7 +198,10 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
 
     Reads RUN/compare/residuals.parquet (run `calib compare` first), the calibrated parameters and
     RUN/model.toml. Writes RUN/diagnose/ranking.parquet (effect, score, p_value, explained_fraction,
-    evidence) and sensitivities.parquet. Runs go through the simulation cache.
+    signature_p, verdict, evidence) and sensitivities.parquet. The verdict is "significant" when the
+    test passes and the candidate's signature is resolved from the heaps' scatter, "unresolved" when
+    the test passes but the signature is not (rerun with more --repeats), else "not significant".
+    Runs go through the simulation cache.
     """
     run = check_run_dir(run)
     model, theta = _model_and_theta(run, set_)
@@ -278,22 +281,28 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     ranking["signature_p"] = [signature_noise(G[e], G_se[e])[1] for e in ranking["effect"]]
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
     top = tr.sort_values("p_value").iloc[0] if len(tr) else None
-    words = []
+    words, verdicts = [], []
     for _, r in ranking.iterrows():
         eff = EFFECTS[r["effect"]]
-        sig = "significant" if r["p_value"] < alpha else "not significant"
-        txt = (f"{sig} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the misfit; "
-               f"its signature: {eff.signature}")
-        if not r["signature_p"] < alpha:  # NaN (one heap a step: no scatter to judge by) counts as unresolved
+        resolved = r["signature_p"] < alpha  # NaN (one heap a step: no scatter to judge by) counts as unresolved
+        if not r["p_value"] < alpha:
+            verdict = "not significant"
+        else:  # the test passes, but a signature within the heaps' scatter makes the pass (and the rank) noise
+            verdict = "significant" if resolved else "unresolved"
+        verdicts.append(verdict)
+        txt = (f"{verdict} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the "
+               f"misfit; its signature: {eff.signature}")
+        if not resolved:
             console.print(f"[yellow]warning:[/] {r['effect']}'s signature is not resolved from the pile-to-pile "
                           f"scatter with {repeats} heap(s) a step (p = {r['signature_p']:.2g} that it is zero): its "
                           "rank is noise; rerun with more --repeats (cached heaps are reused)")
             txt += (f"; its signature is within the simulation noise (p = {r['signature_p']:.2g}): "
                     "the rank is unreliable")
-        if top is not None and r["p_value"] < alpha:
+        if top is not None and verdict == "significant":
             way = "grows" if top["slope"] > 0 else "falls"
             txt += f"; observed: the residual {way} with {top['variable']} (p = {top['p_value']:.3g})"
         words.append(txt)
+    ranking["verdict"] = verdicts
     ranking["evidence"] = words
     sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})
     for k, e in enumerate(model.effects):
@@ -304,7 +313,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
     with st.commit() as out:
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
-                                              "evidence"]],
+                                              "verdict", "evidence"]],
                   model_revision=model.revision)
         out.table("sensitivities.parquet", sens)
         out.table("trends.parquet", tr)
@@ -312,7 +321,10 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
                            f"missing effects, ranked (model revision {model.revision})"))
     for _, r in ranking.iterrows():
         console.print(f"[bold]{r['effect']}[/]: {r['evidence']}")
-    if not (ranking["p_value"] < alpha).any():
+    if (ranking["verdict"] == "unresolved").any() and not (ranking["verdict"] == "significant").any():
+        console.print("No missing effect is both significant and resolved: the candidates that pass the test leave "
+                      "signatures within the heaps' scatter; rerun with more --repeats before adding one.")
+    elif not (ranking["p_value"] < alpha).any():
         console.print("No missing effect is significant: the misfit is within what the measurement noise explains.")
 
 

@@ -91,7 +91,7 @@ class Refinement:
 
 def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.ndarray, int], pd.DataFrame],
            reinvert: Callable[[np.ndarray, np.ndarray], np.ndarray], x0, targets, names: Sequence[str],
-           rounds: int, accept_z: float = 1.0) -> Refinement:
+           rounds: int, accept_z: float = 1.0, xtol=0.0) -> Refinement:
     """Validate the inversion by simulation and correct the surrogate where it is wrong: output space
     mapping (Bandler et al., IEEE Trans. MTT 52(1), 2004; Koziel, Bandler & Madsen, ibid. 54(10), 2006).
 
@@ -101,9 +101,10 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
     d_c = y_c(x_k) - f_c(x_k), is added to it and the corrected surrogate f + d is inverted again;
     ``reinvert(d, x_k)`` returns x_(k+1), the near-optimal point of f + d closest to x_k (the correction
     is measured at x_k and holds near it). Stops at the first round with rms z <= ``accept_z`` or after
-    ``rounds`` corrections, or when a correction returns x_k itself (the corrected surrogate can do no
-    better there; another round would only re-measure x_k and keep the luckiest draw); the chosen round
-    is the accepted one, else the one with the smallest rms z.
+    ``rounds`` corrections, or when a correction returns x_k itself, i.e. moves no parameter by more
+    than ``xtol`` (per parameter, natural units): the corrected surrogate can do no better there, and
+    another round would only re-measure x_k and keep the luckiest draw. The chosen round is the
+    accepted one, else the one with the smallest rms z.
     ``accept_z`` is 1 rather than compare's 2: ``compare`` judges the solution on fresh heaps, and a
     point accepted at the edge of the band fails it about half the time. With several conditions the
     rms (E z^2 = 1 at a perfect fit) rather than the largest |z|: six conditions all within one sd
@@ -130,7 +131,7 @@ def refine(predict: Callable[[np.ndarray], np.ndarray], simulate: Callable[[np.n
         if _rms(z) <= accept_z or k == int(rounds) or not np.isfinite(y).all():
             break  # accepted, out of rounds, or a condition formed no heap: nothing to correct with
         x_new = np.asarray(reinvert(y - f, x), float)
-        if np.allclose(x_new, x, rtol=0.0, atol=1e-12):
+        if np.all(np.abs(x_new - x) <= np.maximum(np.asarray(xtol, float), 1e-12)):
             stalled = True  # the corrected surrogate keeps the point: another round would only re-measure it
             break
         x = x_new
