@@ -140,6 +140,7 @@ hidden-effect: setup
 		--set restitution=0.3 --set surface_energy=0.6 --hidden cohesion $(LABCOND)
 	$(call lab_rev0,$(LAB),6)
 	$(call lab_rev1,$(LAB),cohesion,REV1)
+	$(CALIB) report --run $(LAB)
 
 # The other labs share the hidden-effect lab's revision-0 Box-Behnken heaps (the same requests):
 # where that run directory has finished them, they are copied, not recomputed (docs/campaigns.md)
@@ -153,6 +154,7 @@ control-lab: setup
 	$(CALIB) synth-lab --out $(CTRL)/lab --set static_friction=0.45 --set rolling_friction=0.15 \
 		--set restitution=0.3 --set surface_energy=0 --hidden none $(LABCOND)
 	$(call lab_rev0,$(CTRL),6)
+	$(CALIB) report --run $(CTRL)
 
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
 # the starting model gives the walls the grains' friction): compare, diagnose ranks wall friction first,
@@ -166,6 +168,7 @@ hidden-wall: setup
 		--set restitution=0.3 --set surface_energy=0 --set wall_static_friction=0.2 --hidden wall_friction $(LABCOND)
 	$(call lab_rev0,$(WALL),6)
 	$(call lab_rev1,$(WALL),wall_friction,WREV1)
+	$(CALIB) report --run $(WALL)
 
 # A third hidden effect: a rough floor (rolling resistance 0.4 on the floor and cylinder against the
 # grains' 0.15; the starting model gives the walls the grains' rolling friction): compare, diagnose, add
@@ -179,6 +182,7 @@ hidden-floor: setup
 		--set restitution=0.3 --set surface_energy=0 --set wall_rolling_friction=0.4 --hidden wall_rolling $(LABCOND)
 	$(call lab_rev0,$(FLOOR),6)
 	$(call lab_rev1,$(FLOOR),wall_rolling,FREV1)
+	$(CALIB) report --run $(FLOOR)
 
 # The paper's own BBD design (Table 6, from its Tables 3 and 5) simulated with our kernel at the
 # `default` preset: does the simulated heap respond like the paper's EDEM one? (~12 min on 2 cores)

@@ -10,7 +10,7 @@ import pandas as pd
 from . import __version__
 from . import artifacts as art
 
-#: (stage folder, title, paper reference, tables to show, figures glob)
+#: (stage folder, title, paper reference (None: a stage beyond the paper), tables to show, figures glob)
 SECTIONS = [
     ("measure", "Measured repose angle", "2.1, Table 1", ["conditions.parquet", "angles.parquet"], "overlays/*.png"),
     ("pb", "Plackett-Burman screening", "3.1, Tables 3-4", ["anova.parquet", "effects.parquet", "fit.parquet"],
@@ -21,6 +21,8 @@ SECTIONS = [
     ("surrogate", "Surrogates", "3.5.1-3.5.2, Table 9", ["metrics.parquet"], "*.png"),
     ("invert", "Inversion", "3.5.3-3.6, Eq. 11, Fig. 9", ["solution.parquet", "ranges.parquet",
                                                           "refinement.parquet", "validation.parquet"], "*.png"),
+    ("compare", "Model against the measurements", None, ["history.parquet", "residuals.parquet"], "*.png"),
+    ("diagnose", "Missing effects, ranked", None, ["ranking.parquet", "trends.parquet"], None),
     ("simulate", "Simulations", "2.2", ["results.parquet"], None),
 ]
 
@@ -48,12 +50,15 @@ def build_report(run: Path) -> str:
         if not d.is_dir():
             continue
         found = True
-        parts.append(f"<h2>{html.escape(title)} <small>(paper {ref})</small></h2>")
+        where = f"paper {ref}" if ref else "beyond the paper: docs/method.md"
+        parts.append(f"<h2>{html.escape(title)} <small>({where})</small></h2>")
         for t in tables:
             p = d / t
             if p.is_file():
                 prov = art.read_provenance(p)
-                parts.append(f"<h3>{t}</h3><p class=prov>{html.escape(prov.get('command', ''))}</p>")
+                # diagnose judges the revision compare held then; compare may since hold a later one
+                rev = (f" (model revision {prov['model_revision']})" if "model_revision" in prov else "")
+                parts.append(f"<h3>{t}{rev}</h3><p class=prov>{html.escape(prov.get('command', ''))}</p>")
                 parts.append(_table(art.read_table(p)))
         for f in sorted(d.glob(figs)) if figs else []:
             parts.append(f'<p><img src="{html.escape(str(f.relative_to(run)))}" alt="{html.escape(f.name)}"></p>')

@@ -472,3 +472,22 @@ def test_rough_floor_is_found_on_dem_heaps(tmp_path):
     hist = art.read_table(lab / "compare" / "history.parquet")
     assert list(hist["revision"]) == [0, 1] and hist["n_fail"].iloc[1] == 0
     assert hist["rmse"].iloc[1] < hist["rmse"].iloc[0]
+
+
+def test_report_shows_the_discrepancy_loop(tmp_path):
+    """`calib report` on a run that went through compare and diagnose (the committed hidden-effect
+    sample run's tables) shows the error history, the residuals and the ranking with its verdicts,
+    and says which model revision diagnose judged."""
+    import shutil
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "sample_runs" / "hidden-effect"
+    run = tmp_path / "run"
+    for stage in ("compare", "diagnose"):
+        shutil.copytree(src / stage, run / stage)
+    r = runner.invoke(app, ["report", "--run", str(run)])
+    assert r.exit_code == 0, r.output
+    page = (run / "report.html").read_text()
+    assert "Model against the measurements" in page and 'src="compare/history.png"' in page
+    assert "ranking.parquet (model revision 0)" in page and "residuals.parquet (model revision 1)" in page
+    assert "unresolved" in page and "significant" in page
