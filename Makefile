@@ -159,7 +159,8 @@ control-lab: setup
 # A second hidden effect: a slippery floor and cylinder (wall friction 0.2 against the grains' 0.45;
 # the starting model gives the walls the grains' friction): compare, diagnose ranks wall friction first,
 # add it and recalibrate over the span diagnose stepped it (0.2-0.4), compare
-# (~90 min on 2 cores from nothing; docs/tutorial-hidden-effect.md section 7)
+# (31 min on 2 cores with the hidden-effect run's revision-0 BBD heaps cached, ~40 min from nothing;
+# docs/tutorial-hidden-effect.md section 7)
 WALL   := sample_runs/hidden-wall
 WREV1  := -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' \
           -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
