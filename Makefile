@@ -174,7 +174,8 @@ hidden-wall: setup
 # A third hidden effect: a rough floor (rolling resistance 0.4 on the floor and cylinder against the
 # grains' 0.15; the starting model gives the walls the grains' rolling friction): compare, diagnose, add
 # it and recalibrate over 0.1-0.5 (its declared range less the end where grains never stop rolling on
-# the floor), compare (~110 min on 2 cores from nothing; docs/tutorial-hidden-effect.md section 8)
+# the floor), compare (39 min on 2 cores with the hidden-effect run's revision-0 BBD heaps cached, ~47 min
+# from nothing; docs/tutorial-hidden-effect.md section 8)
 FLOOR  := sample_runs/hidden-floor
 FREV1  := -s 'bbd.factors=["static_friction","rolling_friction","wall_rolling_friction"]' \
           -s factors.wall_rolling_friction.low=0.1 -s factors.wall_rolling_friction.high=0.5
