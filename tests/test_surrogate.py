@@ -336,3 +336,20 @@ def test_refinement_stops_when_the_correction_moves_the_point_less_than_its_tole
     assert calls == [0] and ref.stalled and ref.best_round == 0
     ref, calls = run(0.0)
     assert calls == [0, 1, 2, 3] and not ref.stalled
+
+
+def test_invert_warns_when_the_solution_sits_on_the_edge_of_the_fitted_range(tmp_path):
+    """A target steeper than any heap of the design drives the GA into a corner of the box the
+    surrogate was fitted on: `invert` must say that the data may want a value beyond it. The
+    paper's own target (32.07 deg) lies inside the box: no such warning."""
+    run = tmp_path / "run"
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["bbd", "analyze", "--run", str(run), "--responses",
+                               str(PAPER / "table7_bbd.csv")]).exit_code == 0
+    assert runner.invoke(app, ["fit-surrogate", "--run", str(run)]).exit_code == 0
+    r = runner.invoke(app, ["invert", "--run", str(run), "--target", "32.07"])
+    assert r.exit_code == 0, r.output
+    assert "end of the range" not in r.output
+    r = runner.invoke(app, ["invert", "--run", str(run), "--target", "70", "--force"])
+    assert r.exit_code == 0, r.output
+    assert "at the high end of the range the surrogate was fitted on" in " ".join(r.output.split())

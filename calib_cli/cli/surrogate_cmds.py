@@ -18,7 +18,7 @@ from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, get_preset  # noqa: E402
 from ..errors import CalibError  # noqa: E402
-from ..discrepancy.stats import per_condition, residual_table  # noqa: E402
+from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
@@ -228,7 +228,8 @@ def invert(
 ):
     """GA inversion of the surrogate to the target angle within the fitted ranges (paper Eq. 11, Fig. 9),
     the set of near-optimal parameters, and optional validation simulations (paper 3.6), optionally
-    refined where the validation shows the surrogate wrong.
+    refined where the validation shows the surrogate wrong. Warns when the solution sits on the edge
+    of the range the surrogate was fitted on.
 
     Reads RUN/surrogate/. Writes RUN/invert/solution.parquet, history.parquet, solution_set.parquet,
     ranges.parquet, fitness.png and, with --validate, validation.parquet (and with --refine, refinement.parquet).
@@ -381,6 +382,13 @@ def invert(
         console.print(f"[yellow]warning:[/] not identifiable from the data given: {', '.join(wide)} can vary over "
                       "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
                       "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
+    # the search box is the design's: a solution on its edge may want a value beyond it
+    for q, side in at_bounds(dict(zip(params, best_x.tolist())), dict(zip(params, zip(lows, highs)))).items():
+        lo, hi = lows[params.index(q)], highs[params.index(q)]
+        console.print(f"[yellow]warning:[/] {q} = {best_x[params.index(q)]:.4g} is at the {side} end of the range "
+                      f"the surrogate was fitted on [{lo:.4g}, {hi:.4g}]: the targets may want a value beyond it. "
+                      f"Widen factors.{q} and redo the design, or, if the range is physical, look for a missing "
+                      "effect (calib compare, calib diagnose)")
     if refinement is not None:
         cols = ["round", *params, *(["condition_id"] if len(vconds) > 1 else []), "mean", "z", "predicted", "bias"]
         show = refinement[cols].rename(columns={"mean": "simulated"})
