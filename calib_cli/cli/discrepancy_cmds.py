@@ -193,8 +193,9 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
 
 def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
              workers: WorkersOpt = 1,
-             alpha: Annotated[float, typer.Option(help="Family-wise significance level: each candidate is tested "
-                                                  "at alpha / the number of candidates (Bonferroni).")] = 0.05):
+             alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
+                                                  "candidate is tested at alpha / the number of candidates "
+                                                  "(Bonferroni).")] = 0.05):
     """Rank the effects missing from the model by how much of the misfit each would explain
     (score test after projecting out what the current parameters absorb), with the evidence.
 

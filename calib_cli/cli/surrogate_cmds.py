@@ -383,9 +383,10 @@ def invert(
                       "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
                       "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
     # the search box is the design's: a solution on its edge may want a value beyond it
-    for q, side in at_bounds(dict(zip(params, best_x.tolist())), dict(zip(params, zip(lows, highs)))).items():
-        lo, hi = lows[params.index(q)], highs[params.index(q)]
-        console.print(f"[yellow]warning:[/] {q} = {best_x[params.index(q)]:.4g} is at the {side} end of the range "
+    box, at = dict(zip(params, zip(lows, highs))), dict(zip(params, best_x.tolist()))
+    for q, side in at_bounds(at, box).items():
+        lo, hi = box[q]
+        console.print(f"[yellow]warning:[/] {q} = {at[q]:.4g} is at the {side} end of the range "
                       f"the surrogate was fitted on [{lo:.4g}, {hi:.4g}]: the targets may want a value beyond it. "
                       f"Widen factors.{q} and redo the design, or, if the range is physical, look for a missing "
                       "effect (calib compare, calib diagnose)")
