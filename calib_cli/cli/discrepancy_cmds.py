@@ -16,7 +16,7 @@ import pandas as pd  # noqa: E402
 import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
-from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
+from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
@@ -382,7 +382,7 @@ def synth_lab(
     rng = np.random.default_rng(seed)
     lines = ["image," + "condition_id," + ",".join(COND_VARS)]
     for (_, row), req in zip(rows.iterrows(), reqs):
-        st = art.read_table(work / "simulate" / "runs" / row["run_hash"] / "state.parquet")
+        st = art.read_table(work / RUNS / row["run_hash"] / "state.parquet")
         img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=6000).image
         img = np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
         name = f"{req.condition_id}_r{req.repeat + 1}.png"

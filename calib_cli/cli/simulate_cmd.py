@@ -154,7 +154,7 @@ def simulate_heap(
         interactions(req.params)
     if force:
         for req in requests:
-            done = run / "simulate" / "runs" / req.hash / "result.json"
+            done = run / RUNS / req.hash / "result.json"
             if done.is_file():
                 done.unlink()
     have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
