@@ -82,6 +82,8 @@ def test_rerun_skips_and_force_reruns(run):
     (lambda p: p.write_text(p.read_text().replace("0.112,", "0.275,")), None),
     (lambda p: p.write_bytes(b"\x89PNG\x00\x00garbage\xff\xfe"), None),
     (lambda p: p.unlink(), "not found"),
+    # heaps that all stand at one angle (an insensitive model): nothing to fit, not a ZeroDivisionError
+    (lambda p: pd.read_csv(p).assign(repose_angle=30.0).to_csv(p, index=False), "all 17 responses equal 30"),
 ])
 def test_bad_responses_one_line_error_and_run_dir_unchanged(run, tmp_path, make_bad, needle):
     good = tmp_path / "t7.csv"

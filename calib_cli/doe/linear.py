@@ -73,6 +73,8 @@ def fit_linear(
         raise CalibError(f"{n} runs cannot fit a model with {p} parameters (need more runs than parameters)")
     if not np.all(np.isfinite(y)) or not np.all(np.isfinite(X)):
         raise CalibError("responses or factors contain NaN or infinite values")
+    if np.ptp(y) == 0:  # no variation: every F and R2 would divide by zero
+        raise CalibError(f"all {n} responses equal {y[0]:g}: no effect can be estimated from them")
     A = np.column_stack([np.ones(n), X])
     if np.linalg.matrix_rank(A) < p:
         raise CalibError("the design cannot separate the model terms (singular design matrix)")
