@@ -9,7 +9,7 @@ SMOKE  := sample_runs/smoke
 PHOTOS := sample_data/photos
 SIM    := --preset smoke --workers 2
 
-.PHONY: setup test test-all calibrate paper calibration smoke hidden-effect control-lab hidden-wall hidden-floor default-bbd default-bbd-half-g sample-photos docs clean
+.PHONY: setup test test-all calibrate paper calibration smoke hidden-effect control-lab hidden-wall hidden-floor default-bbd default-bbd-half-g default-bbd-stiff sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -205,6 +205,17 @@ default-bbd-half-g: setup
 	$(CALIB) simulate-heap --run $(DBBD2) --design $(DBBD2)/bbd/design.parquet --preset default --workers 2
 	$(CALIB) bbd analyze --run $(DBBD2)
 	$(CALIB) report --run $(DBBD2)
+
+# The same design at a 100x stiffer shear modulus (500 MPa, grains and walls): the JKR work of
+# separation falls as G^-2/3, so cohesion matters less (docs/physics.md, 'Stiffness'; ~100 min on 2 cores)
+DBBD3  := sample_runs/default-bbd-stiff
+default-bbd-stiff: setup
+	$(call paper_screening,$(DBBD3))
+	$(CALIB) bbd design --run $(DBBD3)
+	$(CALIB) simulate-heap --run $(DBBD3) --design $(DBBD3)/bbd/design.parquet --preset default --workers 2 \
+		--shear-modulus 5e8
+	$(CALIB) bbd analyze --run $(DBBD3)
+	$(CALIB) report --run $(DBBD3)
 
 # regenerate the shipped photographs: drawn heaps for the smoke chain, DEM heaps for make calibrate
 # (the truth of each goes to a truth.toml beside them, which no stage reads)

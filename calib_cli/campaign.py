@@ -127,6 +127,9 @@ def _row(req: Request, res, img) -> dict:
         "engine": req.engine, "mpi": req.mpi,
         # only on LAMMPS rows: the built-in kernel's rows (and the committed sample runs) keep their columns
         **({"shapes": ",".join(req.shapes)} if req.engine == "lammps" else {}),
+        # only where the modulus is not the presets' reduced one (--shear-modulus), for the same reason
+        **({"shear_modulus": req.numerics.shear_modulus}
+           if req.numerics.shear_modulus != Numerics.shear_modulus else {}),
         **{k: float(v) for k, v in req.params.items()},
         **asdict(req.condition),
         "status": res.status, "message": res.message,

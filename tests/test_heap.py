@@ -190,10 +190,67 @@ def test_simulate_heap_bad_input(tmp_path):
                          (["--set", "static_friction=nan"], "finite"),
                          (["--preset", "huge"], "unknown preset"),
                          (["--condition", "cylinder_diameter_mm=5"], "particle diameters"),
-                         (["--design", str(tmp_path / "nope.parquet")], "not found")]:
+                         (["--design", str(tmp_path / "nope.parquet")], "not found"),
+                         (["--shear-modulus", "0"], "outside"),
+                         (["--shear-modulus", "nan"], "outside"),
+                         (["--shear-modulus", "1e13"], "outside")]:
         r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), *args])
         assert r.exit_code == 2 and needle in r.output, (args, r.output)
         assert not (tmp_path / "r" / "simulate" / "results.parquet").exists()
+
+
+def test_shear_modulus_option_sets_grains_and_walls_and_is_recorded(tmp_path):
+    """--shear-modulus replaces the preset's reduced modulus for grains and walls: a 4x stiffer
+    cohesionless heap runs at half the (Rayleigh) step, is a run of its own in the cache, and its
+    row says which modulus it had; rows at the preset's modulus keep their columns."""
+    run = tmp_path / "run"
+    cond = ["--preset", "smoke", "--condition", "particle_d_min_mm=5", "--condition", "particle_d_max_mm=6",
+            "--condition", "cylinder_diameter_mm=30", "--condition", "fill_height_mm=24",
+            "--set", "surface_energy=0"]
+    for extra in ([], ["--shear-modulus", "2e7"]):
+        r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, *extra])
+        assert r.exit_code == 0, r.output
+    assert "shear modulus 20 MPa" in r.output
+    res = art.read_table(run / "simulate" / "results.parquet")
+    assert len(res) == 2 and res["run_hash"].nunique() == 2
+    soft, stiff = res.iloc[0], res.iloc[1]
+    assert math.isnan(soft["shear_modulus"]) and stiff["shear_modulus"] == 2e7
+    assert stiff["dt"] == pytest.approx(soft["dt"] / 2, rel=1e-12)
+    key = art.read_json(run / "simulate" / "runs" / stiff["run_hash"] / "key.json")
+    assert key["numerics"]["shear_modulus"] == key["numerics"]["wall_shear_modulus"] == 2e7
+
+
+def _fake_design_results(run, moduli):
+    """RUN/simulate/results.parquet with one row per PB design run and modulus (current kernel)."""
+    from calib_cli.dem import SOURCE_HASH
+
+    d = art.read_table(run / "pb" / "design.parquet")
+    rows = []
+    for m in moduli:
+        for _, r in d.iterrows():
+            rows.append({"run_hash": f"{r['run_id']}-{m}", "design": "pb", "run_id": r["run_id"], "repeat": 0,
+                         "condition_id": "", "preset": "default", "source": SOURCE_HASH, "status": "ok",
+                         **{c: r[c] for c in d.columns if c != "run_id"}, "repose_angle": 30.0 + m / 1e7 + 0.1 * r["run_id"],
+                         **({"shear_modulus": m} if m != 5e6 else {})})
+    art.write_table(run / "simulate" / "results.parquet", pd.DataFrame(rows))
+
+
+def test_heaps_of_two_moduli_are_not_averaged_as_repeats(tmp_path, capsys):
+    from calib_cli.cli.common import warn_other_modulus
+
+    run = tmp_path / "run"
+    assert runner.invoke(app, ["pb", "design", "--run", str(run)]).exit_code == 0
+    _fake_design_results(run, [5e6, 5e8])
+    r = runner.invoke(app, ["pb", "analyze", "--run", str(run)])
+    assert r.exit_code == 2 and "2 setups" in r.output and "500 MPa" in r.output, r.output
+    assert not (run / "pb" / "anova.parquet").exists()
+    _fake_design_results(run, [5e8])  # one modulus: analysed; a validation at another is warned about
+    assert runner.invoke(app, ["pb", "analyze", "--run", str(run)]).exit_code == 0
+    capsys.readouterr()
+    warn_other_modulus(run, None, "these")
+    assert "500 MPa, these at 5 MPa" in capsys.readouterr().err.replace("\n", " ")
+    warn_other_modulus(run, 5e8, "these")
+    assert "warning" not in capsys.readouterr().err
 
 
 def test_dask_local_cluster_gives_the_process_pool_results(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from pathlib import Path
 from typing import Annotated, Callable, Iterable, Optional
@@ -14,6 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from .. import artifacts as art
+from ..dem.heap import Numerics, Preset, get_preset
 from ..errors import CalibError
 from ..settings import load_settings
 from ..space import ParameterSpace
@@ -37,7 +39,59 @@ ResponsesOpt = Annotated[
                                      "from another engine or a paper, instead of simulated results."),
 ]
 
+ShearModulusOpt = Annotated[
+    Optional[float],
+    typer.Option("--shear-modulus", help="Shear modulus of the grains and walls [Pa], instead of the preset's reduced "
+                 "5 MPa. Cohesive heaps depend on it (docs/physics.md, 'Stiffness'); the time step shrinks as "
+                 "G^-1/2. Give every command of a run the same value, as the same --preset.", show_default=False),
+]
+
 SETTINGS_FILE = "settings.toml"
+
+#: Pa: the accepted shear moduli (a soft gel to steel); outside, a typo rather than a material
+SHEAR_MODULUS_RANGE = (1e5, 1e11)
+
+
+def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
+    """The named preset, with the grains' and walls' shear modulus replaced when one is given."""
+    pre = get_preset(name)
+    if shear_modulus is None:
+        return pre
+    lo, hi = SHEAR_MODULUS_RANGE
+    if not (np.isfinite(shear_modulus) and lo <= shear_modulus <= hi):
+        raise CalibError(f"--shear-modulus {shear_modulus:g} Pa is outside [{lo:g}, {hi:g}] Pa")
+    num = dataclasses.replace(pre.numerics, shear_modulus=float(shear_modulus), wall_shear_modulus=float(shear_modulus))
+    return dataclasses.replace(pre, numerics=num)
+
+
+def heap_setups(rows: pd.DataFrame) -> list[str]:
+    """The distinct (preset, shear modulus) of simulation rows, as 'preset default at 5 MPa'."""
+    if rows.empty or "preset" not in rows.columns:
+        return []
+    g = rows["shear_modulus"].fillna(Numerics.shear_modulus) if "shear_modulus" in rows.columns \
+        else pd.Series(Numerics.shear_modulus, index=rows.index)
+    return sorted({f"preset {p} at {m / 1e6:g} MPa" for p, m in zip(rows["preset"], g)})
+
+
+def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str) -> None:
+    """Warn when the run's design heaps (what a surrogate was fitted to) had another shear modulus."""
+    from ..campaign import current_results
+
+    rows = current_results(run)
+    if rows.empty or "design" not in rows.columns:
+        return
+    rows = rows[rows["design"].isin(["pb", "ascent", "bbd"])]
+    want = Numerics.shear_modulus if shear_modulus is None else shear_modulus
+    have = set(rows["shear_modulus"].fillna(Numerics.shear_modulus)) if "shear_modulus" in rows.columns \
+        else ({Numerics.shear_modulus} if len(rows) else set())
+    if have - {want}:
+        err_console.print(f"[yellow]warning:[/] the design heaps of {run} were simulated at a shear modulus of "
+                          f"{', '.join(f'{m / 1e6:g}' for m in sorted(have))} MPa, {what} at {want / 1e6:g} MPa: "
+                          f"give --shear-modulus the same value (docs/physics.md, 'Stiffness')", highlight=False)
+
+
+def modulus_note(shear_modulus: Optional[float]) -> str:
+    return "" if shear_modulus is None else f", shear modulus {shear_modulus / 1e6:g} MPa"
 
 
 def handle_errors(fn: Callable) -> Callable:
@@ -153,6 +207,12 @@ def simulated_responses(run: Path, design_path: Path, factors: list[str], respon
     results = current_results(run)
     if results.empty:
         raise CalibError(f"no simulated responses of the current kernel in {run}: {hint}")
+    stage = Path(design_path).parent.name
+    setups = heap_setups(results[results["design"] == stage] if "design" in results.columns else results)
+    if len(setups) > 1:
+        raise CalibError(f"the {stage} design's heaps in {run} were simulated with {len(setups)} setups "
+                         f"({'; '.join(setups)}), which the analysis would average as repeats: keep one preset "
+                         f"and shear modulus per run directory")
     out = match_to_design(design, results, factors, response, stage=Path(design_path).parent.name)
     missing = int((out["n_runs"] == 0).sum())
     if missing:

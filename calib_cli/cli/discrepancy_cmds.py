@@ -17,13 +17,13 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import CONDITION_VARIABLES, get_preset  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
-from .common import (RunOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors, resolve_settings,
-                     space_from_design)  # noqa: E402
+from .common import (RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
+                     heap_preset, resolve_settings, space_from_design, warn_other_modulus)  # noqa: E402
 from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
@@ -111,9 +111,9 @@ def _model_and_theta(run: Path, set_: Optional[list[str]]) -> tuple[Model, dict[
     return model, {p: theta[p] for p in model.parameters}
 
 
-def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
+def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
     """Mean, sd, n of the simulated angle per condition at parameters theta."""
-    pre = get_preset(preset)
+    pre = heap_preset(preset, shear_modulus)
     reqs = []
     for i, (_, row) in enumerate(conds.iterrows(), start=1):
         c = condition_from_row(pre.condition, row)
@@ -126,7 +126,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0):
 
 
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
-            workers: WorkersOpt = 1):
+            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None):
     """Calibrated model vs measurements per condition: residuals in units of the combined
     uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
     RMSE and chi2/dof, and the error history across model revisions.
@@ -140,9 +140,10 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     run = check_run_dir(run)
     model, theta = _model_and_theta(run, set_)
     conds = _conditions(run)
+    warn_other_modulus(run, shear_modulus, "the comparison's")
     console.print(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
                   f"{repeats} simulations")
-    sim, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare")
+    sim, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
     res = residual_table(conds["mean"], conds["sd"], conds["n"], sim["mean"].to_numpy(), sim["sd"].to_numpy(),
                          sim["n"].to_numpy())
     table = pd.DataFrame({"condition_id": conds["condition_id"].astype(str), "measured": conds["mean"],
@@ -176,7 +177,8 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     ax.set_ylabel("RMSE over conditions [deg]")
     ax.set_title("error per model revision")
     st = art.Stage(run, "compare", f"rev{model.revision}", inputs={"conditions": run / "measure" / "conditions.parquet"},
-                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {})})
     with st.commit() as out:
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
         out.figure("residuals.png", fig1)
@@ -192,7 +194,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
 
 
 def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
-             workers: WorkersOpt = 1,
+             workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None,
              alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
                                                   "candidate is tested at alpha / the number of candidates "
                                                   "(Bonferroni).")] = 0.05):
@@ -211,6 +213,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     model, theta = _model_and_theta(run, set_)
     res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = _conditions(run)
+    warn_other_modulus(run, shear_modulus, "the diagnosis's")
     cands = model.candidates
     if len(conds) <= len(model.parameters):
         raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "
@@ -221,14 +224,14 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     console.print(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects "
                   f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
                   "simulations (cached runs are reused)")
-    base, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare")
+    base, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
     b = base["mean"].to_numpy()
     J, G = [], {}
     for e in model.effects:
         eff = EFFECTS[e]
         h = eff.step if theta[eff.parameter] + eff.step <= eff.high else -eff.step
         sim, _ = _simulate(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
-                           workers, f"sens-{e}")
+                           workers, f"sens-{e}", shear_modulus=shear_modulus)
         J.append((sim["mean"].to_numpy() - b) / h)
     starts, G_se = {}, {}
     for e in cands:
@@ -236,10 +239,11 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         down, up = eff.probe(theta)
         starts[e] = eff.start(theta)
         m2 = Model((*model.effects, e), model.revision)
-        sim, _ = _simulate(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}")
+        sim, _ = _simulate(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}",
+                           shear_modulus=shear_modulus)
         if eff.two_sided:  # a central difference (Effect.probe): both ends simulated
             dn, _ = _simulate(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
-                              f"cand-{e}-down")
+                              f"cand-{e}-down", shear_modulus=shear_modulus)
             G[e] = (sim["mean"].to_numpy() - dn["mean"].to_numpy()) / (up - down)
             G_se[e] = difference_se(sim, dn, up - down)
         else:  # a forward step from neutral: the model's own simulations stand there
@@ -317,7 +321,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     for e, g in G.items():
         sens[f"candidate_{e}"] = g
     st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
-                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats})
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {})})
     with st.commit() as out:
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
                                               "verdict", "evidence"]],
@@ -346,6 +351,7 @@ def synth_lab(
     fills: Annotated[Optional[str], typer.Option(help="Fill heights (mm), comma separated, crossed with the sizes "
                      "and cylinders: heap size is where cohesion leaves a signature friction cannot mimic.")] = None,
     repeats: RepeatsOpt = 3, preset: PresetOpt = "smoke", workers: WorkersOpt = 1,
+    shear_modulus: ShearModulusOpt = None,
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
 ):
@@ -357,7 +363,7 @@ def synth_lab(
     from ..dem.render import render_side_view
 
     truth = _params(_pairs(set_, "--set")) if set_ else {}
-    pre = get_preset(preset)
+    pre = heap_preset(preset, shear_modulus)
     conds = []
     try:
         heights = [float(h) for h in fills.split(",")] if fills else [None]
@@ -392,6 +398,7 @@ def synth_lab(
     (out / "conditions.csv").write_text("\n".join(lines) + "\n")
     (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
         {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
+         **({"shear_modulus": shear_modulus} if shear_modulus is not None else {}),
          "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
     ok = rows["status"].eq("ok").sum()
     console.print(f"[green]✓[/] {len(rows)} heaps ({ok} formed) in {len(conds)} conditions -> {out}")

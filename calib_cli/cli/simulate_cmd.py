@@ -13,10 +13,10 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .. import artifacts as art
 from ..campaign import REUSE_ENV, RUNS, Request, derive_seed, reusable, run_campaign
-from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, get_preset, interactions
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
-from .common import RunOpt, check_run_dir, console, df_table
+from .common import RunOpt, ShearModulusOpt, check_run_dir, console, df_table, heap_preset, modulus_note
 
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
@@ -74,6 +74,7 @@ def simulate_heap(
     repeats: Annotated[int, typer.Option(min=1, help="Runs per parameter point, each with its own seed.")] = 1,
     seed: Annotated[int, typer.Option(help="Base seed (the run seeds derive from it, the run id and the repeat).")] = 0,
     preset: Annotated[str, typer.Option(help="smoke | default | paper (geometry, particle count, numerics).")] = "default",
+    shear_modulus: ShearModulusOpt = None,
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Override a heap-test variable, e.g. "
                          "--condition lift_speed_mm_s=20 (repeatable).")] = None,
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
@@ -113,7 +114,7 @@ def simulate_heap(
         from ..engines.lammps import open_lammps
 
         open_lammps().close()  # fail now, with the extra named, not after the first run
-    pre = get_preset(preset)
+    pre = heap_preset(preset, shear_modulus)
     cond = _condition(pre.condition, _pairs(condition, "condition"))
     fixed = _params(_pairs(set_, "--set"))
     points: list[tuple[int, dict]] = []
@@ -162,7 +163,8 @@ def simulate_heap(
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
-    console.print(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})")
+    console.print(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
+                  + modulus_note(shear_modulus))
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))

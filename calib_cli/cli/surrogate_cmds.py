@@ -16,15 +16,16 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, get_preset  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
-from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, bbd_fixed, check_run_dir, console,  # noqa: E402
-                     df_table, resolve_settings, skipped, space_from_design)
+from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt, bbd_fixed,  # noqa: E402
+                     check_run_dir, console, df_table, heap_preset, resolve_settings, skipped, space_from_design,
+                     warn_other_modulus)
 from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
 MODELS_DIR = Path("surrogate") / "models"
@@ -216,6 +217,7 @@ def invert(
                                           "(paper 3.6: five), on the measured rig: N per measured "
                                           "condition, or the preset's rig with --condition.")] = 0,
     preset: Annotated[str, typer.Option(help="Preset of the validation simulations.")] = "default",
+    shear_modulus: ShearModulusOpt = None,
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Heap-test variable of the "
                          "validation runs, KEY=VALUE (repeatable); given, the validation runs on the preset's "
                          "rig with these changes instead of the measured conditions.")] = None,
@@ -260,6 +262,7 @@ def invert(
     st = art.Stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
                              "preset": preset,
+                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {}),
                              "condition": sorted(condition or [])})
     if st.up_to_date() and not force:
         return skipped(st)
@@ -300,7 +303,8 @@ def invert(
     ax.legend()
     best_x, validation, refinement, chosen = res.best, None, None, 0
     if validate:
-        pre = get_preset(preset)
+        pre = heap_preset(preset, shear_modulus)
+        warn_other_modulus(run, shear_modulus, "the validation's")
         vtargets: dict[str, float] = {}  # each measured condition's own target, when it is one
         vtab = None
         if condition or not cond_path.is_file():
