@@ -15,10 +15,15 @@ numerics, and prints each factor's coefficient per coded unit with its standard 
 `--compare friction-cap` instead caps sliding at mu_s |net normal force| (`friction_net_force` 1)
 rather than at mu_s x its repulsive part (SPEC 5): at a JKR contact near zero load the net force
 vanishes, so cohesive contacts slide freely - one literal reading of EDEM's JKR help.
+`--compare stiffness` runs the same laws at the reduced shear modulus of the presets (5 MPa) and at
+`--stiff` (default 50 MPa, particles and walls), and at 5 MPa with the surface energies scaled by
+(5 MPa / stiff)^(2/5): the JKR pull-off force 3 pi g R* does not depend on the stiffness, but the
+work to break a contact does (~ g^(5/3) R*^(4/3) E*^(-2/3)), and the scaled energies give the soft
+grains the stiff grains' work of separation (the rule of Washino et al. 2018).
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap]
+        [--compare rolling|friction-cap|stiffness] [--stiff 5e7]
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -38,6 +44,7 @@ BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in bot
 VARIANTS = {
     "rolling": {"relative (SPEC 5, EDEM RVD)": BASE, "own spin (EDEM Standard)": {"rolling_own_spin": 1.0}},
     "friction-cap": {"repulsive part (SPEC 5)": BASE, "|net force|": {**BASE, "friction_net_force": 1.0}},
+    "stiffness": {},  # built from --stiff below
 }
 
 
@@ -49,18 +56,31 @@ def main():
     ap.add_argument("--rig", choices=list(RIGS), default="calibration")
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
     ap.add_argument("--compare", choices=list(VARIANTS), default="rolling",
-                    help="the rolling law, or the normal force that caps sliding friction at a JKR contact")
+                    help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
+                         "or the shear modulus")
+    ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     a = ap.parse_args()
-    LAWS = VARIANTS[a.compare]
+    LAWS = dict(VARIANTS[a.compare])
+    num = get_preset("default").numerics
+    NUM = {law: num for law in LAWS}
+    GF = {law: 1.0 for law in LAWS}  # factor on the surface energy levels
+    if a.compare == "stiffness":
+        # the third variant keeps the stiff material's work of separation at the soft modulus:
+        # W ~ g^(5/3) E^(-2/3) is constant along g ~ E^(2/5)
+        stiff, f = f"G {a.stiff / 1e6:g} MPa", (num.shear_modulus / a.stiff) ** 0.4
+        soft = f"G {num.shear_modulus / 1e6:g} MPa"
+        LAWS = {soft: BASE, stiff: BASE, f"{soft}, g x {f:.3f}": BASE}
+        NUM = {law: num for law in LAWS}
+        NUM[stiff] = replace(num, shear_modulus=a.stiff, wall_shear_modulus=a.stiff)
+        GF = {**{law: 1.0 for law in LAWS}, f"{soft}, g x {f:.3f}": f}
     levels = {"static_friction": (0.112, 0.438), "rolling_friction": (0.122, 0.308),
               "surface_energy": tuple(float(v) for v in a.g.split(","))}
     names = list(levels)
     cells = list(itertools.product((-1, 1), repeat=3))
-    num = get_preset("default").numerics
     todo = [(law, c, s) for law in LAWS for c in cells for s in range(a.seeds)]
-    reqs = [Request(params={**{k: levels[k][(x + 1) // 2] for k, x in zip(names, c)}, "restitution": 0.2,
-                            **LAWS[law]},
-                    condition=RIGS[a.rig], numerics=num, seed=derive_seed(11, 0, s), preset="default",
+    reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (GF[law] if k == "surface_energy" else 1.0)
+                               for k, x in zip(names, c)}, "restitution": 0.2, **LAWS[law]},
+                    condition=RIGS[a.rig], numerics=NUM[law], seed=derive_seed(11, 0, s), preset="default",
                     design="rolling-law", run_id=i, repeat=s) for i, (law, c, s) in enumerate(todo)]
     print(f"rig {a.rig}: {RIGS[a.rig]}; " + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
           + f", restitution 0.2; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "

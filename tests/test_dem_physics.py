@@ -104,6 +104,33 @@ def test_jkr_curve_minimum_and_cutoff(gamma, Rs):
                                                                             rel=1e-6)
 
 
+def jkr_work_of_separation(Rs, Es, gamma):
+    """Work to pull a JKR contact from zero load (u^(3/2) = 3) to its cutoff: -integral of F d(delta)."""
+    from scipy.integrate import quad
+
+    k = math.pi * gamma / Es
+    a0 = 3 ** (2 / 3) * (k * Rs**2) ** (1 / 3)
+    a_c = (9 * math.pi * gamma * Rs**2 / (2 * Es) * (0.75 - 1 / math.sqrt(2))) ** (1 / 3)
+    dd_da = lambda a: 2 * a / Rs - math.sqrt(k / a)  # noqa: E731 - d(delta)/da of delta = a^2/R* - 2 sqrt(k a)
+    w, _ = quad(lambda a: -jkr_force_of_radius(a, Rs, Es, gamma) * dd_da(a), a_c, a0, epsabs=0, epsrel=1e-12)
+    return w
+
+
+def test_jkr_pull_off_force_is_stiffness_free_but_the_work_of_separation_is_not():
+    """docs/physics.md 'Stiffness': a reduced modulus keeps the pull-off force 3 pi g R* but raises the
+    work that breaks a contact as E*^(-2/3) (g^(5/3) R*^(4/3)): 100x softer grains stick 21.5x harder."""
+    Rs, gamma = 1e-3, 1.0
+    w = jkr_work_of_separation(Rs, ES, gamma)
+    assert w > 0
+    for fe, fg, fr in [(10.0, 1.0, 1.0), (0.01, 1.0, 1.0), (1.0, 2.0, 1.0), (1.0, 1.0, 3.0), (5.0, 0.3, 0.5)]:
+        expect = fe ** (-2 / 3) * fg ** (5 / 3) * fr ** (4 / 3)
+        assert jkr_work_of_separation(Rs * fr, ES * fe, gamma * fg) / w == pytest.approx(expect, rel=1e-8)
+    for fe in (0.01, 1.0, 100.0):  # the pull-off force does not move
+        dc = jkr_cutoff_overlap(Rs, ES * fe, gamma)
+        fmin = min(normal_law(d, Rs, ES * fe, gamma)[0] for d in np.linspace(dc * 0.999, -dc, 4001))
+        assert fmin == pytest.approx(-3 * math.pi * gamma * Rs, rel=1e-4)
+
+
 @settings(max_examples=300, deadline=None)
 @given(u=st.floats(0.69, 6.0), u_prev=st.floats(0.3, 8.0), gamma=st.floats(0.05, 3.0), Rs=st.floats(5e-4, 3e-3))
 def test_jkr_warm_start_finds_the_stable_root(u, u_prev, gamma, Rs):
