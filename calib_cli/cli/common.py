@@ -213,7 +213,7 @@ def simulated_responses(run: Path, design_path: Path, factors: list[str], respon
         raise CalibError(f"the {stage} design's heaps in {run} were simulated with {len(setups)} setups "
                          f"({'; '.join(setups)}), which the analysis would average as repeats: keep one preset "
                          f"and shear modulus per run directory")
-    out = match_to_design(design, results, factors, response, stage=Path(design_path).parent.name)
+    out = match_to_design(design, results, factors, response, stage=stage)
     missing = int((out["n_runs"] == 0).sum())
     if missing:
         raise CalibError(f"{missing} of {len(out)} design runs have not been simulated: {hint}")
