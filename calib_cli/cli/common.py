@@ -64,13 +64,23 @@ def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
     return dataclasses.replace(pre, numerics=num)
 
 
+def modulus_settings(shear_modulus: Optional[float]) -> dict:
+    """The modulus as a stage setting, only when given: stages run at the presets' modulus keep their hash."""
+    return {} if shear_modulus is None else {"shear_modulus": shear_modulus}
+
+
+def row_moduli(rows: pd.DataFrame) -> pd.Series:
+    """Each simulation row's shear modulus (rows at the presets' modulus do not carry the column)."""
+    if "shear_modulus" in rows.columns:
+        return rows["shear_modulus"].fillna(Numerics.shear_modulus)
+    return pd.Series(Numerics.shear_modulus, index=rows.index)
+
+
 def heap_setups(rows: pd.DataFrame) -> list[str]:
     """The distinct (preset, shear modulus) of simulation rows, as 'preset default at 5 MPa'."""
     if rows.empty or "preset" not in rows.columns:
         return []
-    g = rows["shear_modulus"].fillna(Numerics.shear_modulus) if "shear_modulus" in rows.columns \
-        else pd.Series(Numerics.shear_modulus, index=rows.index)
-    return sorted({f"preset {p} at {m / 1e6:g} MPa" for p, m in zip(rows["preset"], g)})
+    return sorted({f"preset {p} at {m / 1e6:g} MPa" for p, m in zip(rows["preset"], row_moduli(rows))})
 
 
 def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str) -> None:
@@ -82,8 +92,7 @@ def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str) -> 
         return
     rows = rows[rows["design"].isin(["pb", "ascent", "bbd"])]
     want = Numerics.shear_modulus if shear_modulus is None else shear_modulus
-    have = set(rows["shear_modulus"].fillna(Numerics.shear_modulus)) if "shear_modulus" in rows.columns \
-        else ({Numerics.shear_modulus} if len(rows) else set())
+    have = set(row_moduli(rows))
     if have - {want}:
         err_console.print(f"[yellow]warning:[/] the design heaps of {run} were simulated at a shear modulus of "
                           f"{', '.join(f'{m / 1e6:g}' for m in sorted(have))} MPa, {what} at {want / 1e6:g} MPa: "

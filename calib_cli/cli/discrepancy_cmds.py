@@ -23,7 +23,8 @@ from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condi
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import (RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
-                     heap_preset, resolve_settings, space_from_design, warn_other_modulus)  # noqa: E402
+                     heap_preset, modulus_settings, resolve_settings, space_from_design,
+                     warn_other_modulus)  # noqa: E402
 from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
@@ -178,7 +179,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     ax.set_title("error per model revision")
     st = art.Stage(run, "compare", f"rev{model.revision}", inputs={"conditions": run / "measure" / "conditions.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {})})
+                             **modulus_settings(shear_modulus)})
     with st.commit() as out:
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
         out.figure("residuals.png", fig1)
@@ -322,7 +323,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sens[f"candidate_{e}"] = g
     st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {})})
+                             **modulus_settings(shear_modulus)})
     with st.commit() as out:
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
                                               "verdict", "evidence"]],
@@ -398,7 +399,7 @@ def synth_lab(
     (out / "conditions.csv").write_text("\n".join(lines) + "\n")
     (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
         {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
-         **({"shear_modulus": shear_modulus} if shear_modulus is not None else {}),
+         **modulus_settings(shear_modulus),
          "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
     ok = rows["status"].eq("ok").sum()
     console.print(f"[green]✓[/] {len(rows)} heaps ({ok} formed) in {len(conds)} conditions -> {out}")

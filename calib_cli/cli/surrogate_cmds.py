@@ -24,8 +24,8 @@ from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noq
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt, bbd_fixed,  # noqa: E402
-                     check_run_dir, console, df_table, heap_preset, resolve_settings, skipped, space_from_design,
-                     warn_other_modulus)
+                     check_run_dir, console, df_table, heap_preset, modulus_settings, resolve_settings, skipped,
+                     space_from_design, warn_other_modulus)
 from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
 MODELS_DIR = Path("surrogate") / "models"
@@ -262,7 +262,7 @@ def invert(
     st = art.Stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
                              "preset": preset,
-                             **({"shear_modulus": shear_modulus} if shear_modulus is not None else {}),
+                             **modulus_settings(shear_modulus),
                              "condition": sorted(condition or [])})
     if st.up_to_date() and not force:
         return skipped(st)
