@@ -43,7 +43,9 @@ def main(runs: list[str]) -> None:
         d = ours[common].to_numpy() - paper[common].to_numpy()
         b = coef.set_index("term")["coefficient"]  # per coded unit, as Eq. 7
         lin = {f: float(b[f]) for f in FACTORS}
-        order = " > ".join(f"X{FACTORS.index(f) + 1}" for f in sorted(FACTORS, key=lambda f: -abs(lin[f])))
+        # by size; a factor that flattens the heap (a negative coefficient) is marked with a minus
+        order = " > ".join(f"{'-' if lin[f] < 0 else ''}X{FACTORS.index(f) + 1}"
+                           for f in sorted(FACTORS, key=lambda f: -abs(lin[f])))
         rows.append({"run": run.name, **{f"X{i + 1}": round(lin[f], 2) for i, f in enumerate(FACTORS)},
                      **{f"F X{i + 1}": round(float(anova.loc[f, "F"]), 1) for i, f in enumerate(FACTORS)},
                      **{f"p X{i + 1}": f"{float(anova.loc[f, 'p_value']):.2g}" for i, f in enumerate(FACTORS)},

@@ -20,10 +20,15 @@ vanishes, so cohesive contacts slide freely - one literal reading of EDEM's JKR 
 (5 MPa / stiff)^(2/5): the JKR pull-off force 3 pi g R* does not depend on the stiffness, but the
 work to break a contact does (~ g^(5/3) R*^(4/3) E*^(-2/3)), and the scaled energies give the soft
 grains the stiff grains' work of separation (the rule of Washino et al. 2018).
+`--compare walls` gives the floor and the cylinder fixed friction coefficients (`--wall`, default
+static 0.5 and rolling 0.1) instead of the particles' own (the heap parameters' default, SPEC 5):
+the paper gives no particle-geometry values, and with the particles' values a heap at mu_s 0.112
+stands on a floor of friction 0.112. `--modulus` runs any comparison but `stiffness` at another
+shear modulus (particles and walls).
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness] [--stiff 5e7]
+        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1] [--modulus 5e8]
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ VARIANTS = {
     "rolling": {"relative (SPEC 5, EDEM RVD)": BASE, "own spin (EDEM Standard)": {"rolling_own_spin": 1.0}},
     "friction-cap": {"repulsive part (SPEC 5)": BASE, "|net force|": {**BASE, "friction_net_force": 1.0}},
     "stiffness": {},  # built from --stiff below
+    "walls": {},  # built from --wall below
 }
 
 
@@ -59,9 +65,20 @@ def main():
                     help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
                          "or the shear modulus")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
+    ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
+    ap.add_argument("--modulus", type=float, default=None,
+                    help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     a = ap.parse_args()
     LAWS = dict(VARIANTS[a.compare])
     num = get_preset("default").numerics
+    if a.modulus is not None:
+        if a.compare == "stiffness":
+            ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
+        num = replace(num, shear_modulus=a.modulus, wall_shear_modulus=a.modulus)
+    if a.compare == "walls":
+        ws, wr = (float(v) for v in a.wall.split(","))
+        LAWS = {"walls = particles (default)": BASE,
+                f"walls mu_s {ws:g}, mu_r {wr:g}": {**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr}}
     NUM = {law: num for law in LAWS}
     GF = {law: 1.0 for law in LAWS}  # factor on the surface energy levels
     if a.compare == "stiffness":
