@@ -219,7 +219,7 @@ default-bbd-stiff: setup
 
 # The same design at 500 MPa with the floor and cylinder at fixed friction (static 0.5, rolling 0.1,
 # a typical particle-steel/acrylic pair; the paper gives none) instead of the grains' own: with the
-# grains' 0.112 the base of a heap slides on the floor (docs/physics.md, 'Wall friction'; ~100 min on 2 cores)
+# grains' 0.112 the base of a heap slides on the floor (docs/physics.md, 'Wall friction'; ~85 min on 2 cores)
 DBBD4  := sample_runs/default-bbd-walls
 default-bbd-walls: setup
 	$(call paper_screening,$(DBBD4))
