@@ -63,7 +63,7 @@ def main():
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
     ap.add_argument("--compare", choices=list(VARIANTS), default="rolling",
                     help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
-                         "or the shear modulus")
+                         "the shear modulus, or fixed wall friction against the grains' own")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
     ap.add_argument("--modulus", type=float, default=None,
@@ -76,7 +76,10 @@ def main():
             ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
         num = replace(num, shear_modulus=a.modulus, wall_shear_modulus=a.modulus)
     if a.compare == "walls":
-        ws, wr = (float(v) for v in a.wall.split(","))
+        try:
+            ws, wr = (float(v) for v in a.wall.split(","))
+        except ValueError:
+            ap.error(f"--wall takes static,rolling friction (two numbers), got {a.wall!r}")
         LAWS = {"walls = particles (default)": BASE,
                 f"walls mu_s {ws:g}, mu_r {wr:g}": {**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr}}
     NUM = {law: num for law in LAWS}
