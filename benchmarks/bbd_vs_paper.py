@@ -29,10 +29,16 @@ def by_point(df: pd.DataFrame) -> pd.Series:
     return df.groupby(coded)["repose_angle"].mean()
 
 
+def order(lin: dict[str, float]) -> str:
+    """The factors by the size of their linear coefficient; one that flattens the heap (negative) gets a minus."""
+    return " > ".join(f"{'-' if lin[f] < 0 else ''}X{FACTORS.index(f) + 1}"
+                      for f in sorted(FACTORS, key=lambda f: -abs(lin[f])))
+
+
 def main(runs: list[str]) -> None:
     paper = by_point(pd.read_csv(ROOT / "sample_data" / "paper" / "table7_bbd.csv"))
     rows = [{"run": "the paper (Table 7, Eq. 7)", **{f"X{i + 1}": PAPER_EQ7[f] for i, f in enumerate(FACTORS)},
-             "order": "X2 > X1 > X3", "range": f"{paper.min():.1f}-{paper.max():.1f}"}]
+             "order": order(PAPER_EQ7), "range": f"{paper.min():.1f}-{paper.max():.1f}"}]
     for run in runs:
         run = Path(run)
         coef = pd.read_parquet(run / "bbd" / "coefficients.parquet")
@@ -43,13 +49,10 @@ def main(runs: list[str]) -> None:
         d = ours[common].to_numpy() - paper[common].to_numpy()
         b = coef.set_index("term")["coefficient"]  # per coded unit, as Eq. 7
         lin = {f: float(b[f]) for f in FACTORS}
-        # by size; a factor that flattens the heap (a negative coefficient) is marked with a minus
-        order = " > ".join(f"{'-' if lin[f] < 0 else ''}X{FACTORS.index(f) + 1}"
-                           for f in sorted(FACTORS, key=lambda f: -abs(lin[f])))
         rows.append({"run": run.name, **{f"X{i + 1}": round(lin[f], 2) for i, f in enumerate(FACTORS)},
                      **{f"F X{i + 1}": round(float(anova.loc[f, "F"]), 1) for i, f in enumerate(FACTORS)},
                      **{f"p X{i + 1}": f"{float(anova.loc[f, 'p_value']):.2g}" for i, f in enumerate(FACTORS)},
-                     "order": order, "range": f"{data.repose_angle.min():.1f}-{data.repose_angle.max():.1f}",
+                     "order": order(lin), "range": f"{data.repose_angle.min():.1f}-{data.repose_angle.max():.1f}",
                      "points": len(common), "mean diff": round(float(d.mean()), 1),
                      "RMSE": round(float(np.sqrt(np.mean(d**2))), 1),
                      "corr": round(float(np.corrcoef(ours[common], paper[common])[0, 1]), 2)})

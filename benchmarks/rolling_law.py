@@ -41,17 +41,41 @@ from dataclasses import replace
 import numpy as np
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
-from calib_cli.dem.heap import HeapCondition, get_preset
+from calib_cli.dem.heap import HeapCondition, Numerics, get_preset
 from factorial import effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
-VARIANTS = {
-    "rolling": {"relative (SPEC 5, EDEM RVD)": BASE, "own spin (EDEM Standard)": {"rolling_own_spin": 1.0}},
-    "friction-cap": {"repulsive part (SPEC 5)": BASE, "|net force|": {**BASE, "friction_net_force": 1.0}},
-    "stiffness": {},  # built from --stiff below
-    "walls": {},  # built from --wall below
-}
+COMPARE = ("rolling", "friction-cap", "stiffness", "walls")
+
+
+def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
+    """label -> (law parameters, numerics, factor on the surface energy levels) of --compare."""
+    num = get_preset("default").numerics
+    if a.modulus is not None:
+        if a.compare == "stiffness":
+            ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
+        num = replace(num, shear_modulus=a.modulus, wall_shear_modulus=a.modulus)
+    if a.compare == "rolling":
+        return {"relative (SPEC 5, EDEM RVD)": (BASE, num, 1.0),
+                "own spin (EDEM Standard)": ({"rolling_own_spin": 1.0}, num, 1.0)}
+    if a.compare == "friction-cap":
+        return {"repulsive part (SPEC 5)": (BASE, num, 1.0),
+                "|net force|": ({**BASE, "friction_net_force": 1.0}, num, 1.0)}
+    if a.compare == "walls":
+        try:
+            ws, wr = (float(v) for v in a.wall.split(","))
+        except ValueError:
+            ap.error(f"--wall takes static,rolling friction (two numbers), got {a.wall!r}")
+        return {"walls = particles (default)": (BASE, num, 1.0),
+                f"walls mu_s {ws:g}, mu_r {wr:g}": ({**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr},
+                                                    num, 1.0)}
+    # stiffness: the third variant keeps the stiff material's work of separation at the soft modulus:
+    # W ~ g^(5/3) E^(-2/3) is constant along g ~ E^(2/5)
+    soft, f = f"G {num.shear_modulus / 1e6:g} MPa", (num.shear_modulus / a.stiff) ** 0.4
+    return {soft: (BASE, num, 1.0),
+            f"G {a.stiff / 1e6:g} MPa": (BASE, replace(num, shear_modulus=a.stiff, wall_shear_modulus=a.stiff), 1.0),
+            f"{soft}, g x {f:.3f}": (BASE, num, f)}
 
 
 def main():
@@ -61,7 +85,7 @@ def main():
     ap.add_argument("--g", default="0.3,0.7", help="surface energy low,high [J/m2]")
     ap.add_argument("--rig", choices=list(RIGS), default="calibration")
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
-    ap.add_argument("--compare", choices=list(VARIANTS), default="rolling",
+    ap.add_argument("--compare", choices=COMPARE, default="rolling",
                     help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
                          "the shear modulus, or fixed wall friction against the grains' own")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
@@ -69,38 +93,15 @@ def main():
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     a = ap.parse_args()
-    LAWS = dict(VARIANTS[a.compare])
-    num = get_preset("default").numerics
-    if a.modulus is not None:
-        if a.compare == "stiffness":
-            ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
-        num = replace(num, shear_modulus=a.modulus, wall_shear_modulus=a.modulus)
-    if a.compare == "walls":
-        try:
-            ws, wr = (float(v) for v in a.wall.split(","))
-        except ValueError:
-            ap.error(f"--wall takes static,rolling friction (two numbers), got {a.wall!r}")
-        LAWS = {"walls = particles (default)": BASE,
-                f"walls mu_s {ws:g}, mu_r {wr:g}": {**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr}}
-    NUM = {law: num for law in LAWS}
-    GF = {law: 1.0 for law in LAWS}  # factor on the surface energy levels
-    if a.compare == "stiffness":
-        # the third variant keeps the stiff material's work of separation at the soft modulus:
-        # W ~ g^(5/3) E^(-2/3) is constant along g ~ E^(2/5)
-        stiff, f = f"G {a.stiff / 1e6:g} MPa", (num.shear_modulus / a.stiff) ** 0.4
-        soft = f"G {num.shear_modulus / 1e6:g} MPa"
-        LAWS = {soft: BASE, stiff: BASE, f"{soft}, g x {f:.3f}": BASE}
-        NUM = {law: num for law in LAWS}
-        NUM[stiff] = replace(num, shear_modulus=a.stiff, wall_shear_modulus=a.stiff)
-        GF = {**{law: 1.0 for law in LAWS}, f"{soft}, g x {f:.3f}": f}
+    LAWS = variants(a, ap)
     levels = {"static_friction": (0.112, 0.438), "rolling_friction": (0.122, 0.308),
               "surface_energy": tuple(float(v) for v in a.g.split(","))}
     names = list(levels)
     cells = list(itertools.product((-1, 1), repeat=3))
     todo = [(law, c, s) for law in LAWS for c in cells for s in range(a.seeds)]
-    reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (GF[law] if k == "surface_energy" else 1.0)
-                               for k, x in zip(names, c)}, "restitution": 0.2, **LAWS[law]},
-                    condition=RIGS[a.rig], numerics=NUM[law], seed=derive_seed(11, 0, s), preset="default",
+    reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (LAWS[law][2] if k == "surface_energy" else 1.0)
+                               for k, x in zip(names, c)}, "restitution": 0.2, **LAWS[law][0]},
+                    condition=RIGS[a.rig], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
                     design="rolling-law", run_id=i, repeat=s) for i, (law, c, s) in enumerate(todo)]
     print(f"rig {a.rig}: {RIGS[a.rig]}; " + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
           + f", restitution 0.2; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
