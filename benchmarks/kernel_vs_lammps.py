@@ -37,10 +37,10 @@ def settled_column(preset: str, seed: int = 1):
     pre = get_preset(preset)
     c, num = pre.condition, pre.numerics
     parts = fill_cylinder(c, num.packing_fraction, np.random.default_rng(seed))
-    pp, pw = interactions({"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3})
+    pp, pf, pc = interactions({"static_friction": 0.5, "rolling_friction": 0.2, "restitution": 0.3})
     s = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
-               wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pw,
-               cylinder=pw, walls=Walls(True, c.cylinder_diameter_mm * 0.5e-3, 0.0, np.inf))
+               wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pf,
+               cylinder=pc, walls=Walls(True, c.cylinder_diameter_mm * 0.5e-3, 0.0, np.inf))
     s.drag = num.settle_drag
     s.advance(int(0.25 / s.dt))
     s.drag = 0.0
@@ -56,8 +56,8 @@ def ours(state: System, params: dict, steps: int, threads: int = 1):
     from calib_cli.dem.system import Particles
 
     p = Particles(c_p.pos.copy(), c_p.rad.copy(), c_p.vel.copy(), c_p.omg.copy())
-    pp, pw = interactions(params)
-    s = System(p, material=state.material, wall_material=state.wall_material, pp=pp, floor=pw, cylinder=pw,
+    pp, pf, pc = interactions(params)
+    s = System(p, material=state.material, wall_material=state.wall_material, pp=pp, floor=pf, cylinder=pc,
                walls=Walls(True, state.walls.cylinder_radius, 0.0, np.inf), dt=state.dt)
     s.advance(20)  # JIT warm-up outside the timing
     t = time.perf_counter()

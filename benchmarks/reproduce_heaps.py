@@ -24,9 +24,9 @@ import numba
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import Request, host
+from calib_cli.campaign import CACHE_SOURCE, Request, host
 from calib_cli.cli.simulate_cmd import condition_from_row
-from calib_cli.dem import SOURCE_HASH, heap
+from calib_cli.dem import heap
 
 
 def main() -> None:
@@ -36,11 +36,11 @@ def main() -> None:
     ap.add_argument("--query", default="", help="a pandas query on the results rows, e.g. 'surface_energy == 0'")
     args = ap.parse_args()
     res = pd.read_parquet(args.run / "simulate" / "results.parquet")
-    res = res[(res["source"] == SOURCE_HASH) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    res = res[(res["source"] == CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
     if args.query:
         res = res.query(args.query)
     if res.empty:
-        sys.exit(f"no builtin heaps of this kernel source ({SOURCE_HASH}) in {args.run} {args.query}")
+        sys.exit(f"no builtin heaps of this kernel source ({CACHE_SOURCE}) in {args.run} {args.query}")
     numba.set_num_threads(1)
     made = sorted(res["host"].dropna().unique()) if "host" in res else []
     print(f"here: {host()}, NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}; "

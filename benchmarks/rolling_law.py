@@ -23,12 +23,14 @@ grains the stiff grains' work of separation (the rule of Washino et al. 2018).
 `--compare walls` gives the floor and the cylinder fixed friction coefficients (`--wall`, default
 static 0.5 and rolling 0.1) instead of the particles' own (the heap parameters' default, SPEC 5):
 the paper gives no particle-geometry values, and with the particles' values a heap at mu_s 0.112
-stands on a floor of friction 0.112. `--modulus` runs any comparison but `stiffness` at another
+stands on a floor of friction 0.112; `--split` adds the floor alone and the cylinder alone at
+those values (the other wall keeps the grains'), to tell which of the two does it. `--modulus` runs any comparison but `stiffness` at another
 shear modulus (particles and walls).
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1] [--modulus 5e8]
+        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1] [--split]
+        [--modulus 5e8]
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
-from calib_cli.dem.heap import HeapCondition, Numerics, get_preset
+from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
 from factorial import effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
@@ -67,9 +69,14 @@ def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
             ws, wr = (float(v) for v in a.wall.split(","))
         except ValueError:
             ap.error(f"--wall takes static,rolling friction (two numbers), got {a.wall!r}")
-        return {"walls = particles (default)": (BASE, num, 1.0),
-                f"walls mu_s {ws:g}, mu_r {wr:g}": ({**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr},
-                                                    num, 1.0)}
+        out = {"walls = particles (default)": (BASE, num, 1.0),
+               f"walls mu_s {ws:g}, mu_r {wr:g}": ({**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr},
+                                                   num, 1.0)}
+        if a.split:  # which wall: the other one keeps the grains' values
+            for w in ("floor", "cylinder"):
+                out[f"{w} only {ws:g} / {wr:g}"] = ({**BASE, f"{w}_static_friction": ws, f"{w}_rolling_friction": wr},
+                                                    num, 1.0)
+        return out
     # stiffness: the third variant keeps the stiff material's work of separation at the soft modulus:
     # W ~ g^(5/3) E^(-2/3) is constant along g ~ E^(2/5)
     soft, f = f"G {num.shear_modulus / 1e6:g} MPa", (num.shear_modulus / a.stiff) ** 0.4
@@ -90,6 +97,8 @@ def main():
                          "the shear modulus, or fixed wall friction against the grains' own")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
+    ap.add_argument("--split", action="store_true",
+                    help="with --compare walls, also the floor alone and the cylinder alone at --wall")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     a = ap.parse_args()
@@ -99,11 +108,15 @@ def main():
     names = list(levels)
     cells = list(itertools.product((-1, 1), repeat=3))
     todo = [(law, c, s) for law in LAWS for c in cells for s in range(a.seeds)]
+    # a variant's floor_* values are the rig's (heap-test variables), the rest heap parameters
+    rig = {law: replace(RIGS[a.rig], **{k: x for k, x in v[0].items() if k in FLOOR_VARIABLES})
+           for law, v in LAWS.items()}
+    law_params = {law: {k: x for k, x in v[0].items() if k not in FLOOR_VARIABLES} for law, v in LAWS.items()}
     reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (LAWS[law][2] if k == "surface_energy" else 1.0)
-                               for k, x in zip(names, c)}, "restitution": 0.2, **LAWS[law][0]},
-                    condition=RIGS[a.rig], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
+                               for k, x in zip(names, c)}, "restitution": 0.2, **law_params[law]},
+                    condition=rig[law], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
                     design="rolling-law", run_id=i, repeat=s) for i, (law, c, s) in enumerate(todo)]
-    print(f"rig {a.rig}: {RIGS[a.rig]}; " + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
+    print(f"rig {a.rig}: {condition_dict(RIGS[a.rig])}; " + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
           + f", restitution 0.2; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
           f"`default` numerics, {a.workers} heaps at once; primary (image) angle")
     t0 = time.perf_counter()

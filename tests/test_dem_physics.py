@@ -187,6 +187,33 @@ def test_sliding_sphere_slips_until_five_sevenths():
     assert t_stick == pytest.approx(2 * v0 / (7 * mu * G), rel=0.01)
 
 
+@pytest.mark.parametrize("wall", ["floor", "cylinder"])
+def test_floor_and_cylinder_each_use_their_own_friction(wall):
+    """Each wall's contacts take that wall's interaction: a sphere sliding on the floor, or down the
+    cylinder's inside with gravity pressing it outwards, slips until v = 5/7 v0 at t = 2 v0 / (7 mu g)
+    with that wall's mu, the other wall's being different (the heap's floor_* and cylinder_*)."""
+    v0, mu = 0.5, {"floor": 0.2, "cylinder": 0.6}
+    Rc = 0.1  # the floor's sphere slides ~30 mm before it rolls
+    at_floor = wall == "floor"
+    p = Particles([[0, 0, R * 0.9995] if at_floor else [Rc - R * 0.9995, 0, 0.1]], [R])
+    s = System(p, material=MAT, wall_material=MAT, pp=Interaction(0.5, 0.0, 0.5),
+               floor=Interaction(mu["floor"], 0.0, 0.5), cylinder=Interaction(mu["cylinder"], 0.0, 0.5),
+               gravity=(0, 0, -G) if at_floor else (G, 0, 0), walls=Walls(floor=at_floor, cylinder_radius=Rc),
+               safety=0.1)
+    s.advance(int(0.02 / s.dt))
+    ax = 0 if at_floor else 2
+    s.particles.vel[0] = 0.0
+    s.particles.vel[0, ax] = v0
+    t0, t_stick = s.t, None
+    for _ in range(int(0.2 / s.dt)):
+        s.advance(1)
+        if t_stick is None and s.particles.vel[0, ax] - s.particles.omg[0, 1] * R < 1e-3 * v0:
+            t_stick = s.t - t0
+            break
+    assert t_stick == pytest.approx(2 * v0 / (7 * mu[wall] * G), rel=0.01)
+    assert s.particles.vel[0, ax] == pytest.approx(5 / 7 * v0, rel=3e-3)
+
+
 @pytest.mark.parametrize("own_spin", [0.0, 1.0])
 def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin):
     """Against the floor (no spin) EDEM's 'Standard' law (own_spin 1) is the relative law."""

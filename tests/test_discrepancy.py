@@ -285,6 +285,43 @@ def test_synth_lab_crosses_fill_heights(tmp_path):
     assert r.exit_code != 0 and "--fills" in r.output and not (tmp_path / "bad").exists()
 
 
+def test_floor_materials_are_conditions_end_to_end(tmp_path):
+    """synth-lab --floor -> measure-angle -> compare: each floor's values travel with its condition
+    into the simulations (and their cache keys); a floor named without values is warned about."""
+    lab = tmp_path / "lab"
+    r = runner.invoke(app, ["synth-lab", "--out", str(lab), *TRUTH, "--sizes", "6-8", "--cylinders", "50",
+                            "--floor", "glass:static_friction=0.1,rolling_friction=0.02", "--floor",
+                            "rubber:static_friction=0.9", "--repeats", "1", "--preset", "smoke"])
+    assert r.exit_code == 0, r.output
+    c = pd.read_csv(lab / "conditions.csv")
+    assert list(c["condition_id"]) == ["d6-8_D50_glass", "d6-8_D50_rubber"] and list(c["floor"]) == ["glass", "rubber"]
+    assert list(c["floor_static_friction"]) == [0.1, 0.9]
+    assert c["floor_rolling_friction"].iloc[0] == 0.02 and np.isnan(c["floor_rolling_friction"].iloc[1])
+    assert "floor_restitution" not in c.columns
+    truth = art.read_table(lab / ".runs" / "simulate" / "results.parquet")
+    assert list(truth["floor_static_friction"]) == [0.1, 0.9]
+    run = tmp_path / "run"
+    # every condition must give a floor column's value or none: rubber's rolling friction is blank
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(lab), "--conditions",
+                            str(lab / "conditions.csv")])
+    assert r.exit_code != 0 and "floor_rolling_friction" in r.output
+    c.drop(columns="floor_rolling_friction").to_csv(lab / "conditions.csv", index=False)
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(lab), "--conditions",
+                            str(lab / "conditions.csv")])
+    assert r.exit_code == 0, r.output
+    assert list(art.read_table(run / "measure" / "conditions.parquet")["floor_static_friction"]) == [0.1, 0.9]
+    assert runner.invoke(app, ["compare", "--run", str(run), *SIM]).exit_code == 0
+    sim = art.read_table(run / "simulate" / "results.parquet")
+    assert sorted(sim["floor_static_friction"]) == [0.1, 0.9]
+    # the labels alone are no physics: said so when they are all the conditions give
+    c.drop(columns=["floor_rolling_friction", "floor_static_friction"]).to_csv(lab / "conditions.csv", index=False)
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run2"), "--images", str(lab), "--conditions",
+                            str(lab / "conditions.csv")])
+    assert r.exit_code == 0 and "glass, rubber" in r.output and "simulated as one floor" in r.output.replace("\n", " ")
+    r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "bad"), *TRUTH, "--floor", "steel:mu=0.3"])
+    assert r.exit_code != 0 and "--floor" in r.output and not (tmp_path / "bad").exists()
+
+
 CAND_BOUNDS = {"cohesion": (0.0, 3.0), "wall_friction": (-0.5, 0.5), "restitution": (-0.25, 0.5)}
 
 

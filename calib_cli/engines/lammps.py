@@ -136,8 +136,8 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
         return _run_mpi(params, condition, numerics, seed, mpi)
     cond, num = condition, numerics
     cond.validate()
-    pp, pw = interactions(params)
-    if pp.rolling_own_spin or pw.rolling_own_spin or pp.friction_net_force or pw.friction_net_force:
+    pp, pf, pc = interactions(params, cond)
+    if any(i.rolling_own_spin or i.friction_net_force for i in (pp, pf, pc)):
         raise CalibError("rolling_own_spin = 1 and friction_net_force = 1 are built-in only: LAMMPS has no "
                          "rolling law on each body's own spin, and caps JKR friction at |F_ne + 2 F_pulloff|")
     t0 = time.perf_counter()
@@ -176,7 +176,8 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
                 while not os.path.exists(data):
                     time.sleep(0.05)
             model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
-            wall = _model(E, nu, pw, rmin, float(masses.mean()), kroll, 1.0)
+            floor = _model(E, nu, pf, rmin, float(masses.mean()), kroll, 1.0)
+            cyl = _model(E, nu, pc, rmin, float(masses.mean()), kroll, 1.0)
             if clumps is None:
                 read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
                         "comm_modify vel yes", f"read_data {data}"]
@@ -199,8 +200,8 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
                 "variable t0 equal 1e9", f"variable lz equal {vlift:.10g}*(time>v_t0)*(time-v_t0)",
                 f"region cyl cylinder z 0 0 {Rc:.10g} 0.0 {ztop:.10g} side in open 1 open 2 "
                 "move NULL NULL v_lz units box",
-                f"fix cylw all wall/gran/region granular {wall} region cyl",
-                f"fix floor all wall/gran granular {wall} zplane 0.0 NULL",
+                f"fix cylw all wall/gran/region granular {cyl} region cyl",
+                f"fix floor all wall/gran granular {floor} zplane 0.0 NULL",
                 "fix grav all gravity 9.81 vector 0 0 -1",
                 f"fix drag all viscous {num.settle_drag * float(masses.mean()):.6g}", *integrate,
                 f"timestep {dt:.10g}", "run 0",
