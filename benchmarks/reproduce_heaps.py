@@ -16,7 +16,6 @@ source are skipped (their run hash would not match either).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -51,8 +50,6 @@ def main() -> None:
         params = {k: float(row[k]) for k in heap.PARAMETERS if k in row and pd.notna(row[k])}
         preset = heap.get_preset(row["preset"])
         cond, num = condition_from_row(preset.condition, row), preset.numerics
-        if "floor" in row and isinstance(row["floor"], str):  # not a conditions-table variable, but keyed
-            cond = dataclasses.replace(cond, floor=row["floor"])
         if Request(params, cond, num, int(row["seed"]), model=row["model"]).hash != row["run_hash"]:
             sys.exit(f"run {row['run_hash']}: its inputs could not be rebuilt from the results row")
         r = heap.run_heap(params, cond, num, int(row["seed"]))

@@ -312,7 +312,7 @@ def test_floor_materials_are_conditions_end_to_end(tmp_path):
     assert list(art.read_table(run / "measure" / "conditions.parquet")["floor_static_friction"]) == [0.1, 0.9]
     assert runner.invoke(app, ["compare", "--run", str(run), *SIM]).exit_code == 0
     sim = art.read_table(run / "simulate" / "results.parquet")
-    assert sorted(sim["floor_static_friction"]) == [0.1, 0.9]
+    assert sorted(zip(sim["floor"], sim["floor_static_friction"])) == [("glass", 0.1), ("rubber", 0.9)]
     # the labels alone are no physics: said so when they are all the conditions give
     c.drop(columns=["floor_rolling_friction", "floor_static_friction"]).to_csv(lab / "conditions.csv", index=False)
     r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run2"), "--images", str(lab), "--conditions",

@@ -49,8 +49,12 @@ def _params(values: dict) -> dict[str, float]:
 
 
 def condition_from_row(base: HeapCondition, row) -> HeapCondition:
-    """The base condition with the variables a conditions-table row gives (missing or NaN: kept)."""
-    return _condition(base, {k: row[k] for k in CONDITION_VARIABLES if k in row.index and pd.notna(row[k])})
+    """The base condition with the variables a conditions-table row gives (missing or NaN: kept),
+    and the floor's name, which the results rows then show beside its values."""
+    given = {k: row[k] for k in (*CONDITION_VARIABLES, "floor") if k in row.index and pd.notna(row[k])}
+    if "floor" in given:
+        given["floor"] = str(given["floor"])
+    return _condition(base, given)
 
 
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
