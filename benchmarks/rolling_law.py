@@ -23,14 +23,15 @@ grains the stiff grains' work of separation (the rule of Washino et al. 2018).
 `--compare walls` gives the floor and the cylinder fixed friction coefficients (`--wall`, default
 static 0.5 and rolling 0.1) instead of the particles' own (the heap parameters' default, SPEC 5):
 the paper gives no particle-geometry values, and with the particles' values a heap at mu_s 0.112
-stands on a floor of friction 0.112; `--split` adds the floor alone and the cylinder alone at
-those values (the other wall keeps the grains'), to tell which of the two does it. `--modulus` runs any comparison but `stiffness` at another
-shear modulus (particles and walls).
+stands on a floor of friction 0.112; `--which both,floor,cylinder` adds the floor alone and the
+cylinder alone at those values (the other wall keeps the grains'), to tell which of the two does
+it (the floor's values are heap-test variables of the rig, the cylinder's heap parameters).
+`--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1] [--split]
-        [--modulus 5e8]
+        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1]
+        [--which both,floor,cylinder] [--modulus 5e8]
 """
 
 from __future__ import annotations
@@ -69,11 +70,15 @@ def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
             ws, wr = (float(v) for v in a.wall.split(","))
         except ValueError:
             ap.error(f"--wall takes static,rolling friction (two numbers), got {a.wall!r}")
-        out = {"walls = particles (default)": (BASE, num, 1.0),
-               f"walls mu_s {ws:g}, mu_r {wr:g}": ({**BASE, "wall_static_friction": ws, "wall_rolling_friction": wr},
-                                                   num, 1.0)}
-        if a.split:  # which wall: the other one keeps the grains' values
-            for w in ("floor", "cylinder"):
+        which = [w.strip() for w in a.which.split(",")]
+        if not which or set(which) - {"both", "floor", "cylinder"}:
+            ap.error(f"--which takes both, floor, cylinder (comma-separated), got {a.which!r}")
+        out = {"walls = particles (default)": (BASE, num, 1.0)}
+        if "both" in which:
+            out[f"walls mu_s {ws:g}, mu_r {wr:g}"] = ({**BASE, "wall_static_friction": ws,
+                                                      "wall_rolling_friction": wr}, num, 1.0)
+        for w in ("floor", "cylinder"):  # one wall alone: the other keeps the grains' values
+            if w in which:
                 out[f"{w} only {ws:g} / {wr:g}"] = ({**BASE, f"{w}_static_friction": ws, f"{w}_rolling_friction": wr},
                                                     num, 1.0)
         return out
@@ -97,8 +102,9 @@ def main():
                          "the shear modulus, or fixed wall friction against the grains' own")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
-    ap.add_argument("--split", action="store_true",
-                    help="with --compare walls, also the floor alone and the cylinder alone at --wall")
+    ap.add_argument("--which", default="both",
+                    help="with --compare walls: the walls at --wall against the grains' values, any of both, floor "
+                         "(the floor alone), cylinder (the cylinder alone), comma-separated")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     a = ap.parse_args()
@@ -116,7 +122,8 @@ def main():
                                for k, x in zip(names, c)}, "restitution": 0.2, **law_params[law]},
                     condition=rig[law], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
                     design="rolling-law", run_id=i, repeat=s) for i, (law, c, s) in enumerate(todo)]
-    print(f"rig {a.rig}: {condition_dict(RIGS[a.rig])}; " + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
+    print(f"rig {a.rig}: {condition_dict(RIGS[a.rig])}; "
+          + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
           + f", restitution 0.2; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
           f"`default` numerics, {a.workers} heaps at once; primary (image) angle")
     t0 = time.perf_counter()

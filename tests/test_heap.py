@@ -313,8 +313,7 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
 
 
 def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
-    from calib_cli.campaign import current_results
-    from calib_cli.campaign import CACHE_SOURCE
+    from calib_cli.campaign import CACHE_SOURCE, current_results
 
     rows = pd.DataFrame({"run_hash": ["a", "a", "b", "c"], "design": "pb", "run_id": [1, 1, 2, 3], "repeat": 0,
                          "condition_id": "", "source": [CACHE_SOURCE, CACHE_SOURCE, "old", CACHE_SOURCE],
