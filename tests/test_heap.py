@@ -384,7 +384,8 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
     """campaign.SAME_BITS lets this kernel source keep an earlier source's cache keys, claiming it
     computes the same heaps bit for bit. Check the claim on two committed smoke heaps of that source
     (one cohesive, one not): rebuilt from the inputs their artefacts record, they keep their run hash
-    and come out with the same final state, step count and angle."""
+    and come out with the same final state, step count and angle. On a machine other than the one
+    that made them (the rows' `host`) a difference is no evidence against the claim: skipped there."""
     from calib_cli import campaign
     from calib_cli.dem import SOURCE_HASH
 
@@ -401,6 +402,9 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
         cond, num = HeapCondition(**key["condition"]), Numerics(**key["numerics"])
         assert Request(params, cond, num, seed, model=key["model"]).hash == row["run_hash"]
         r = run_heap(params, cond, num, seed)
-        state = pd.read_parquet(run / "state.parquet")
-        assert r.system.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
-        np.testing.assert_array_equal(r.system.particles.pos, state[["x", "y", "z"]].to_numpy())
+        pos = pd.read_parquet(run / "state.parquet")[["x", "y", "z"]].to_numpy()
+        same = (r.system.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
+                and np.array_equal(r.system.particles.pos, pos))
+        if not same and row["host"] != host():
+            pytest.skip(f"the committed heaps were made on {row['host']}, this is {host()}")
+        assert same, f"run {row['run_hash']} differs from its committed state: SAME_BITS claims too much"
