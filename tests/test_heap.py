@@ -383,28 +383,30 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
 def test_a_source_declared_same_bits_reproduces_committed_heaps():
     """campaign.SAME_BITS lets this kernel source keep an earlier source's cache keys, claiming it
     computes the same heaps bit for bit. Check the claim on two committed smoke heaps of that source
-    (one cohesive, one not): rebuilt from the inputs their artefacts record, they keep their run hash
-    and come out with the same final state, step count and angle. On a machine other than the one
-    that made them (the rows' `host`) a difference is no evidence against the claim: skipped there."""
+    (one cohesive, one not): rebuilt from their results rows (the per-run artefacts are not
+    committed), they keep their run hash and come out with the same step count, coordinate angle
+    and its sd, heap height, base radius and largest overlap, to the last bit. On a machine other
+    than the one that made them (the rows' `host`) a difference is no evidence against the claim:
+    skipped there."""
     from calib_cli import campaign
+    from calib_cli.cli.simulate_cmd import condition_from_row
     from calib_cli.dem import SOURCE_HASH
+    from calib_cli.dem.heap import PARAMETERS, get_preset
 
     if campaign.CACHE_SOURCE == SOURCE_HASH:
         pytest.skip("this kernel source declares no earlier one")
-    sim = Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate"
-    res = pd.read_parquet(sim / "results.parquet")
+    res = pd.read_parquet(Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate" / "results.parquet")
     res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
-    picks = [res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]]
-    for row in picks:
-        run = sim / "runs" / row["run_hash"]
-        key = art.read_json(run / "key.json")
-        params, seed = key["params"], key["seed"]
-        cond, num = HeapCondition(**key["condition"]), Numerics(**key["numerics"])
-        assert Request(params, cond, num, seed, model=key["model"]).hash == row["run_hash"]
+    for row in (res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]):
+        params = {k: float(row[k]) for k in PARAMETERS if k in row.index and pd.notna(row[k])}
+        pre = get_preset(row["preset"])
+        cond, num, seed = condition_from_row(pre.condition, row), pre.numerics, int(row["seed"])
+        assert Request(params, cond, num, seed, model=row["model"]).hash == row["run_hash"]
         r = run_heap(params, cond, num, seed)
-        pos = pd.read_parquet(run / "state.parquet")[["x", "y", "z"]].to_numpy()
-        same = (r.system.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
-                and np.array_equal(r.system.particles.pos, pos))
-        if not same and row["host"] != host():
+        a = r.angle
+        got = (r.system.n_steps, a.angle, a.sd, a.height * 1e3, a.base_radius * 1e3, r.system.max_overlap)
+        want = tuple(row[k] for k in ("n_steps", "angle_coords", "angle_coords_sd", "heap_height_mm",
+                                      "base_radius_mm", "max_overlap"))
+        if got != want and row["host"] != host():
             pytest.skip(f"the committed heaps were made on {row['host']}, this is {host()}")
-        assert same, f"run {row['run_hash']} differs from its committed state: SAME_BITS claims too much"
+        assert got == want, f"run {row['run_hash']}: {got} != {want}: SAME_BITS claims too much"
