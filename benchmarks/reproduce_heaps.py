@@ -23,8 +23,8 @@ import numba
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import CACHE_SOURCE, Request, host
-from calib_cli.cli.simulate_cmd import condition_from_row
+from calib_cli.campaign import CACHE_SOURCE, host
+from calib_cli.cli.simulate_cmd import request_from_row
 from calib_cli.dem import heap
 
 
@@ -47,12 +47,10 @@ def main() -> None:
     equal, diffs = 0, []
     rows = res.drop_duplicates("run_hash").head(args.limit)
     for _, row in rows.iterrows():
-        params = {k: float(row[k]) for k in heap.PARAMETERS if k in row and pd.notna(row[k])}
-        preset = heap.get_preset(row["preset"])
-        cond, num = condition_from_row(preset.condition, row), preset.numerics
-        if Request(params, cond, num, int(row["seed"]), model=row["model"]).hash != row["run_hash"]:
+        req = request_from_row(row)
+        if req.hash != row["run_hash"]:
             sys.exit(f"run {row['run_hash']}: its inputs could not be rebuilt from the results row")
-        r = heap.run_heap(params, cond, num, int(row["seed"]))
+        r = heap.run_heap(req.params, req.condition, req.numerics, req.seed)
         same = r.n_steps == row["n_steps"] and r.angle.angle == row["angle_coords"]
         equal += same
         diffs.append(r.angle.angle - row["angle_coords"])

@@ -389,20 +389,17 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
     than the one that made them (the rows' `host`) a difference is no evidence against the claim:
     skipped there."""
     from calib_cli import campaign
-    from calib_cli.cli.simulate_cmd import condition_from_row
+    from calib_cli.cli.simulate_cmd import request_from_row
     from calib_cli.dem import SOURCE_HASH
-    from calib_cli.dem.heap import PARAMETERS, get_preset
 
     if campaign.CACHE_SOURCE == SOURCE_HASH:
         pytest.skip("this kernel source declares no earlier one")
     res = pd.read_parquet(Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate" / "results.parquet")
     res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
     for row in (res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]):
-        params = {k: float(row[k]) for k in PARAMETERS if k in row.index and pd.notna(row[k])}
-        pre = get_preset(row["preset"])
-        cond, num, seed = condition_from_row(pre.condition, row), pre.numerics, int(row["seed"])
-        assert Request(params, cond, num, seed, model=row["model"]).hash == row["run_hash"]
-        r = run_heap(params, cond, num, seed)
+        req = request_from_row(row)
+        assert req.hash == row["run_hash"]
+        r = run_heap(req.params, req.condition, req.numerics, req.seed)
         a = r.angle
         got = (r.system.n_steps, a.angle, a.sd, a.height * 1e3, a.base_radius * 1e3, r.system.max_overlap)
         want = tuple(row[k] for k in ("n_steps", "angle_coords", "angle_coords_sd", "heap_height_mm",

@@ -17,7 +17,7 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES, HeapCondition  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
@@ -25,7 +25,7 @@ from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import (RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
                      heap_preset, modulus_settings, resolve_settings, space_from_design,
                      warn_other_modulus)  # noqa: E402
-from .simulate_cmd import _pairs, _params, condition_from_row  # noqa: E402
+from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
 COND_VARS = list(CONDITION_VARIABLES)
@@ -341,22 +341,15 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         console.print("No missing effect is significant: the misfit is within what the measurement noise explains.")
 
 
-def parse_floor(spec: str) -> tuple[str, dict[str, float]]:
-    """``steel:static_friction=0.3,rolling_friction=0.05`` -> ("steel", {"floor_static_friction": 0.3, ...})."""
+def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:
+    """``steel:static_friction=0.3,rolling_friction=0.05`` -> the base condition on that floor."""
     name, sep, rest = spec.partition(":")
     if not sep or not name.strip() or not rest.strip():
         raise CalibError(f"--floor {spec!r} is not NAME:KEY=VALUE,...")
-    vals = {}
-    for item in rest.split(","):
-        k, eq, v = item.partition("=")
-        if not eq or f"floor_{k.strip()}" not in FLOOR_VARIABLES:
-            raise CalibError(f"--floor {spec!r}: {item!r} is not KEY=VALUE with KEY one of "
-                             f"{', '.join(k.removeprefix('floor_') for k in FLOOR_VARIABLES)}")
-        try:
-            vals[f"floor_{k.strip()}"] = float(v)
-        except ValueError:
-            raise CalibError(f"--floor {spec!r}: {v!r} is not a number") from None
-    return name.strip(), vals
+    vals = {f"floor_{k}": v for k, v in _pairs(rest.split(","), f"--floor {name}:").items()}
+    if set(vals) - set(FLOOR_VARIABLES):
+        raise CalibError(f"--floor {spec!r}: the keys are {', '.join(k.removeprefix('floor_') for k in FLOOR_VARIABLES)}")
+    return _condition(base, {"floor": name.strip(), **vals})
 
 
 def synth_lab(
@@ -387,7 +380,7 @@ def synth_lab(
 
     truth = _params(_pairs(set_, "--set")) if set_ else {}
     pre = heap_preset(preset, shear_modulus)
-    floors = [parse_floor(f) for f in floor] if floor else [("", {})]
+    floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]
     conds = []
     try:
         heights = [float(h) for h in fills.split(",")] if fills else [None]
@@ -396,12 +389,11 @@ def synth_lab(
             for d in cylinders.split(","):
                 D = float(d)
                 for H in heights:
-                    for fname, fvals in floors:
-                        cid = f"d{s}_D{D:g}" + (f"_H{H:g}" if H is not None else "") + (f"_{fname}" if fname else "")
-                        conds.append((cid, dataclasses.replace(
-                            pre.condition, particle_d_min_mm=lo, particle_d_max_mm=hi, cylinder_diameter_mm=D,
-                            fill_height_mm=D * fill_ratio if H is None else H,
-                            **({"floor": fname, **fvals} if fname else {}))))
+                    for fc in floors:
+                        cid = f"d{s}_D{D:g}" + (f"_H{H:g}" if H is not None else "") + (f"_{fc.floor}" if floor else "")
+                        conds.append((cid, dataclasses.replace(fc, particle_d_min_mm=lo, particle_d_max_mm=hi,
+                                                               cylinder_diameter_mm=D,
+                                                               fill_height_mm=D * fill_ratio if H is None else H)))
     except ValueError as e:
         raise CalibError(f"--sizes, --cylinders, --fills: expected numbers like 5-6,6-7 / 40,48 / 50,100 ({e})")
     reqs = [Request(truth, c, pre.numerics, derive_seed(seed, i, r), preset, "lab", i, r, "truth", cid)

@@ -57,6 +57,17 @@ def condition_from_row(base: HeapCondition, row) -> HeapCondition:
     return _condition(base, given)
 
 
+def request_from_row(row) -> Request:
+    """The request a built-in engine's results row was made from (parameters, condition, preset
+    with the row's shear modulus, seed, model), to simulate it again; its hash is the row's
+    run_hash unless the row lacks something that went into it."""
+    params = {k: float(row[k]) for k in PARAMETERS if k in row.index and pd.notna(row[k])}
+    g = row.get("shear_modulus")
+    pre = heap_preset(row["preset"], float(g) if g is not None and pd.notna(g) else None)
+    return Request(params, condition_from_row(pre.condition, row), pre.numerics, int(row["seed"]),
+                   model=row["model"])
+
+
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     fields = {f.name for f in dataclasses.fields(HeapCondition)}
     bad = set(overrides) - fields
