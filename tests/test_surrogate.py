@@ -1,5 +1,7 @@
 """Surrogates, PSO, GA and the inversion, on the paper's Table 7."""
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -174,23 +176,25 @@ def test_the_near_optimal_set_contains_the_reported_optimum(monkeypatch):
     assert res.solution_set["fitness"].min() == 0.0
 
 
-def _simulated_bbd(tmp_path, lost):
-    """A run whose BBD was 'simulated' under two fill heights (a plane plus a fill effect);
-    ``lost``: (run_id, condition_id) pairs that gave no angle (a timeout)."""
+def _simulated_bbd(tmp_path, lost, var=("fill_height_mm", "H", (50.0, 100.0), -0.05)):
+    """A run whose BBD was 'simulated' under two conditions, by default two fill heights (a plane
+    plus the condition variable's effect); ``lost``: (run_id, condition_id) pairs that gave no
+    angle (a timeout)."""
     from calib_cli.campaign import CACHE_SOURCE, RESULTS
 
+    name, tag, levels, slope = var
     run = tmp_path / "run"
     assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
     assert runner.invoke(app, ["bbd", "design", "--run", str(run)]).exit_code == 0
     design = art.read_table(run / "bbd" / "design.parquet")
     rows = []
     for _, d in design.iterrows():
-        for fill in (50.0, 100.0):
-            cid = f"H{fill:.0f}"
-            y = 20 + 10 * d["static_friction"] + 30 * d["rolling_friction"] + 5 * d["surface_energy"] - 0.05 * fill
+        for level in levels:
+            cid = f"{tag}{level:g}"
+            y = 20 + 10 * d["static_friction"] + 30 * d["rolling_friction"] + 5 * d["surface_energy"] + slope * level
             bad = (int(d["run_id"]), cid) in lost
             rows.append({"design": "bbd", "run_id": int(d["run_id"]), "repeat": 0, "condition_id": cid,
-                         "fill_height_mm": fill, "run_hash": f"{int(d['run_id'])}-{cid}", "model": "",
+                         name: level, "run_hash": f"{int(d['run_id'])}-{cid}", "model": "",
                          "source": CACHE_SOURCE, "status": "timeout" if bad else "ok",
                          "repose_angle": np.nan if bad else y, **{k: d[k] for k in INP}})
     art.write_table(run / RESULTS, pd.DataFrame(rows))
@@ -209,6 +213,17 @@ def test_fit_on_simulations_leaves_out_failed_runs_and_refuses_a_hole_in_the_des
     r = runner.invoke(app, [*fit, "--run", str(run)])
     assert r.exit_code == 2 and "design run(s) 3 of bbd gave no angle under any condition" in " ".join(r.output.split())
     assert not (run / "surrogate" / "predictions.parquet").exists()
+
+
+def test_a_floor_that_differs_between_conditions_is_a_surrogate_input(tmp_path):
+    """Conditions on two floors of given friction: the surrogate takes the floor's friction as an
+    input, as it takes a fill height, so that the inversion can tell the floors apart."""
+    run = _simulated_bbd(tmp_path, set(), var=("floor_static_friction", "F", (0.2, 0.6), 8.0))
+    r = runner.invoke(app, ["fit-surrogate", "--from-simulations", "bbd", "-s", 'surrogate.models=["rsm"]',
+                            "--run", str(run)])
+    assert r.exit_code == 0, r.output
+    best = json.loads((run / "surrogate" / "best.json").read_text())
+    assert best["inputs"][-1] == "floor_static_friction"
 
 
 def _refine_problem(bias):
