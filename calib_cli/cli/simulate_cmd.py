@@ -51,10 +51,7 @@ def _params(values: dict) -> dict[str, float]:
 def condition_from_row(base: HeapCondition, row) -> HeapCondition:
     """The base condition with the variables a conditions-table row gives (missing or NaN: kept),
     and the floor's name, which the results rows then show beside its values."""
-    given = {k: row[k] for k in (*CONDITION_VARIABLES, "floor") if k in row.index and pd.notna(row[k])}
-    if "floor" in given:
-        given["floor"] = str(given["floor"])
-    return _condition(base, given)
+    return _condition(base, {k: row[k] for k in (*CONDITION_VARIABLES, "floor") if k in row.index and pd.notna(row[k])})
 
 
 def request_from_row(row) -> Request:
@@ -74,7 +71,7 @@ def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     if bad:
         raise CalibError(f"unknown condition variable(s) {sorted(bad)}; known: {', '.join(sorted(fields))}")
     try:
-        c = dataclasses.replace(base, **{k: (v if k == "floor" else float(v)) for k, v in overrides.items()})
+        c = dataclasses.replace(base, **{k: (str(v) if k == "floor" else float(v)) for k, v in overrides.items()})
     except (TypeError, ValueError):
         raise CalibError(f"condition values must be numbers: {overrides}") from None
     c.validate()
