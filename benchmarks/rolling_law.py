@@ -27,11 +27,18 @@ stands on a floor of friction 0.112; `--which both,floor,cylinder` adds the floo
 cylinder alone at those values (the other wall keeps the grains'), to tell which of the two does
 it (the floor's values are heap-test variables of the rig, the cylinder's heap parameters).
 `--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
+`--design pb` runs the paper's own screening design instead of the factorial: the 12 runs of its
+Table 3 at the levels of its Table 2 (static friction 0.05 / 0.5, rolling friction 0.03 / 0.4,
+restitution 0.1 / 0.4; surface energy `--g`, default 0.2 / 0.8, Table 2's 0.5 / 2 times 0.4 for
+the 40 mm rig, about the factor between the factorial's 0.3 / 0.7 and Table 6's 0.875 / 1.625), and
+prints the Plackett-Burman main effects beside those of the paper's Table 3 angles. The paper's
+screening has static friction backwards (-1.12 per coded unit, p 0.034, its Table 4): the sign the
+kernel gives on a fixed floor, not on a floor that follows the grains.
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
         [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1]
-        [--which both,floor,cylinder] [--modulus 5e8]
+        [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb]
 """
 
 from __future__ import annotations
@@ -40,8 +47,10 @@ import argparse
 import itertools
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
 from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
@@ -50,6 +59,21 @@ from factorial import effects
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
 COMPARE = ("rolling", "friction-cap", "stiffness", "walls")
+TABLE3 = Path(__file__).resolve().parents[1] / "sample_data" / "paper" / "table3_pb.csv"
+TABLE2 = {"static_friction": (0.05, 0.5), "rolling_friction": (0.03, 0.4), "surface_energy": (0.5, 2.0),
+          "restitution": (0.1, 0.4)}
+
+
+def design(a) -> tuple[dict[str, tuple[float, float]], list[tuple[int, ...]], np.ndarray | None]:
+    """(factor -> low, high; coded cells; the paper's angles of those cells or None) of --design."""
+    if a.design == "factorial":
+        g = tuple(float(v) for v in (a.g or "0.3,0.7").split(","))
+        levels = {"static_friction": (0.112, 0.438), "rolling_friction": (0.122, 0.308), "surface_energy": g}
+        return levels, list(itertools.product((-1, 1), repeat=3)), None
+    t3 = pd.read_csv(TABLE3)
+    levels = {**TABLE2, "surface_energy": tuple(float(v) for v in (a.g or "0.2,0.8").split(","))}
+    cells = [tuple(int(np.sign(r[k] - np.mean(TABLE2[k]))) for k in TABLE2) for _, r in t3.iterrows()]
+    return levels, cells, t3.repose_angle.to_numpy()
 
 
 def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
@@ -94,7 +118,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--g", default="0.3,0.7", help="surface energy low,high [J/m2]")
+    ap.add_argument("--g", default=None,
+                    help="surface energy low,high [J/m2]; default 0.3,0.7 (factorial), 0.2,0.8 (pb)")
     ap.add_argument("--rig", choices=list(RIGS), default="calibration")
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
     ap.add_argument("--compare", choices=COMPARE, default="rolling",
@@ -107,24 +132,26 @@ def main():
                          "(the floor alone), cylinder (the cylinder alone), comma-separated")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
+    ap.add_argument("--design", choices=("factorial", "pb"), default="factorial",
+                    help="the 2^3 factorial over Table 6's ranges, or the paper's Table 3 screening runs")
     a = ap.parse_args()
     LAWS = variants(a, ap)
-    levels = {"static_friction": (0.112, 0.438), "rolling_friction": (0.122, 0.308),
-              "surface_energy": tuple(float(v) for v in a.g.split(","))}
+    levels, cells, paper_y = design(a)
     names = list(levels)
-    cells = list(itertools.product((-1, 1), repeat=3))
-    todo = [(law, c, s) for law in LAWS for c in cells for s in range(a.seeds)]
+    fixed = {} if "restitution" in levels else {"restitution": 0.2}
+    # by run, not by cell: Table 3 has one run twice (its runs 5 and 8), as the paper ran it
+    todo = [(law, j, s) for law in LAWS for j in range(len(cells)) for s in range(a.seeds)]
     # a variant's floor_* values are the rig's (heap-test variables), the rest heap parameters
     rig = {law: replace(RIGS[a.rig], **{k: x for k, x in v[0].items() if k in FLOOR_VARIABLES})
            for law, v in LAWS.items()}
     law_params = {law: {k: x for k, x in v[0].items() if k not in FLOOR_VARIABLES} for law, v in LAWS.items()}
     reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (LAWS[law][2] if k == "surface_energy" else 1.0)
-                               for k, x in zip(names, c)}, "restitution": 0.2, **law_params[law]},
+                               for k, x in zip(names, cells[j])}, **fixed, **law_params[law]},
                     condition=rig[law], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
-                    design="rolling-law", run_id=i, repeat=s) for i, (law, c, s) in enumerate(todo)]
+                    design="rolling-law", run_id=i, repeat=s) for i, (law, j, s) in enumerate(todo)]
     print(f"rig {a.rig}: {condition_dict(RIGS[a.rig])}; "
           + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
-          + f", restitution 0.2; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
+          + "".join(f", {k} {v:g}" for k, v in fixed.items()) + f"; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
           f"`default` numerics, {a.workers} heaps at once; primary (image) angle")
     t0 = time.perf_counter()
 
@@ -136,14 +163,21 @@ def main():
     df = run_campaign(reqs, a.run, workers=a.workers, on_done=done)
     print(f"\n{len(df)} heaps in {time.perf_counter() - t0:.0f} s (cached ones count 0)")
     y_all = df.repose_angle.to_numpy()
-    print("\ncoefficients per coded unit (+- 1 SE from the seed scatter); the paper's Eq. 7: X1 2.23, X2 4.19, X3 0.29")
+    ref = ("the paper's Eq. 7: X1 2.23, X2 4.19, X3 0.29" if paper_y is None else
+           "the paper's Table 3: " + ", ".join(f"X{i + 1} {v:.2f}" for i, v in
+                                                enumerate(np.array(cells).T @ paper_y / len(cells))))
+    print(f"\ncoefficients per coded unit (+- 1 SE from the seed scatter); {ref}")
     print(f"{a.compare:<28}{'mean':>7}" + "".join(f"{'X' + str(i + 1) + ' ' + k:>26}" for i, k in enumerate(names))
           + f"{'seed sd':>9}")
     for law in LAWS:
-        y = np.array([[y_all[i] for i, (lw, c2, s) in enumerate(todo) if lw == law and c2 == c] for c in cells])
+        y = np.array([[y_all[i] for i, (lw, j2, s) in enumerate(todo) if lw == law and j2 == j]
+                      for j in range(len(cells))])
         m, b, sd, se = effects(cells, y)
         print(f"{law:<28}{np.nanmean(m):7.2f}" + "".join(f"{v:19.2f} +-{se:4.2f}" for v in b) + f"{sd:9.2f}")
         print(f"{'':<28}{'':>7}  cell means: " + ", ".join(f"{v:.1f}" for v in m))
+        if paper_y is not None:
+            print(f"{'':<28}{'':>7}  against Table 3: mean difference {np.nanmean(m - paper_y):+.1f} deg, "
+                  f"correlation {np.corrcoef(m, paper_y)[0, 1]:.2f}")
 
 
 if __name__ == "__main__":

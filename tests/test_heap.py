@@ -407,3 +407,29 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
         if got != want and row["host"] != host():
             pytest.skip(f"the committed heaps were made on {row['host']}, this is {host()}")
         assert got == want, f"run {row['run_hash']}: {got} != {want}: SAME_BITS claims too much"
+
+
+def test_the_benchmarks_screening_design_is_the_papers_table_3(monkeypatch):
+    """`benchmarks/rolling_law.py --design pb` codes the paper's 12 Table 3 runs at the levels of
+    its Table 2; their main effects from the paper's angles are Table 4's sums of squares (15.10,
+    228.81, 56.25, 0.3008 = 12 b^2), static friction's negative."""
+    import argparse
+    import importlib.util
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(bench))  # rolling_law imports its sibling `factorial`
+    spec = importlib.util.spec_from_file_location("rolling_law", bench / "rolling_law.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    levels, cells, y = mod.design(argparse.Namespace(design="pb", g=None))
+    X = np.array(cells, float)
+    assert list(levels) == ["static_friction", "rolling_friction", "surface_energy", "restitution"]
+    assert levels["surface_energy"] == (0.2, 0.8) and levels["static_friction"] == (0.05, 0.5)
+    assert X.shape == (12, 4) and np.array_equal(X.T @ X, 12 * np.eye(4))  # orthogonal, as a PB design
+    assert len({tuple(c) for c in cells}) == 11  # the paper ran its run 5 twice (run 8)
+    b = X.T @ y / 12
+    np.testing.assert_allclose(12 * b**2, [15.10, 228.81, 56.25, 0.3008], rtol=5e-4)
+    assert b[0] < 0
+    levels, cells, y = mod.design(argparse.Namespace(design="factorial", g="0.3,0.7"))
+    assert y is None and len(cells) == 8 and levels["surface_energy"] == (0.3, 0.7)
