@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 
 def effects(cells, y):
-    """Two-level factorial from heap angles y[cell, seed]: (cell means, coefficients per coded unit
-    - half the change from low to high, as the paper's Eq. 7 -, pooled within-cell sd, their SE)."""
+    """Main effects of a design whose coded columns are orthogonal to each other and to the
+    intercept (two-level factorial, Plackett-Burman; the linear terms of a Box-Behnken, which are
+    orthogonal to its quadratic terms too) from heap angles y[cell, seed]: (cell means,
+    coefficients per coded unit - half the change from low to high, as the paper's Eq. 7 -,
+    pooled within-cell sd, their SE)."""
     X = np.array(cells, float)
     m = np.nanmean(y, axis=1)
-    sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))
-    return m, X.T @ m / len(cells), sd, sd / np.sqrt(y.size)
+    with warnings.catch_warnings():  # a cell of one heap has no variance: NaN, not a warning
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))
+    d = (X**2).sum(axis=0)  # n for a factorial or PB, 8 for a 3-factor BBD
+    return m, X.T @ m / d, sd, sd / np.sqrt(d.max() * y.shape[1])

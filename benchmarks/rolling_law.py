@@ -28,17 +28,19 @@ cylinder alone at those values (the other wall keeps the grains'), to tell which
 it (the floor's values are heap-test variables of the rig, the cylinder's heap parameters).
 `--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
 `--design pb` runs the paper's own screening design instead of the factorial: the 12 runs of its
-Table 3 at the levels of its Table 2 (static friction 0.05 / 0.5, rolling friction 0.03 / 0.4,
-restitution 0.1 / 0.4; surface energy `--g`, default 0.2 / 0.8, Table 2's 0.5 / 2 times 0.4 for
-the 40 mm rig, about the factor between the factorial's 0.3 / 0.7 and Table 6's 0.875 / 1.625), and
-prints the Plackett-Burman main effects beside those of the paper's Table 3 angles. The paper's
-screening has static friction backwards (-1.12 per coded unit, p 0.034, its Table 4): the sign the
-kernel gives on a fixed floor, not on a floor that follows the grains.
+Table 3 at their values (static friction 0.05 / 0.5, rolling friction 0.03 / 0.4, restitution
+0.1 / 0.4), with surface energy times `--g-factor` (default 0.4: Table 2's 0.5 / 2 become
+0.2 / 0.8 for the 40 mm rig, about the factor between the factorial's 0.3 / 0.7 and Table 6's
+0.875 / 1.625), and prints the main effects beside those of the paper's Table 3 angles. The
+paper's screening has static friction backwards (-1.12 per coded unit, p 0.034, its Table 4).
+`--design ascent` runs its Table 5 path and `--design bbd` its Table 7 design (the five centre runs
+as one point, since the same fills give the same heap) the same way; each prints the mean
+difference, RMSE and correlation of the point means against the paper's angles.
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
         [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1]
-        [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb]
+        [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb|ascent|bbd] [--g-factor 0.4]
 """
 
 from __future__ import annotations
@@ -59,21 +61,31 @@ from factorial import effects
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
 COMPARE = ("rolling", "friction-cap", "stiffness", "walls")
-TABLE3 = Path(__file__).resolve().parents[1] / "sample_data" / "paper" / "table3_pb.csv"
-TABLE2 = {"static_friction": (0.05, 0.5), "rolling_friction": (0.03, 0.4), "surface_energy": (0.5, 2.0),
-          "restitution": (0.1, 0.4)}
+PAPER = Path(__file__).resolve().parents[1] / "sample_data" / "paper"
+TABLES = {"pb": "table3_pb.csv", "ascent": "table5_ascent.csv", "bbd": "table7_bbd.csv"}
+FACTORS = ["static_friction", "rolling_friction", "surface_energy", "restitution"]
 
 
-def design(a) -> tuple[dict[str, tuple[float, float]], list[tuple[int, ...]], np.ndarray | None]:
-    """(factor -> low, high; coded cells; the paper's angles of those cells or None) of --design."""
+def design(a) -> tuple[list[str], list[dict[str, float]], np.ndarray | None, np.ndarray | None]:
+    """(the factors varied; the points' parameters; their coded levels, for main effects, or None;
+    the paper's angles at the points or None) of --design. The paper's tables are simulated at
+    their own values but for surface energy, times --g-factor (cohesion scales with the heap's size,
+    and the 40 mm rig is much smaller than the paper's 150 mm cylinder; docs/physics.md, "Cohesion
+    and heap size")."""
     if a.design == "factorial":
         g = tuple(float(v) for v in (a.g or "0.3,0.7").split(","))
         levels = {"static_friction": (0.112, 0.438), "rolling_friction": (0.122, 0.308), "surface_energy": g}
-        return levels, list(itertools.product((-1, 1), repeat=3)), None
-    t3 = pd.read_csv(TABLE3)
-    levels = {**TABLE2, "surface_energy": tuple(float(v) for v in (a.g or "0.2,0.8").split(","))}
-    cells = [tuple(int(np.sign(r[k] - np.mean(TABLE2[k]))) for k in TABLE2) for _, r in t3.iterrows()]
-    return levels, cells, t3.repose_angle.to_numpy()
+        cells = list(itertools.product((-1, 1), repeat=3))
+        points = [{**{k: levels[k][(x + 1) // 2] for k, x in zip(levels, c)}, "restitution": 0.2} for c in cells]
+        return list(levels), points, np.array(cells, float), None
+    t = pd.read_csv(PAPER / TABLES[a.design])
+    if a.design == "bbd":  # its five centre runs are one point here: the same fills give the same heap
+        t = t.groupby(FACTORS, sort=False, as_index=False).repose_angle.mean()
+    t = t.assign(surface_energy=t.surface_energy * a.g_factor)
+    names = [k for k in FACTORS if t[k].nunique() > 1]
+    lo, hi = t[names].min(), t[names].max()
+    coded = None if a.design == "ascent" else np.rint(2 * (t[names] - lo) / (hi - lo) - 1).to_numpy()
+    return names, t[FACTORS].to_dict("records"), coded, t.repose_angle.to_numpy()
 
 
 def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
@@ -118,8 +130,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--g", default=None,
-                    help="surface energy low,high [J/m2]; default 0.3,0.7 (factorial), 0.2,0.8 (pb)")
+    ap.add_argument("--g", default=None, help="surface energy low,high of --design factorial [J/m2]; default 0.3,0.7")
+    ap.add_argument("--g-factor", type=float, default=0.4,
+                    help="factor on the paper tables' surface energies (--design pb, ascent, bbd)")
     ap.add_argument("--rig", choices=list(RIGS), default="calibration")
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
     ap.add_argument("--compare", choices=COMPARE, default="rolling",
@@ -132,25 +145,25 @@ def main():
                          "(the floor alone), cylinder (the cylinder alone), comma-separated")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
-    ap.add_argument("--design", choices=("factorial", "pb"), default="factorial",
-                    help="the 2^3 factorial over Table 6's ranges, or the paper's Table 3 screening runs")
+    ap.add_argument("--design", choices=("factorial", *TABLES), default="factorial",
+                    help="the 2^3 factorial over Table 6's ranges, or the runs of the paper's Table 3 (pb), "
+                         "Table 5 (ascent) or Table 7 (bbd)")
     a = ap.parse_args()
     LAWS = variants(a, ap)
-    levels, cells, paper_y = design(a)
-    names = list(levels)
-    fixed = {} if "restitution" in levels else {"restitution": 0.2}
-    # by run, not by cell: Table 3 has one run twice (its runs 5 and 8), as the paper ran it
-    todo = [(law, j, s) for law in LAWS for j in range(len(cells)) for s in range(a.seeds)]
+    names, points, coded, paper_y = design(a)
+    # by point, not by coded cell: Table 3 has one run twice (its runs 5 and 8), as the paper ran it
+    todo = [(law, j, s) for law in LAWS for j in range(len(points)) for s in range(a.seeds)]
     # a variant's floor_* values are the rig's (heap-test variables), the rest heap parameters
     rig = {law: replace(RIGS[a.rig], **{k: x for k, x in v[0].items() if k in FLOOR_VARIABLES})
            for law, v in LAWS.items()}
     law_params = {law: {k: x for k, x in v[0].items() if k not in FLOOR_VARIABLES} for law, v in LAWS.items()}
-    reqs = [Request(params={**{k: levels[k][(x + 1) // 2] * (LAWS[law][2] if k == "surface_energy" else 1.0)
-                               for k, x in zip(names, cells[j])}, **fixed, **law_params[law]},
+    reqs = [Request(params={**{k: x * (LAWS[law][2] if k == "surface_energy" else 1.0) for k, x in points[j].items()},
+                            **law_params[law]},
                     condition=rig[law], numerics=LAWS[law][1], seed=derive_seed(11, 0, s), preset="default",
                     design="rolling-law", run_id=i, repeat=s) for i, (law, j, s) in enumerate(todo)]
+    fixed = {k: v for k, v in points[0].items() if k not in names}
     print(f"rig {a.rig}: {condition_dict(RIGS[a.rig])}; "
-          + ", ".join(f"{k} {v[0]:g} / {v[1]:g}" for k, v in levels.items())
+          + ", ".join(f"{k} {min(p[k] for p in points):g}-{max(p[k] for p in points):g}" for k in names)
           + "".join(f", {k} {v:g}" for k, v in fixed.items()) + f"; {a.seeds} seeds a cell (the same fills for both laws); built-in kernel, "
           f"`default` numerics, {a.workers} heaps at once; primary (image) angle")
     t0 = time.perf_counter()
@@ -163,21 +176,29 @@ def main():
     df = run_campaign(reqs, a.run, workers=a.workers, on_done=done)
     print(f"\n{len(df)} heaps in {time.perf_counter() - t0:.0f} s (cached ones count 0)")
     y_all = df.repose_angle.to_numpy()
+    table = {"pb": "Table 3", "ascent": "Table 5", "bbd": "Table 7"}.get(a.design)
     ref = ("the paper's Eq. 7: X1 2.23, X2 4.19, X3 0.29" if paper_y is None else
-           "the paper's Table 3: " + ", ".join(f"X{i + 1} {v:.2f}" for i, v in
-                                                enumerate(np.array(cells).T @ paper_y / len(cells))))
+           f"the paper's {table}: " + ", ".join(f"X{i + 1} {v:.2f}" for i, v in
+                                                enumerate(effects(coded, paper_y[:, None])[1]))
+           if coded is not None else f"the paper's {table} path: " + ", ".join(f"{v:.1f}" for v in paper_y))
     print(f"\ncoefficients per coded unit (+- 1 SE from the seed scatter); {ref}")
     print(f"{a.compare:<28}{'mean':>7}" + "".join(f"{'X' + str(i + 1) + ' ' + k:>26}" for i, k in enumerate(names))
           + f"{'seed sd':>9}")
     for law in LAWS:
         y = np.array([[y_all[i] for i, (lw, j2, s) in enumerate(todo) if lw == law and j2 == j]
-                      for j in range(len(cells))])
-        m, b, sd, se = effects(cells, y)
-        print(f"{law:<28}{np.nanmean(m):7.2f}" + "".join(f"{v:19.2f} +-{se:4.2f}" for v in b) + f"{sd:9.2f}")
-        print(f"{'':<28}{'':>7}  cell means: " + ", ".join(f"{v:.1f}" for v in m))
+                      for j in range(len(points))])
+        if coded is not None:
+            m, b, sd, se = effects(coded, y)
+            print(f"{law:<28}{np.nanmean(m):7.2f}" + "".join(f"{v:19.2f} +-{se:4.2f}" for v in b) + f"{sd:9.2f}")
+        else:
+            m = np.nanmean(y, axis=1)
+            print(f"{law:<28}{np.nanmean(m):7.2f}")
+        print(f"{'':<28}{'':>7}  point means: " + ", ".join(f"{v:.1f}" for v in m))
         if paper_y is not None:
-            print(f"{'':<28}{'':>7}  against Table 3: mean difference {np.nanmean(m - paper_y):+.1f} deg, "
-                  f"correlation {np.corrcoef(m, paper_y)[0, 1]:.2f}")
+            ok = np.isfinite(m)
+            print(f"{'':<28}{'':>7}  against {table}: mean difference {np.mean(m[ok] - paper_y[ok]):+.1f} deg, "
+                  f"RMSE {np.sqrt(np.mean((m[ok] - paper_y[ok])**2)):.1f}, "
+                  f"correlation {np.corrcoef(m[ok], paper_y[ok])[0, 1]:.2f}")
 
 
 if __name__ == "__main__":

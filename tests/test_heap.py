@@ -2,6 +2,7 @@
 
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -205,6 +206,7 @@ def test_simulate_design_then_analyze_end_to_end(tmp_path):
     # heaps still creeping when measured are pointed out, and only then
     creeping = (res["status"] == "ok") & (res["angle_drift_deg_s"].abs() > 2.0)
     assert ("creeping" in r.output) == bool(creeping.any())
+    assert "the floor's static friction follows the grains'" in " ".join(r.output.split())
     r2 = runner.invoke(app, ["simulate-heap", "--run", str(run), "--design", str(run / "pb" / "design.parquet"),
                              "--preset", "smoke", *cond])
     assert "12 cached" in r2.output
@@ -409,10 +411,11 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
         assert got == want, f"run {row['run_hash']}: {got} != {want}: SAME_BITS claims too much"
 
 
-def test_the_benchmarks_screening_design_is_the_papers_table_3(monkeypatch):
-    """`benchmarks/rolling_law.py --design pb` codes the paper's 12 Table 3 runs at the levels of
-    its Table 2; their main effects from the paper's angles are Table 4's sums of squares (15.10,
-    228.81, 56.25, 0.3008 = 12 b^2), static friction's negative."""
+def test_the_benchmarks_paper_designs_are_the_papers_tables(monkeypatch):
+    """`benchmarks/rolling_law.py --design pb|ascent|bbd` runs the paper's Tables 3, 5 and 7 at
+    their own values (surface energy times --g-factor). The main effects from the paper's own
+    angles are Table 4's sums of squares (15.10, 228.81, 56.25, 0.3008 = 12 b^2, static friction's
+    negative) and Table 8's linear ones (28.88, 286.56 = 8 b^2)."""
     import argparse
     import importlib.util
     from pathlib import Path
@@ -422,14 +425,40 @@ def test_the_benchmarks_screening_design_is_the_papers_table_3(monkeypatch):
     spec = importlib.util.spec_from_file_location("rolling_law", bench / "rolling_law.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    levels, cells, y = mod.design(argparse.Namespace(design="pb", g=None))
-    X = np.array(cells, float)
-    assert list(levels) == ["static_friction", "rolling_friction", "surface_energy", "restitution"]
-    assert levels["surface_energy"] == (0.2, 0.8) and levels["static_friction"] == (0.05, 0.5)
+    from factorial import effects
+
+    names, points, X, y = mod.design(argparse.Namespace(design="pb", g=None, g_factor=0.4))
+    assert names == ["static_friction", "rolling_friction", "surface_energy", "restitution"]
+    assert {p["surface_energy"] for p in points} == {0.2, 0.8} and {p["static_friction"] for p in points} == {0.05, 0.5}
     assert X.shape == (12, 4) and np.array_equal(X.T @ X, 12 * np.eye(4))  # orthogonal, as a PB design
-    assert len({tuple(c) for c in cells}) == 11  # the paper ran its run 5 twice (run 8)
-    b = X.T @ y / 12
+    assert len({tuple(p.values()) for p in points}) == 11  # the paper ran its run 5 twice (run 8)
+    b = effects(X, y[:, None])[1]
     np.testing.assert_allclose(12 * b**2, [15.10, 228.81, 56.25, 0.3008], rtol=5e-4)
     assert b[0] < 0
-    levels, cells, y = mod.design(argparse.Namespace(design="factorial", g="0.3,0.7"))
-    assert y is None and len(cells) == 8 and levels["surface_energy"] == (0.3, 0.7)
+
+    names, points, X, y = mod.design(argparse.Namespace(design="bbd", g=None, g_factor=1.0))
+    assert names == ["static_friction", "rolling_friction", "surface_energy"] and X.shape == (13, 3)
+    assert {p["restitution"] for p in points} == {0.2}
+    assert np.isclose(y[(X == 0).all(axis=1)][0], np.mean([34.93, 34.24, 34.37, 33.53, 32.47]))  # the centre runs
+    np.testing.assert_allclose(8 * effects(X, y[:, None])[1][:2] ** 2, [28.88, 286.56], rtol=5e-4)
+
+    names, points, X, y = mod.design(argparse.Namespace(design="ascent", g=None, g_factor=0.4))
+    assert X is None and len(points) == 5 and points[-1]["surface_energy"] == 0.8 and y[-1] == 46.85
+    names, points, X, y = mod.design(argparse.Namespace(design="factorial", g="0.3,0.7", g_factor=0.4))
+    assert y is None and X.shape == (8, 3) and {p["surface_energy"] for p in points} == {0.3, 0.7}
+
+
+def test_a_design_that_drags_the_floors_friction_along_is_pointed_out():
+    """simulate-heap notes when the runs vary the grains' static friction and the floor's follows
+    it; not when the floor's (or all walls') friction is given, nor for runs at one friction."""
+    from calib_cli.cli.simulate_cmd import floor_follows_grains
+
+    def reqs(cond=TINY, **extra):
+        return [Request({"static_friction": mu, **extra}, cond, TINY_NUM, 1, "tiny", "", i)
+                for i, mu in enumerate([0.3, 0.6])]
+
+    assert floor_follows_grains(reqs())
+    assert not floor_follows_grains(reqs()[:1])
+    assert not floor_follows_grains(reqs(wall_static_friction=0.5))
+    assert not floor_follows_grains(reqs(replace(TINY, floor_static_friction=0.5)))
+    assert floor_follows_grains(reqs(cylinder_static_friction=0.5))  # the cylinder's own value leaves the floor tied

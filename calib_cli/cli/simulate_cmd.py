@@ -65,6 +65,19 @@ def request_from_row(row) -> Request:
                    model=row["model"])
 
 
+def floor_follows_grains(requests: list[Request]) -> bool:
+    """Whether the runs vary the grains' static friction with the floor's following it (neither the
+    condition's ``floor_static_friction`` nor ``wall_static_friction`` given): the design then varies
+    the rig's floor too, and on sphere heaps that alone can reverse static friction's effect
+    (docs/physics.md, "Wall friction" and "The paper's own screening")."""
+    tied = set()
+    for r in requests:
+        pp, pf, _ = interactions(r.params, r.condition)
+        if pf.static_friction == pp.static_friction:
+            tied.add(pp.static_friction)
+    return len(tied) > 1
+
+
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     fields = {f.name for f in dataclasses.fields(HeapCondition)}
     bad = set(overrides) - fields
@@ -178,6 +191,11 @@ def simulate_heap(
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
     console.print(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
                   + modulus_note(shear_modulus))
+    if floor_follows_grains(requests):
+        console.print("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
+                      "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
+                      "change with the grains, and on sphere heaps this choice can reverse static friction's effect "
+                      "(docs/physics.md, 'Wall friction'). Give the floor's measured values if you know them.")
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))
