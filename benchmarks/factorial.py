@@ -14,9 +14,9 @@ def effects(cells, y):
     coefficients per coded unit - half the change from low to high, as the paper's Eq. 7 -,
     pooled within-cell sd, their SE)."""
     X = np.array(cells, float)
-    m = np.nanmean(y, axis=1)
-    with warnings.catch_warnings():  # a cell of one heap has no variance: NaN, not a warning
+    with warnings.catch_warnings():  # a cell of one heap has no variance, one of none no mean: NaN
         warnings.simplefilter("ignore", RuntimeWarning)
+        m = np.nanmean(y, axis=1)
         sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))
     d = (X**2).sum(axis=0)  # n for a factorial or PB, 8 for a 3-factor BBD
     return m, X.T @ m / d, sd, sd / np.sqrt(d.max() * y.shape[1])
