@@ -5,7 +5,7 @@ The kernel's rolling torque follows the pair's relative spin (SPEC 5; Ai et al. 
 EDEM's 'RVD' model). EDEM's default 'Standard' model brakes each body against its *own* spin,
 tau_i = -mu_r F_n R_i w_i/|w_i| (help.altair.com/edem, "Standard Rolling Friction Model"), so it
 also brakes grains that turn together - a cohesive cluster rolling down the heap as one body.
-The paper (EDEM) finds rolling friction the strongest factor (Eq. 7: 2.23 / 4.19 / 0.29 per coded
+The paper (EDEM) finds rolling friction the strongest factor (Eq. 7: 1.90 / 5.99 / 1.12 per coded
 unit for static friction, rolling friction, surface energy); the relative law gives ~1-2 for it.
 
 This runs a 2^3 factorial at the ends of the paper's ranges for static (0.112 / 0.438) and
@@ -177,7 +177,7 @@ def main():
     print(f"\n{len(df)} heaps in {time.perf_counter() - t0:.0f} s (cached ones count 0)")
     y_all = df.repose_angle.to_numpy()
     table = {"pb": "Table 3", "ascent": "Table 5", "bbd": "Table 7"}.get(a.design)
-    ref = ("the paper's Eq. 7: X1 2.23, X2 4.19, X3 0.29" if paper_y is None else
+    ref = ("the paper's Eq. 7: X1 1.90, X2 5.99, X3 1.12" if paper_y is None else
            f"the paper's {table}: " + ", ".join(f"X{i + 1} {v:.2f}" for i, v in
                                                 enumerate(effects(coded, paper_y[:, None])[1]))
            if coded is not None else f"the paper's {table} path: " + ", ".join(f"{v:.1f}" for v in paper_y))

@@ -76,7 +76,7 @@ def main():
                   f"({status}, {n} spheres, {wall:.0f} s)", flush=True)
     # coefficients per coded unit, as the paper's Eq. 7 (half the change from low to high)
     print("\ncoefficients per coded unit (+- 1 SE from the seed-to-seed scatter); the paper's Eq. 7: "
-          "X1 2.23, X2 4.19, X3 0.29")
+          "X1 1.90, X2 5.99, X3 1.12")
     head = [f"X{i + 1} {k}" for i, k in enumerate(names)]
     print(f"{'shape':<10}{'mean':>7}" + "".join(f"{h:>24}" for h in head) + f"{'seed sd':>9}")
     for s in SHAPES:
