@@ -53,7 +53,8 @@ def main(runs: list[str]) -> None:
         d = ours[common].to_numpy() - paper[common].to_numpy()
         b = coef.set_index("term")["coefficient"]  # per coded unit, as Eq. 7
         lin = {f: float(b[f]) for f in FACTORS}
-        rows.append({"run": "the paper (Table 7 -> Eq. 7)" if run == PAPER_RUN else run.name, **{f"X{i + 1}": round(lin[f], 2) for i, f in enumerate(FACTORS)},
+        rows.append({"run": "the paper (Table 7 -> Eq. 7)" if run == PAPER_RUN else run.name,
+                     **{f"X{i + 1}": round(lin[f], 2) for i, f in enumerate(FACTORS)},
                      **{f"F X{i + 1}": round(float(anova.loc[f, "F"]), 1) for i, f in enumerate(FACTORS)},
                      **{f"p X{i + 1}": f"{float(anova.loc[f, 'p_value']):.2g}" for i, f in enumerate(FACTORS)},
                      "order": order(lin), "range": f"{data.repose_angle.min():.1f}-{data.repose_angle.max():.1f}",

@@ -69,7 +69,7 @@ def floor_follows_grains(requests: list[Request]) -> bool:
     """Whether the runs vary the grains' static friction with the floor's following it (neither the
     condition's ``floor_static_friction`` nor ``wall_static_friction`` given): the design then varies
     the rig's floor too, and on sphere heaps that alone can reverse static friction's effect
-    (docs/physics.md, "Wall friction" and "The paper's own screening")."""
+    (docs/physics.md, "Wall friction" and "The paper's own tables")."""
     tied = set()
     for r in requests:
         pp, pf, _ = interactions(r.params, r.condition)
