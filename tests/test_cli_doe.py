@@ -46,6 +46,9 @@ def test_paper_chain_end_to_end(run):
     r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv")
     assert r.exit_code == 0, r.output
     assert "4.26 %" in r.output
+    # Table 5's step 5 repeats Table 3's run 6 but for restitution, 13.56 deg apart (docs/physics.md)
+    out = " ".join(r.output.split())
+    assert "step 5 repeats screening run(s) 6" in out and "+13.56 deg" in out and "step 1 repeats" not in out
     assert calib("bbd", "design", "--run", run).exit_code == 0
     d = art.read_table(run / "bbd" / "design.parquet")
     assert len(d) == 17

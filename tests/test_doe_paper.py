@@ -88,6 +88,27 @@ def test_ascent_same_bracket_with_measured_target(table5):
     assert r(res.path["relative_error_percent"][2], 2) == 6.77
 
 
+def test_the_ascent_disagrees_with_the_screening_where_they_share_a_point(table3, table5):
+    """Table 5's step 5 is Table 3's run 6 in every moved factor (restitution 0.2 against 0.1):
+    46.85 against 33.29 deg, where Table 4's model expects -0.16 x 2/3 = -0.11: z = 13.67 / 1.477
+    = +6.5. Step 1 is runs 7 and 12 (restitution 0.4 and 0.1), 18.08 against 23.08: z -2.8."""
+    space = ParameterSpace.from_data(table3, PB_FACTORS)
+    res = pb.analyze(table3, space)
+    sd = float(np.sqrt(res.anova.set_index("source").loc["Residual", "mean_sq"]))  # 1.477
+    path = table5.assign(restitution=0.2)
+    rep = ascent.screening_repeats(path, table3, res.effects, sd, BBD_FACTORS, "repose_angle").set_index("step")
+    assert list(rep.index) == [1, 5] and rep.loc[5, "runs"] == [6] and rep.loc[1, "runs"] == [7, 12]
+    assert r(rep.loc[5, "expected"], 3) == -0.106 and r(rep.loc[5, "z"], 1) == 6.5
+    assert r(rep.loc[1, "z"], 1) == -2.8
+    # a path that follows the screening's own model agrees with it, wherever it repeats a run
+    b = res.effects.set_index("factor")["coefficient"]
+    agree = path.assign(repose_angle=[table3["repose_angle"].mean() + sum(
+        b[f] * (2 * row[f] - space[f].low - space[f].high) / (space[f].high - space[f].low) for f in PB_FACTORS)
+        for _, row in path.iterrows()])
+    rep = ascent.screening_repeats(agree, table3, res.effects, sd, BBD_FACTORS, "repose_angle")
+    assert len(rep) == 2 and (rep["z"].abs() < 3).all()
+
+
 def test_ascent_warns_at_edge(table5):
     res = ascent.analyze(table5, BBD_FACTORS, "repose_angle", target=50.0)
     assert res.best_step == 5 and res.at_edge

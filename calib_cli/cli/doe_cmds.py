@@ -112,6 +112,32 @@ def _pb_outputs(run: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     return eff, fit
 
 
+def _check_against_screening(run: Path, path: pd.DataFrame, factors: list[str], response: str) -> None:
+    """Warn where an ascent step repeats screening runs in every moved factor but its angle is not
+    what the screening's model expects (ascent.screening_repeats, |z| > 3)."""
+    if not all((run / "pb" / f).is_file() for f in ("data.parquet", "effects.parquet", "fit.parquet")):
+        return
+    eff, fit = _pb_outputs(run)
+    scr = art.read_table(run / "pb" / "data.parquet", what="screening data")
+    if response not in scr.columns or not set(factors) <= set(scr.columns):
+        return
+    design = run / "ascent" / "design.parquet"
+    if design.is_file():  # the levels the path held the other screened factors at
+        d = art.read_table(design, what="ascent design")
+        extra = [f for f in eff["factor"] if f in d.columns and f not in path.columns]
+        if "step" in d.columns and extra:
+            path = path.merge(d[["step", *extra]], on="step", how="left")
+    sd = float(fit["std_dev"].iloc[0])
+    for r in ascent_mod.screening_repeats(path, scr, eff, sd, factors, response).itertuples():
+        if abs(r.z) > 3:
+            runs = ", ".join(map(str, r.runs))
+            console.print(f"[yellow]warning:[/] step {r.step} repeats screening run(s) {runs} in {', '.join(factors)}, "
+                          f"but its angle {r.angle:.2f} differs from theirs ({r.screening_angle:.2f}) by "
+                          f"{r.angle - r.screening_angle:+.2f} deg where the screening's model expects "
+                          f"{r.expected:+.2f}: {r.z:+.1f} residual sd. The two stages do not agree; were they "
+                          "simulated (or measured) with the same setup - floor, fill, numerics?")
+
+
 def _ascent_target(run: Path, cfg: dict, explicit: Optional[float] = None) -> tuple[float, dict]:
     """The ascent's target angle: --target, else settings ascent.target, else the measured angle
     (RUN/measure/conditions.parquet; the mean over conditions where there are several), else the
@@ -173,7 +199,9 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
     """Relative error to the target along the path; the best step and the bracket for the BBD.
 
     Reads RUN/ascent/design.parquet with simulated results, or --responses FILE (rows in step order,
-    or a `step` column). Writes RUN/ascent/path.parquet, bracket.parquet, path.png.
+    or a `step` column). Writes RUN/ascent/path.parquet, bracket.parquet, path.png. Warns where a
+    step repeats screening runs in the moved factors but its angle is more than 3 residual sd from
+    what the screening's model expects (docs/method.md).
     """
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
@@ -206,6 +234,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
         out.table("path.parquet", res.path, target=tgt)
         out.table("bracket.parquet", res.bracket, best_step=res.best_step, target=tgt)
         out.figure("path.png", plots.ascent_path(res.path, response, tgt))
+    _check_against_screening(run, res.path, factors, response)
     cols = ["step", *factors, response, "relative_error_percent", "best"]
     console.print(df_table(res.path[cols], f"Steepest ascent vs target {tgt:g} deg (cf. paper Table 5)",
                            {"relative_error_percent": lambda v: f"{v:.2f} %"}))

@@ -85,3 +85,46 @@ def analyze(path: pd.DataFrame, factors: list[str], response: str, target: float
             raise CalibError(f"factor {f!r} does not move along the path; it cannot span a bracket")
         rows.append({"factor": f, "low": low, "high": high, "center": float(p.loc[i, f])})
     return AscentResult(p, int(p.loc[i, "step"]), pd.DataFrame(rows), at_edge, float(target))
+
+
+def screening_repeats(path: pd.DataFrame, screening: pd.DataFrame, effects: pd.DataFrame, sd: float,
+                      factors: list[str], response: str) -> pd.DataFrame:
+    """Ascent steps that repeat screening runs in every factor the path moves, checked against the
+    screening's own first-order model (paper section 3.1; Myers & Montgomery 5.2).
+
+    A step and the m screening runs at the same moved factors may still differ in the others (the
+    path holds those at fixed levels), so the expected difference is sum_k b_k (c_k,step - mean c_k,runs)
+    over the screening's coefficients b_k per coded unit, c = (2x - low - high) / (high - low); a
+    factor the path lacks counts as its mid level. z = (observed - expected) / (sd sqrt(1 + 1/m)),
+    sd the screening's residual standard deviation. |z| > 3 says the two stages do not agree: they
+    were probably not simulated (or measured) with the same setup.
+    Rows: step, runs (the screening's run_id, else 1-based rows), n, angle, screening_angle, expected, z."""
+    rows = []
+    if not len(screening) or not np.isfinite(sd) or sd <= 0:
+        return pd.DataFrame(rows, columns=["step", "runs", "n", "angle", "screening_angle", "expected", "z"])
+    eff = effects.set_index("factor")
+
+    def coded(df: pd.DataFrame, f: str) -> np.ndarray:
+        lo, hi = float(eff.loc[f, "low"]), float(eff.loc[f, "high"])
+        x = df[f].to_numpy(float) if f in df.columns else np.full(len(df), (lo + hi) / 2)
+        return (2 * x - lo - hi) / (hi - lo)
+
+    for _, step in path.iterrows():
+        if not np.isfinite(step[response]):
+            continue
+        same = np.ones(len(screening), bool)
+        for f in factors:
+            same &= np.isclose(screening[f].to_numpy(float), float(step[f]), rtol=1e-9, atol=1e-12)
+        if not same.any():
+            continue
+        runs = screening[same]
+        one = path.loc[[step.name]]
+        expected = sum(float(eff.loc[f, "coefficient"]) * (coded(one, f)[0] - coded(runs, f).mean())
+                       for f in eff.index)
+        obs = float(step[response]) - float(runs[response].mean())
+        m = int(same.sum())
+        ids = screening["run_id"].to_numpy() if "run_id" in screening.columns else np.arange(1, len(screening) + 1)
+        rows.append({"step": int(step["step"]), "runs": [int(i) for i in ids[same]], "n": m,
+                     "angle": float(step[response]), "screening_angle": float(runs[response].mean()),
+                     "expected": expected, "z": (obs - expected) / (sd * np.sqrt(1 + 1 / m))})
+    return pd.DataFrame(rows, columns=["step", "runs", "n", "angle", "screening_angle", "expected", "z"])
