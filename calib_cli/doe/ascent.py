@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import CalibError
-from ..space import ParameterSpace
+from ..space import Factor, ParameterSpace
 
 
 def direction(coefficients: dict[str, float], intercept: float, target: float, method: str) -> np.ndarray:
@@ -103,11 +103,10 @@ def screening_repeats(path: pd.DataFrame, screening: pd.DataFrame, effects: pd.D
     if not len(screening) or not np.isfinite(sd) or sd <= 0:
         return pd.DataFrame(rows, columns=["step", "runs", "n", "angle", "screening_angle", "expected", "z"])
     eff = effects.set_index("factor")
+    screened = {f: Factor(f, float(eff.loc[f, "low"]), float(eff.loc[f, "high"])) for f in eff.index}
 
     def coded(df: pd.DataFrame, f: str) -> np.ndarray:
-        lo, hi = float(eff.loc[f, "low"]), float(eff.loc[f, "high"])
-        x = df[f].to_numpy(float) if f in df.columns else np.full(len(df), (lo + hi) / 2)
-        return (2 * x - lo - hi) / (hi - lo)
+        return screened[f].to_coded(df[f]) if f in df.columns else np.zeros(len(df))
 
     for _, step in path.iterrows():
         if not np.isfinite(step[response]):
