@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from factorial import coded_levels
+
 ROOT = Path(__file__).resolve().parents[1]
 FACTORS = ["static_friction", "rolling_friction", "surface_energy"]
 #: `make paper`'s analysis of the paper's own Table 7: Eq. 7 (33.91 + 1.90 X1 + 5.99 X2 + 1.12 X3 + ...)
@@ -30,8 +32,8 @@ PAPER_RUN = ROOT / "sample_runs" / "paper"
 def by_point(df: pd.DataFrame) -> pd.Series:
     """Mean angle per design point, indexed by coded levels (-1, 0, 1 of each factor's own range):
     a design over other ranges (half the surface energy) is compared point for point."""
-    coded = [np.rint(2 * (df[f] - df[f].min()) / (df[f].max() - df[f].min()) - 1).astype(int) for f in FACTORS]
-    return df.groupby(coded)["repose_angle"].mean()
+    c = coded_levels(df, FACTORS).astype(int)
+    return df.groupby([c[:, i] for i in range(len(FACTORS))])["repose_angle"].mean()
 
 
 def order(lin: dict[str, float]) -> str:

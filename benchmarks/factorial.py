@@ -20,3 +20,11 @@ def effects(cells, y):
         sd = float(np.sqrt(np.nanmean(np.nanvar(y, axis=1, ddof=1))))
     d = (X**2).sum(axis=0)  # n for a factorial or PB, 8 for a 3-factor BBD
     return m, X.T @ m / d, sd, sd / np.sqrt(d.max() * y.shape[1])
+
+
+def coded_levels(df, names) -> np.ndarray:
+    """The design levels of df's columns `names` coded -1 / 0 / +1 by each column's own min and max,
+    so that a design over other ranges (a scaled surface energy) matches the paper's point for point."""
+    x = df[names].to_numpy(float)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    return np.rint(2 * (x - lo) / (hi - lo) - 1)

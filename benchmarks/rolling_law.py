@@ -56,7 +56,7 @@ import pandas as pd
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
 from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
-from factorial import effects
+from factorial import coded_levels, effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
@@ -83,8 +83,7 @@ def design(a) -> tuple[list[str], list[dict[str, float]], np.ndarray | None, np.
         t = t.groupby(FACTORS, sort=False, as_index=False).repose_angle.mean()
     t = t.assign(surface_energy=t.surface_energy * a.g_factor)
     names = [k for k in FACTORS if t[k].nunique() > 1]
-    lo, hi = t[names].min(), t[names].max()
-    coded = None if a.design == "ascent" else np.rint(2 * (t[names] - lo) / (hi - lo) - 1).to_numpy()
+    coded = None if a.design == "ascent" else coded_levels(t, names)
     return names, t[FACTORS].to_dict("records"), coded, t.repose_angle.to_numpy()
 
 
