@@ -99,9 +99,11 @@ def screening_repeats(path: pd.DataFrame, screening: pd.DataFrame, effects: pd.D
     sd the screening's residual standard deviation. |z| > 3 says the two stages do not agree: they
     were probably not simulated (or measured) with the same setup.
     Rows: step, runs (the screening's run_id, else 1-based rows), n, angle, screening_angle, expected, z."""
+    cols = ["step", "runs", "n", "angle", "screening_angle", "expected", "z"]
     rows = []
     if not len(screening) or not np.isfinite(sd) or sd <= 0:
-        return pd.DataFrame(rows, columns=["step", "runs", "n", "angle", "screening_angle", "expected", "z"])
+        return pd.DataFrame(rows, columns=cols)
+    ids = screening["run_id"].to_numpy() if "run_id" in screening.columns else np.arange(1, len(screening) + 1)
     eff = effects.set_index("factor")
     screened = {f: Factor(f, float(eff.loc[f, "low"]), float(eff.loc[f, "high"])) for f in eff.index}
 
@@ -122,8 +124,7 @@ def screening_repeats(path: pd.DataFrame, screening: pd.DataFrame, effects: pd.D
                        for f in eff.index)
         obs = float(step[response]) - float(runs[response].mean())
         m = int(same.sum())
-        ids = screening["run_id"].to_numpy() if "run_id" in screening.columns else np.arange(1, len(screening) + 1)
         rows.append({"step": int(step["step"]), "runs": [int(i) for i in ids[same]], "n": m,
                      "angle": float(step[response]), "screening_angle": float(runs[response].mean()),
                      "expected": expected, "z": (obs - expected) / (sd * np.sqrt(1 + 1 / m))})
-    return pd.DataFrame(rows, columns=["step", "runs", "n", "angle", "screening_angle", "expected", "z"])
+    return pd.DataFrame(rows, columns=cols)
