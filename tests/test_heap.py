@@ -454,8 +454,7 @@ def test_a_design_that_drags_the_floors_friction_along_is_pointed_out():
     from calib_cli.cli.simulate_cmd import floor_follows_grains
 
     def reqs(cond=TINY, **extra):
-        return [Request({"static_friction": mu, **extra}, cond, TINY_NUM, 1, "tiny", "", i)
-                for i, mu in enumerate([0.3, 0.6])]
+        return [interactions({"static_friction": mu, **extra}, cond) for mu in [0.3, 0.6]]
 
     assert floor_follows_grains(reqs())
     assert not floor_follows_grains(reqs()[:1])

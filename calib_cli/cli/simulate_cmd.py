@@ -65,17 +65,13 @@ def request_from_row(row) -> Request:
                    model=row["model"])
 
 
-def floor_follows_grains(requests: list[Request]) -> bool:
-    """Whether the runs vary the grains' static friction with the floor's following it (neither the
-    condition's ``floor_static_friction`` nor ``wall_static_friction`` given): the design then varies
-    the rig's floor too, and on sphere heaps that alone can reverse static friction's effect
+def floor_follows_grains(walls: list[tuple]) -> bool:
+    """Whether the runs, given by their :func:`interactions` (particle-particle, floor, cylinder),
+    vary the grains' static friction with the floor's following it (neither the condition's
+    ``floor_static_friction`` nor ``wall_static_friction`` given): the design then varies the rig's
+    floor too, and on sphere heaps that alone can reverse static friction's effect
     (docs/physics.md, "Wall friction" and "The paper's own tables")."""
-    tied = set()
-    for r in requests:
-        pp, pf, _ = interactions(r.params, r.condition)
-        if pf.static_friction == pp.static_friction:
-            tied.add(pp.static_friction)
-    return len(tied) > 1
+    return len({pp.static_friction for pp, pf, _ in walls if pf.static_friction == pp.static_friction}) > 1
 
 
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
@@ -177,8 +173,7 @@ def simulate_heap(
     requests = [Request(p, c, pre.numerics, derive_seed(seed, rid if not cid else rid * 1000 + k + 1, r), preset,
                         dname, rid, r, mhash, cid, engine, mpi, shapes)
                 for rid, p in points for k, (cid, c) in enumerate(crossed) for r in range(repeats)]
-    for req in requests:  # validate everything before anything runs
-        interactions(req.params, req.condition)
+    walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs
     if force:
         for req in requests:
             done = run / RUNS / req.hash / "result.json"
@@ -191,7 +186,7 @@ def simulate_heap(
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
     console.print(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
                   + modulus_note(shear_modulus))
-    if floor_follows_grains(requests):
+    if floor_follows_grains(walls):
         console.print("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
                       "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
                       "change with the grains, and on sphere heaps this choice can reverse static friction's effect "
