@@ -1,9 +1,13 @@
 """Do the two engines agree? The same heaps (same fill from the same seed, same condition,
 lift, stop criterion and angle measurement) on the built-in kernel and on LAMMPS, side by side.
 
-Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3] [--points 0,1,2]
+Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3] [--points 0,1,2] [--spring]
 Prints, per parameter point, the mean and sd over seeds of each engine's angle, their
 difference, and whether it lies within the run-to-run spread (2 standard errors).
+
+LAMMPS's rolling law is a spring-dashpot-slider (`rolling sds`); the built-in kernel's default is
+the constant directional torque of SPEC 5. `--spring` adds a row per point with the built-in
+kernel on `rolling_spring = 1`, the same law with the same constants, beside the same LAMMPS heaps.
 """
 
 from __future__ import annotations
@@ -30,27 +34,33 @@ def main():
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--points", default=",".join(str(i) for i in range(len(POINTS))),
                     help="which points, by index (0-based, comma separated): larger presets take minutes per heap")
+    ap.add_argument("--spring", action="store_true",
+                    help="also run the built-in kernel with rolling_spring = 1 (LAMMPS's rolling law)")
     a = ap.parse_args()
     pre = get_preset(a.preset)
+    laws = {"": {}, ", spring": {"rolling_spring": 1.0}} if a.spring else {"": {}}
     print(f"preset {a.preset}: {pre.note}; {a.seeds} seeds per point; angle from coordinates (deg)")
-    print(f"{'point':<24}{'calib':>14}{'LAMMPS':>14}{'diff':>8}{'2 SE':>7}  agree   wall calib/LAMMPS [s]")
+    print(f"{'point':<32}{'calib':>14}{'LAMMPS':>14}{'diff':>8}{'2 SE':>7}  agree   wall calib/LAMMPS [s]")
     for name, p in [POINTS[int(i)] for i in a.points.split(",")]:
-        A, B, ta, tb = [], [], 0.0, 0.0
+        A, B, ta, tb = {k: [] for k in laws}, [], dict.fromkeys(laws, 0.0), 0.0
         for s in range(1, a.seeds + 1):
-            t = time.perf_counter()
-            r = run_heap(p, pre.condition, pre.numerics, seed=s)
-            ta += time.perf_counter() - t
+            for k, law in laws.items():
+                t = time.perf_counter()
+                r = run_heap({**p, **law}, pre.condition, pre.numerics, seed=s)
+                ta[k] += time.perf_counter() - t
+                A[k].append(r.angle.angle if r.status == "ok" else np.nan)
             t = time.perf_counter()
             q = run_heap_lammps(p, pre.condition, pre.numerics, seed=s)
             tb += time.perf_counter() - t
-            A.append(r.angle.angle if r.status == "ok" else np.nan)
             B.append(q.angle.angle if q.status == "ok" else np.nan)
-        A, B = np.array(A), np.array(B)
-        d = np.nanmean(A) - np.nanmean(B)
-        se = 2 * np.sqrt(np.nanvar(A, ddof=1) / np.isfinite(A).sum() + np.nanvar(B, ddof=1) / np.isfinite(B).sum())
-        print(f"{name:<24}{np.nanmean(A):>8.2f} +-{np.nanstd(A, ddof=1):4.1f}{np.nanmean(B):>8.2f} +-"
-              f"{np.nanstd(B, ddof=1):4.1f}{d:>8.2f}{se:>7.2f}  {'yes' if abs(d) <= se else 'NO '}    "
-              f"{ta:.1f} / {tb:.1f}", flush=True)
+        B = np.array(B)
+        for k in laws:
+            x = np.array(A[k])
+            d = np.nanmean(x) - np.nanmean(B)
+            se = 2 * np.sqrt(np.nanvar(x, ddof=1) / np.isfinite(x).sum() + np.nanvar(B, ddof=1) / np.isfinite(B).sum())
+            print(f"{name + k:<32}{np.nanmean(x):>8.2f} +-{np.nanstd(x, ddof=1):4.1f}{np.nanmean(B):>8.2f} +-"
+                  f"{np.nanstd(B, ddof=1):4.1f}{d:>8.2f}{se:>7.2f}  {'yes' if abs(d) <= se else 'NO '}    "
+                  f"{ta[k]:.1f} / {tb:.1f}", flush=True)
 
 
 if __name__ == "__main__":

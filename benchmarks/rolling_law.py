@@ -26,6 +26,9 @@ the paper gives no particle-geometry values, and with the particles' values a he
 stands on a floor of friction 0.112; `--which both,floor,cylinder` adds the floor alone and the
 cylinder alone at those values (the other wall keeps the grains'), to tell which of the two does
 it (the floor's values are heap-test variables of the rig, the cylinder's heap parameters).
+`--compare spring` puts the spring-dashpot-slider rolling law (`rolling_spring` 1: Ai et al. 2011
+type C, LAMMPS's `rolling sds`) beside the constant torque: it holds a static torque, so a heap
+does not creep after the lift (docs/physics.md, "Rolling spring").
 `--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
 `--design pb` runs the paper's own screening design instead of the factorial: the 12 runs of its
 Table 3 at their values (static friction 0.05 / 0.5, rolling friction 0.03 / 0.4, restitution
@@ -39,7 +42,7 @@ difference, RMSE and correlation of the point means against the paper's angles.
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness|walls] [--stiff 5e7] [--wall 0.5,0.1]
+        [--compare rolling|friction-cap|stiffness|walls|spring] [--stiff 5e7] [--wall 0.5,0.1]
         [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb|ascent|bbd] [--g-factor 0.4]
 """
 
@@ -60,7 +63,7 @@ from factorial import coded_levels, effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
-COMPARE = ("rolling", "friction-cap", "stiffness", "walls")
+COMPARE = ("rolling", "friction-cap", "stiffness", "walls", "spring")
 PAPER = Path(__file__).resolve().parents[1] / "sample_data" / "paper"
 TABLES = {"pb": "table3_pb.csv", "ascent": "table5_ascent.csv", "bbd": "table7_bbd.csv"}
 FACTORS = ["static_friction", "rolling_friction", "surface_energy", "restitution"]
@@ -97,6 +100,9 @@ def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
     if a.compare == "rolling":
         return {"relative (SPEC 5, EDEM RVD)": (BASE, num, 1.0),
                 "own spin (EDEM Standard)": ({"rolling_own_spin": 1.0}, num, 1.0)}
+    if a.compare == "spring":
+        return {"constant torque (SPEC 5, EDEM RVD)": (BASE, num, 1.0),
+                "spring-dashpot-slider (LAMMPS sds)": ({**BASE, "rolling_spring": 1.0}, num, 1.0)}
     if a.compare == "friction-cap":
         return {"repulsive part (SPEC 5)": (BASE, num, 1.0),
                 "|net force|": ({**BASE, "friction_net_force": 1.0}, num, 1.0)}
@@ -136,7 +142,8 @@ def main():
     ap.add_argument("--run", default="/tmp/calib-rolling-law", help="run directory (the heaps' cache)")
     ap.add_argument("--compare", choices=COMPARE, default="rolling",
                     help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
-                         "the shear modulus, or fixed wall friction against the grains' own")
+                         "the shear modulus, fixed wall friction against the grains' own, or the rolling "
+                         "spring against the constant torque")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
     ap.add_argument("--which", default="both",
@@ -193,6 +200,9 @@ def main():
             m = np.array([np.nanmean(r) if np.isfinite(r).any() else np.nan for r in y])
             print(f"{law:<28}{np.nanmean(m):7.2f}")
         print(f"{'':<28}{'':>7}  point means: " + ", ".join(f"{v:.1f}" for v in m))
+        drift = df.angle_drift_deg_s.to_numpy()[[i for i, t in enumerate(todo) if t[0] == law]]
+        print(f"{'':<28}{'':>7}  creep at measurement: median |drift| {np.nanmedian(np.abs(drift)):.2f} deg/s, "
+              f"90th percentile {np.nanpercentile(np.abs(drift), 90):.2f}")
         if paper_y is not None:
             ok = np.isfinite(m)
             print(f"{'':<28}{'':>7}  against {table}: mean difference {np.mean(m[ok] - paper_y[ok]):+.1f} deg, "

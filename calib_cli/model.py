@@ -106,8 +106,11 @@ class Model:
         return art.hash_obj(sorted(self.effects))
 
     def pin(self, params: dict[str, float]) -> dict[str, float]:
-        """Parameters of a simulation: given values for the model's effects, neutral for the rest."""
-        out = {}
+        """Parameters of a simulation: given values for the model's effects, neutral for the rest;
+        contact-law switches (``rolling_spring``, ...: which law, not an effect's value) as given."""
+        from .dem.heap import LAWS
+
+        out = {k: float(params[k]) for k in LAWS if k in params}
         for name, eff in EFFECTS.items():
             if name in self.effects:
                 if eff.parameter in params:
@@ -120,7 +123,10 @@ class Model:
         """Refuse a value for a parameter the model does not own: one of an absent effect away from
         its neutral value, or one no effect owns. An absent effect's parameter at its neutral value
         says "off", as the model does (a settings file may fix surface_energy = 0 in every revision)."""
+        from .dem.heap import LAWS
+
         owner = {e.parameter: e.name for e in EFFECTS.values()}
+        params = {k: v for k, v in params.items() if k not in LAWS}  # a law is chosen, not calibrated
         loose = sorted(set(params) - set(owner))
         if loose:  # pin() would drop them silently
             raise CalibError(f"{', '.join(loose)} belong(s) to no effect; the effects own {', '.join(owner)}")

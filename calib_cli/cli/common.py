@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from .. import artifacts as art
-from ..dem.heap import Numerics, Preset, get_preset
+from ..dem.heap import LAWS, Numerics, Preset, get_preset
 from ..errors import CalibError
 from ..settings import load_settings
 from ..space import ParameterSpace
@@ -76,11 +76,21 @@ def row_moduli(rows: pd.DataFrame) -> pd.Series:
     return pd.Series(Numerics.shear_modulus, index=rows.index)
 
 
+def row_laws(rows: pd.DataFrame) -> list[dict[str, float]]:
+    """Each simulation row's contact-law switches that are on (:data:`..dem.heap.LAWS`; off, 0,
+    is every law's default, and rows that did not set one lack its column or hold NaN)."""
+    on = [k for k in LAWS if k in rows.columns]
+    return [{k: float(r[k]) for k in on if pd.notna(r[k]) and r[k] != 0} for _, r in rows[on].iterrows()] \
+        if on else [{} for _ in range(len(rows))]
+
+
 def heap_setups(rows: pd.DataFrame) -> list[str]:
-    """The distinct (preset, shear modulus) of simulation rows, as 'preset default at 5 MPa'."""
+    """The distinct (preset, shear modulus, contact laws switched on) of simulation rows, as
+    'preset default at 5 MPa' or 'preset default at 5 MPa, rolling_spring 1'."""
     if rows.empty or "preset" not in rows.columns:
         return []
-    return sorted({f"preset {p} at {m / 1e6:g} MPa" for p, m in zip(rows["preset"], row_moduli(rows))})
+    return sorted({f"preset {p} at {m / 1e6:g} MPa" + "".join(f", {k} {v:g}" for k, v in sorted(law.items()))
+                   for p, m, law in zip(rows["preset"], row_moduli(rows), row_laws(rows))})
 
 
 def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str) -> None:
@@ -191,8 +201,23 @@ def bbd_fixed(run: Path, cfg: dict) -> dict[str, float]:
     path = Path(run) / "bbd" / "design.parquet"
     if path.is_file():
         d = art.read_table(path, what="BBD design")
-        return {c: float(d[c].iloc[0]) for c in d.columns if c in PARAMETERS and d[c].nunique() == 1}
+        return {**{c: float(d[c].iloc[0]) for c in d.columns if c in PARAMETERS and d[c].nunique() == 1},
+                **bbd_laws(run)}
     return {k: float(v) for k, v in cfg["bbd"]["fixed"].items() if k in PARAMETERS}
+
+
+def bbd_laws(run: Path) -> dict[str, float]:
+    """The contact-law switches (e.g. ``rolling_spring`` 1) every heap of the BBD was simulated with
+    (`simulate-heap --set`): the surrogate learnt that law, so the calibrated point is simulated
+    with it too. Only laws switched on, so that runs with the default laws keep their cache keys."""
+    from ..campaign import current_results
+
+    if not (Path(run) / "simulate" / "results.parquet").is_file():
+        return {}
+    rows = current_results(run)
+    rows = rows[rows["design"] == "bbd"] if "design" in rows.columns else rows.iloc[:0]
+    laws = row_laws(rows)
+    return {k: v for k, v in laws[0].items() if all(law.get(k) == v for law in laws)} if laws else {}
 
 
 def simulated_responses(run: Path, design_path: Path, factors: list[str], response: str,

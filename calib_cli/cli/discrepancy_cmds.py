@@ -17,7 +17,7 @@ import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
 from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
-from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES, HeapCondition  # noqa: E402
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES, LAWS, HeapCondition  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
@@ -99,7 +99,7 @@ def _model_and_theta(run: Path, set_: Optional[list[str]]) -> tuple[Model, dict[
         base = {k: float(s[k]) for k in s.index if k in known}
     # parameters the response surface held fixed keep their fixed values (the surrogate and
     # the inversion know nothing else about them)
-    fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known}
+    fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known or k in LAWS}
     theta = {**fixed, **base, **given}
     if model.revision == 0:
         used = [e.name for e in EFFECTS.values() if e.name not in model.effects and e.parameter in theta
@@ -109,7 +109,8 @@ def _model_and_theta(run: Path, set_: Optional[list[str]]) -> tuple[Model, dict[
     missing = [p for p in model.parameters if p not in theta]
     if missing:
         raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
-    return model, {p: theta[p] for p in model.parameters}
+    # with the contact laws the BBD's heaps had (or --set gives): its surrogate learnt those
+    return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
 
 
 def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):

@@ -174,6 +174,14 @@ def jkr_time_step(r_min, density, Es, Gs, gamma, wall=False):
     return 2.0 / omega
 
 
+def rolling_spring_constants(Gs, m_typ):
+    """(k_r, g_r) of the spring-dashpot-slider rolling law: the stiffness of the order of a contact's
+    tangential one, 8 G* x 0.1 mm, and the damping critical at a typical grain, 2 sqrt(k_r m)
+    (the LAMMPS engine's `rolling sds` mapping, docs/physics.md "Rolling spring")."""
+    k = 8 * Gs * 1e-4
+    return k, 2 * math.sqrt(k * m_typ)
+
+
 def hertz_contact_time(Rs, Es, ms, v):
     """Duration of an elastic Hertz impact at speed v: 2.868 (m*^2/(R* E*^2 v))^(1/5)."""
     return 2.8683 * (ms * ms / (Rs * Es * Es * v)) ** 0.2

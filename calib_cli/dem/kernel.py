@@ -4,8 +4,9 @@ Everything that runs per step is compiled (``cache=True``, so a second process
 does not recompile). A chunk of steps runs without returning to Python.
 
 Interaction parameter rows (``prm[row]``): 0 particle-particle, 1 floor, 2 cylinder;
-columns ``E*, G*, mu_s, mu_r, beta, gamma``, the two law switches, and the derived constants
-``k^(1/3), 4 sqrt(pi g E* k^(1/3))`` (JKR, :func:`.contact.jkr_constants`) and ``sqrt(4 G*/E*)``. Wall geometry ``geo``:
+columns ``E*, G*, mu_s, mu_r, beta, gamma``, the two law switches, the derived constants
+``k^(1/3), 4 sqrt(pi g E* k^(1/3))`` (JKR, :func:`.contact.jkr_constants`) and ``sqrt(4 G*/E*)``,
+and the rolling spring's stiffness and damping (0: the constant-torque law). Wall geometry ``geo``:
 ``[cylinder radius, rim height z_edge, lift speed, cylinder on (1/0), floor on (1/0), drag (1/s)]``.
 """
 
@@ -19,11 +20,12 @@ import numpy as np
 from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_core
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET, K13, ATT, T_RATIO = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET, K13, ATT, T_RATIO, K_ROLL, G_ROLL = range(13)
 
 OK, NEED_CAPACITY = 0, 1
-#: columns of a contact's history row: tangential spring (3), contact radius, cached R*^(1/3)
-HIST = 5
+#: columns of a contact's history row: tangential spring (3), contact radius, cached R*^(1/3),
+#: rolling spring (3; the spring-dashpot-slider law only)
+HIST = 8
 
 
 @nb.njit(cache=True, inline="always")
@@ -50,7 +52,8 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     contacts each particle had at the last evaluation (see the rolling limit below).
     Returns (fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, overlap). (vx, vy, vz) is v_i - v_j.
     ``ht[k, :3]`` is the tangential spring, ``ht[k, 3]`` the contact radius a of the last
-    step; both updated in place. ``ht[k, 4]`` caches R*^(1/3) (0: not yet computed).
+    step, ``ht[k, 5:8]`` the rolling spring (``rolling_spring`` law only); all updated in place.
+    ``ht[k, 4]`` caches R*^(1/3) (0: not yet computed).
     """
     Es = prm[row, E_S]
     a_old = ht[k, 3]
@@ -67,6 +70,9 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
         ht[k, 0] = 0.0
         ht[k, 1] = 0.0
         ht[k, 2] = 0.0
+        ht[k, 5] = 0.0
+        ht[k, 6] = 0.0
+        ht[k, 7] = 0.0
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     beta = prm[row, BETA]
     # relative velocity of the contact points: v_i - v_j - (R_i w_i + R_j w_j) x n
@@ -144,7 +150,63 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     # the stop: without this the summed torques overshoot every step and the packing chatters
     # (rotational energy is pumped in and a heap never comes to rest).
     mur = prm[row, MU_R]
-    if mur > 0.0 and prm[row, ROLL_OWN] > 0.0:
+    kr = prm[row, K_ROLL]
+    if mur > 0.0 and kr > 0.0:
+        # spring-dashpot-slider (Ai et al. 2011 type C; LAMMPS `rolling sds`, the same steps): the
+        # rolling displacement u, rotated into the tangent plane (magnitude kept), grows by
+        # v_r dt with v_r = R* (w_i - w_j) x n; F_r = -k_r u - g_r v_r, capped at mu_r |F_n| x 2 for
+        # a pair (1 on a wall: the arm R* against EDEM's R_i, as the LAMMPS engine maps it), u
+        # then rescaled to carry the cap. Torque R* n x F_r on i, its opposite on j. Unlike the
+        # constant torque it holds a static torque below the cap: a heap does not creep.
+        gr = prm[row, G_ROLL]
+        wrx = wix - wjx
+        wry = wiy - wjy
+        wrz = wiz - wjz
+        vlx = Rs * (wry * nz - wrz * ny)
+        vly = Rs * (wrz * nx - wrx * nz)
+        vlz = Rs * (wrx * ny - wry * nx)
+        ux, uy, uz = ht[k, 5], ht[k, 6], ht[k, 7]
+        u2 = ux * ux + uy * uy + uz * uz
+        if u2 > 0.0:
+            un = ux * nx + uy * ny + uz * nz
+            ux -= un * nx
+            uy -= un * ny
+            uz -= un * nz
+            p2 = ux * ux + uy * uy + uz * uz
+            s = math.sqrt(u2 / p2) if p2 > 0.0 else 0.0
+            ux *= s
+            uy *= s
+            uz *= s
+        ux += vlx * dt
+        uy += vly * dt
+        uz += vlz * dt
+        frx = -kr * ux - gr * vlx
+        fry = -kr * uy - gr * vly
+        frz = -kr * uz - gr * vlz
+        crit = mur * abs(Fel) * (2.0 if row == PP else 1.0)
+        fr = math.sqrt(frx * frx + fry * fry + frz * frz)
+        if fr > crit:
+            s = crit / fr
+            frx *= s
+            fry *= s
+            frz *= s
+            inv = -1.0 / kr
+            ux = (frx + gr * vlx) * inv
+            uy = (fry + gr * vly) * inv
+            uz = (frz + gr * vlz) * inv
+        ht[k, 5] = ux
+        ht[k, 6] = uy
+        ht[k, 7] = uz
+        rtx = Rs * (ny * frz - nz * fry)
+        rty = Rs * (nz * frx - nx * frz)
+        rtz = Rs * (nx * fry - ny * frx)
+        tix += rtx
+        tiy += rty
+        tiz += rtz
+        tjx -= rtx
+        tjy -= rty
+        tjz -= rtz
+    elif mur > 0.0 and prm[row, ROLL_OWN] > 0.0:
         # EDEM's 'Standard' model: each body is braked against its own spin, tau_i =
         # -mu_r |F_n| R_i w_i/|w_i| (a wall has none), with the same no-reversal limit per body.
         # It brakes a cluster turning as one, where the relative law does not, and it does not
@@ -307,8 +369,9 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
         reach = Ri + Rj + dc_max
         pf[k, 10] = 0.0
         if d2 >= reach * reach:
-            for c in range(4):  # spring and contact radius; the cached R*^(1/3) stays valid
-                ht[k, c] = 0.0
+            for c in range(HIST):  # springs and contact radius; the cached R*^(1/3) stays valid
+                if c != 4:
+                    ht[k, c] = 0.0
             continue
         Rs = Ri * Rj / (Ri + Rj)
         d = math.sqrt(d2)
@@ -381,8 +444,9 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
                 if ov / Ri > worst:
                     worst = ov / Ri
             else:
-                for c in range(4):
-                    hf[i, c] = 0.0
+                for c in range(HIST):
+                    if c != 4:
+                        hf[i, c] = 0.0
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if cyl_on > 0.0:
             x, y, z = pos[i, 0], pos[i, 1], pos[i, 2]
@@ -418,8 +482,9 @@ def compute_forces(pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf
                 if ov / Ri > worst:
                     worst = ov / Ri
             else:
-                for c in range(4):
-                    hc[i, c] = 0.0
+                for c in range(HIST):
+                    if c != 4:
+                        hc[i, c] = 0.0
     ncont[:] = cnew
     return worst
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CalibError
-from .contact import damping_ratio, jkr_constants
+from .contact import damping_ratio, jkr_constants, rolling_spring_constants
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class Interaction:
     #: 0: Coulomb cap mu_s x the repulsive part of the normal force (SPEC 5); 1: mu_s x |net
     #: normal force| (a literal reading of EDEM's JKR help: a contact near zero load slides freely)
     friction_net_force: float = 0.0
+    #: 0: the constant directional torque above; 1: a spring-dashpot-slider (Ai et al. 2011 type C,
+    #: LAMMPS `rolling sds`), which holds a static torque below mu_r |F_n| R (no creep)
+    rolling_spring: float = 0.0
 
     def validate(self, what: str = "interaction") -> None:
         checks = [
@@ -56,6 +59,9 @@ class Interaction:
             (self.surface_energy >= 0, "surface_energy must be >= 0"),
             (self.rolling_own_spin in (0.0, 1.0), "rolling_own_spin must be 0 or 1"),
             (self.friction_net_force in (0.0, 1.0), "friction_net_force must be 0 or 1"),
+            (self.rolling_spring in (0.0, 1.0), "rolling_spring must be 0 or 1"),
+            (not (self.rolling_spring and self.rolling_own_spin), "rolling_spring and rolling_own_spin exclude "
+             "each other (two rolling laws)"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -73,9 +79,12 @@ def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
     return 1.0 / e_inv, 1.0 / g_inv
 
 
-def param_row(m1: Material, m2: Material, it: Interaction) -> np.ndarray:
+def param_row(m1: Material, m2: Material, it: Interaction, m_typ: float = 0.0) -> np.ndarray:
+    """The kernel's row of one interaction (columns: :mod:`.kernel`); ``m_typ`` (a typical grain's
+    mass) sets the rolling spring's damping."""
     Es, Gs = effective_moduli(m1, m2)
     k13, att = jkr_constants(Es, it.surface_energy)
+    kr, gr = rolling_spring_constants(Gs, m_typ) if it.rolling_spring else (0.0, 0.0)
     return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
                      it.surface_energy, it.rolling_own_spin, it.friction_net_force,
-                     k13, att, math.sqrt(4.0 * Gs / Es)], dtype=np.float64)
+                     k13, att, math.sqrt(4.0 * Gs / Es), kr, gr], dtype=np.float64)

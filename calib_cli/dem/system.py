@@ -80,9 +80,10 @@ class System:
         # differs from other CPUs' in the last place (docs/performance.md, "Reproducibility")
         self.mass = self.material.density * 4.0 / 3.0 * np.pi * (p.rad * p.rad * p.rad)
         self.inv_inertia = 1.0 / (0.4 * self.mass * (p.rad * p.rad))
-        self.prm = np.vstack([param_row(self.material, self.material, self.pp),
-                              param_row(self.material, self.wall_material, self.floor),
-                              param_row(self.material, self.wall_material, self.cylinder)])
+        m_typ = float(self.mass.mean())
+        self.prm = np.vstack([param_row(self.material, self.material, self.pp, m_typ),
+                              param_row(self.material, self.wall_material, self.floor, m_typ),
+                              param_row(self.material, self.wall_material, self.cylinder, m_typ)])
         rmin, rho = p.rad.min(), self.material.density
         self.rayleigh_dt = rayleigh_time_step(rmin, rho, self.material.shear_modulus, self.material.poisson)
         self.jkr_dt = min(jkr_time_step(rmin, rho, row[0], row[1], row[5], wall=w)

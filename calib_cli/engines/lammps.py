@@ -12,9 +12,11 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
 * rolling: `rolling sds k_r 0 mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
   the arm R_eff (= R/2 for two equal spheres) where EDEM's constant directional torque uses R_i,
   so mu_roll = 2 mu_r between grains (exact for equal radii) and mu_r on a wall; the spring makes
-  small rotations elastic where ours are rigid, so it is critically damped (approximate); our
-  torque also resists twist about the normal, which LAMMPS's rolling model does not see
-  (`twisting sds` was tried and agreed worse, docs/physics.md);
+  small rotations elastic where the constant torque's are rigid, so it is critically damped
+  (approximate); that torque also resists twist about the normal, which LAMMPS's rolling model
+  does not see (`twisting sds` was tried and agreed worse, docs/physics.md). With
+  `rolling_spring = 1` the built-in kernel runs this same law with the same constants
+  (:func:`..dem.contact.rolling_spring_constants`), so the two engines then share the rolling law;
 * walls: the floor `wall/gran zplane`, the cylinder a `region cylinder ... open 1 open 2` moving
   up at the lift speed with `wall/gran/region`; the settling drag is `fix viscous` with the
   mean grain mass (ours is proportional to each grain's mass);
@@ -38,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dem.angle import repose_angle_coords
-from ..dem.contact import jkr_time_step, rayleigh_time_step
+from ..dem.contact import jkr_time_step, rayleigh_time_step, rolling_spring_constants
 from ..dem.heap import DriftMeter, HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
 from ..dem.materials import Material, effective_moduli
 from ..errors import CalibError
@@ -100,12 +102,12 @@ def write_data(path: str, pos, rad, density, lo, hi, vel=None, omg=None, mol=Non
                         f"{omg[i, 1]:.10g} {omg[i, 2]:.10g}\n")
 
 
-def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
+def _model(E, nu, pp, Rs_typ, m_typ, roll: tuple[float, float], roll_arm: float) -> str:
     """``roll_arm`` = R_i / R_eff: LAMMPS's rolling torque is R_eff x F_roll with |F_roll| <= mu F_n,
     EDEM's constant torque is mu F_n R_i; so mu_roll = mu_r R_i / R_eff (2 for a pair of equal
     spheres, 1 on a wall). The rolling spring is critically damped at a typical grain
-    (gamma = 2 sqrt(k_r m)): ours has no elastic phase, and an undamped spring rings and lets
-    the heap flow further (docs/physics.md, "LAMMPS")."""
+    (gamma = 2 sqrt(k_r m)): the constant torque has no elastic phase, and an undamped spring
+    rings and lets the heap flow further (docs/physics.md, "LAMMPS")."""
     if pp.surface_energy > 0:
         Es = E / (2 * (1 - nu**2))
         le = math.log(pp.restitution) if pp.restitution < 1 else 0.0
@@ -114,7 +116,7 @@ def _model(E, nu, pp, Rs_typ, m_typ, kroll, roll_arm: float) -> str:
         normal = f"jkr {E:.6g} {eta:.6g} {nu} {pp.surface_energy:.6g} damping viscoelastic"
     else:
         normal = f"hertz/material {E:.6g} {pp.restitution:.6g} {nu} damping coeff_restitution"
-    groll = 2 * math.sqrt(kroll * m_typ)
+    kroll, groll = roll
     return (f"{normal} tangential mindlin NULL 1.0 {pp.static_friction:.6g} "
             f"rolling sds {kroll:.6g} {groll:.6g} {pp.rolling_friction * roll_arm:.6g}")
 
@@ -161,7 +163,9 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     d_max = cond.particle_d_max_mm * 1e-3
     dens = clumps.density if clumps is not None else rho
     masses = dens * 4 / 3 * np.pi * parts.rad**3
-    kroll = 8 * Gs * 1e-4  # of the order of a contact's tangential stiffness
+    # of the order of a contact's tangential stiffness, critically damped at the mean grain: the
+    # built-in kernel's rolling_spring law takes the same two constants
+    roll = rolling_spring_constants(Gs, float(masses.mean()))
     half = max(6 * Rc, 0.15)
     ztop = float(parts.pos[:, 2].max()) + 0.1
     lmp = open_lammps()
@@ -175,9 +179,9 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
             else:  # the other ranks wait for rank 0's file (no mpi4py needed)
                 while not os.path.exists(data):
                     time.sleep(0.05)
-            model = _model(E, nu, pp, rmin / 2, float(masses.mean()), kroll, 2.0)
-            floor = _model(E, nu, pf, rmin, float(masses.mean()), kroll, 1.0)
-            cyl = _model(E, nu, pc, rmin, float(masses.mean()), kroll, 1.0)
+            model = _model(E, nu, pp, rmin / 2, float(masses.mean()), roll, 2.0)
+            floor = _model(E, nu, pf, rmin, float(masses.mean()), roll, 1.0)
+            cyl = _model(E, nu, pc, rmin, float(masses.mean()), roll, 1.0)
             if clumps is None:
                 read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
                         "comm_modify vel yes", f"read_data {data}"]
