@@ -282,18 +282,8 @@ def test_rolling_spring_holds_a_static_torque_where_the_constant_torque_creeps()
 
 def _spring_torques(wi, wj, dt=1e-7, mur=0.2, delta=2e-5, gr=0.0):
     """Torques of one Hertz pair contact under the rolling spring (no sliding friction), n = +x."""
-    from calib_cli.dem.materials import param_row
-
-    prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, 0.0, 0.0, 1.0))] * 3)
-    prm[:, kernel.G_ROLL] = gr
-    ht = np.zeros((1, kernel.HIST))
-    m = 4 / 3 * math.pi * R**3 * MAT.density
-    inv_i = 1 / (0.4 * m * R * R)
-    arm = R - delta / 2
-    out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
-                          *wi, *wj, ht, 0, prm, 0, dt)
-    fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
-    return np.array(out[3:6]), np.array(out[6:9]), prm[0, kernel.K_ROLL], fel, ht[0]
+    ti, tj, fel, _, ht, prm = _pair_contact(Interaction(0.0, mur, 0.5, 0.0, 0.0, 0.0, 1.0), wi, wj, delta, dt, gr)
+    return ti, tj, prm[0, kernel.K_ROLL], fel, ht[0]
 
 
 def test_rolling_spring_contact_law():
@@ -420,19 +410,28 @@ def test_contact_history_survives_neighbour_list_rebuilds():
 
 
 # ---------------------------------------------------------------- EDEM's 'Standard' rolling friction
-def _rolling_torques(own: float, wi, wj, delta=2e-5, mur=0.2):
-    """Torques of one Hertz pair contact (no sliding friction: rolling torques only), n = +x."""
+def _pair_contact(it, wi, wj, delta=2e-5, dt=1e-10, g_roll=None):
+    """One step of a Hertz pair contact between equal grains with spins wi, wj, n = +x:
+    (torque on i, torque on j, elastic normal force, lever arm, history, parameter rows)."""
     from calib_cli.dem.materials import param_row
 
-    prm = np.vstack([param_row(MAT, MAT, Interaction(0.0, mur, 0.5, 0.0, own))] * 3)
+    prm = np.vstack([param_row(MAT, MAT, it)] * 3)
+    if g_roll is not None:
+        prm[:, kernel.G_ROLL] = g_roll
     ht = np.zeros((1, kernel.HIST))
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)
     arm = R - delta / 2
     out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
-                          *wi, *wj, ht, 0, prm, 0, 1e-10)
+                          *wi, *wj, ht, 0, prm, 0, dt)
     fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
-    return np.array(out[3:6]), np.array(out[6:9]), mur * fel * arm
+    return np.array(out[3:6]), np.array(out[6:9]), fel, arm, ht, prm
+
+
+def _rolling_torques(own: float, wi, wj, delta=2e-5, mur=0.2):
+    """Torques of one Hertz pair contact (no sliding friction: rolling torques only), n = +x."""
+    ti, tj, fel, arm, _, _ = _pair_contact(Interaction(0.0, mur, 0.5, 0.0, own), wi, wj, delta)
+    return ti, tj, mur * fel * arm
 
 
 def test_standard_rolling_brakes_each_body_against_its_own_spin():
