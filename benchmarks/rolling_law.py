@@ -29,6 +29,7 @@ it (the floor's values are heap-test variables of the rig, the cylinder's heap p
 `--compare spring` puts the spring-dashpot-slider rolling law (`rolling_spring` 1: Ai et al. 2011
 type C, LAMMPS's `rolling sds`) beside the constant torque: it holds a static torque, so a heap
 does not creep after the lift (docs/physics.md, "Rolling spring").
+`--spring` runs any other comparison with every variant on the rolling spring.
 `--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
 `--design pb` runs the paper's own screening design instead of the factorial: the 12 runs of its
 Table 3 at their values (static friction 0.05 / 0.5, rolling friction 0.03 / 0.4, restitution
@@ -42,7 +43,7 @@ difference, RMSE and correlation of the point means against the paper's angles.
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness|walls|spring] [--stiff 5e7] [--wall 0.5,0.1]
+        [--compare rolling|friction-cap|stiffness|walls|spring] [--spring] [--stiff 5e7] [--wall 0.5,0.1]
         [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb|ascent|bbd] [--g-factor 0.4]
 """
 
@@ -91,7 +92,16 @@ def design(a) -> tuple[list[str], list[dict[str, float]], np.ndarray | None, np.
 
 
 def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
-    """label -> (law parameters, numerics, factor on the surface energy levels) of --compare."""
+    """label -> (law parameters, numerics, factor on the surface energy levels) of --compare, each
+    on the rolling spring with --spring."""
+    if not a.spring:
+        return _variants(a, ap)
+    if a.compare in ("rolling", "spring"):
+        ap.error(f"--spring sets every variant's rolling law; --compare {a.compare} compares rolling laws")
+    return {f"{law}, spring": ({**p, "rolling_spring": 1.0}, num, f) for law, (p, num, f) in _variants(a, ap).items()}
+
+
+def _variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
     num = get_preset("default").numerics
     if a.modulus is not None:
         if a.compare == "stiffness":
@@ -149,6 +159,8 @@ def main():
     ap.add_argument("--which", default="both",
                     help="with --compare walls: the walls at --wall against the grains' values, any of both, floor "
                          "(the floor alone), cylinder (the cylinder alone), comma-separated")
+    ap.add_argument("--spring", action="store_true",
+                    help="every variant on the rolling spring (rolling_spring = 1), e.g. with --compare walls")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     ap.add_argument("--design", choices=("factorial", *TABLES), default="factorial",
