@@ -1,5 +1,6 @@
 """The built-in DEM engine: polydisperse spheres, Hertz-Mindlin (no slip) with JKR
-cohesion and constant-directional-torque rolling friction, as in EDEM (SPEC section 5).
+cohesion and constant-directional-torque rolling friction, as in EDEM (SPEC section 5), or
+with ``rolling_spring = 1`` a spring-dashpot-slider rolling law (LAMMPS's `rolling sds`).
 
 Imports nothing from the CLI. Layers, each usable alone:
 

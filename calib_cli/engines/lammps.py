@@ -9,7 +9,7 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
   coeff_restitution and tsuji with jkr: eta is matched to our damping at a typical contact
   (approximate);
 * tangential: `mindlin NULL 1.0 mu_s` (stiffness 8 G* a from the material, like ours);
-* rolling: `rolling sds k_r 0 mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
+* rolling: `rolling sds k_r g_r mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
   the arm R_eff (= R/2 for two equal spheres) where EDEM's constant directional torque uses R_i,
   so mu_roll = 2 mu_r between grains (exact for equal radii) and mu_r on a wall; the spring makes
   small rotations elastic where the constant torque's are rigid, so it is critically damped
