@@ -228,10 +228,16 @@ def current_results(run_dir: Path) -> pd.DataFrame:
 
 
 def _save_index(run_dir: Path, rows: list[dict]) -> None:
-    df = pd.DataFrame(rows)
-    keys = ["run_hash", "design", "run_id", "repeat", "condition_id"]
-    df = df.drop_duplicates(subset=keys, keep="last").reset_index(drop=True)
-    art.write_table(Path(run_dir) / RESULTS, df, {"stage": "simulate", "version": __version__})
+    """One row per (run, design, run id, repeat, condition), the latest content in the place of
+    the first: a rerun of finished runs leaves the index as it was, byte for byte, so the stages
+    that read it stay up to date (moving rerun rows to the end changed its hash and re-ran them)."""
+    keys = ("run_hash", "design", "run_id", "repeat", "condition_id")
+    latest: dict[tuple, dict] = {}
+    for r in rows:
+        latest[tuple(str(r.get(k)) for k in keys)] = r  # an existing key keeps its place
+    columns = list(dict.fromkeys(k for r in rows for k in r))  # as pd.DataFrame(rows) orders them
+    art.write_table(Path(run_dir) / RESULTS, pd.DataFrame(list(latest.values()), columns=columns),
+                    {"stage": "simulate", "version": __version__})
 
 
 def reusable(run_hash: str) -> Path | None:
