@@ -17,6 +17,7 @@ from pathlib import Path
 import tomli_w
 
 from . import artifacts as art
+from .dem.heap import LAWS
 from .errors import CalibError
 
 
@@ -108,8 +109,6 @@ class Model:
     def pin(self, params: dict[str, float]) -> dict[str, float]:
         """Parameters of a simulation: given values for the model's effects, neutral for the rest;
         contact-law switches (``rolling_spring``, ...: which law, not an effect's value) as given."""
-        from .dem.heap import LAWS
-
         out = {k: float(params[k]) for k in LAWS if k in params}
         for name, eff in EFFECTS.items():
             if name in self.effects:
@@ -123,8 +122,6 @@ class Model:
         """Refuse a value for a parameter the model does not own: one of an absent effect away from
         its neutral value, or one no effect owns. An absent effect's parameter at its neutral value
         says "off", as the model does (a settings file may fix surface_energy = 0 in every revision)."""
-        from .dem.heap import LAWS
-
         owner = {e.parameter: e.name for e in EFFECTS.values()}
         params = {k: v for k, v in params.items() if k not in LAWS}  # a law is chosen, not calibrated
         loose = sorted(set(params) - set(owner))
