@@ -1,13 +1,16 @@
 """Do the two engines agree? The same heaps (same fill from the same seed, same condition,
 lift, stop criterion and angle measurement) on the built-in kernel and on LAMMPS, side by side.
 
-Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3] [--points 0,1,2] [--spring]
+Usage:  python benchmarks/engines_agree.py [--preset smoke] [--seeds 3] [--points 0,1,2] [--spring] [--caps]
 Prints, per parameter point, the mean and sd over seeds of each engine's angle, their
 difference, and whether it lies within the run-to-run spread (2 standard errors).
 
 LAMMPS's rolling law is a spring-dashpot-slider (`rolling sds`); the built-in kernel's default is
 the constant directional torque of SPEC 5. `--spring` adds a row per point with the built-in
 kernel on `rolling_spring = 1`, the same law with the same constants, beside the same LAMMPS heaps.
+`--caps` adds one with `rolling_spring = 1` and `caps_pulloff = 1`: LAMMPS's jkr caps sliding and
+rolling at |F_ne + 2 F_pulloff|, where SPEC 5 caps sliding on the repulsive part and rolling on |F_ne|
+(identical without cohesion).
 """
 
 from __future__ import annotations
@@ -36,11 +39,14 @@ def main():
                     help="which points, by index (0-based, comma separated): larger presets take minutes per heap")
     ap.add_argument("--spring", action="store_true",
                     help="also run the built-in kernel with rolling_spring = 1 (LAMMPS's rolling law)")
+    ap.add_argument("--caps", action="store_true",
+                    help="also run the built-in kernel with rolling_spring = 1 and caps_pulloff = 1 (LAMMPS's caps)")
     a = ap.parse_args()
     pre = get_preset(a.preset)
-    laws = {"": {}, ", spring": {"rolling_spring": 1.0}} if a.spring else {"": {}}
+    laws = {"": {}, **({", spring": {"rolling_spring": 1.0}} if a.spring else {}),
+            **({", spring, pull-off caps": {"rolling_spring": 1.0, "caps_pulloff": 1.0}} if a.caps else {})}
     print(f"preset {a.preset}: {pre.note}; {a.seeds} seeds per point; angle from coordinates (deg)")
-    print(f"{'point':<32}{'calib':>14}{'LAMMPS':>14}{'diff':>8}{'2 SE':>7}  agree   wall calib/LAMMPS [s]")
+    print(f"{'point':<42}{'calib':>14}{'LAMMPS':>14}{'diff':>8}{'2 SE':>7}  agree   wall calib/LAMMPS [s]")
     for name, p in [POINTS[int(i)] for i in a.points.split(",")]:
         A, B, ta, tb = {k: [] for k in laws}, [], dict.fromkeys(laws, 0.0), 0.0
         for s in range(1, a.seeds + 1):
@@ -58,7 +64,7 @@ def main():
             x = np.array(A[k])
             d = np.nanmean(x) - np.nanmean(B)
             se = 2 * np.sqrt(np.nanvar(x, ddof=1) / np.isfinite(x).sum() + np.nanvar(B, ddof=1) / np.isfinite(B).sum())
-            print(f"{name + k:<32}{np.nanmean(x):>8.2f} +-{np.nanstd(x, ddof=1):4.1f}{np.nanmean(B):>8.2f} +-"
+            print(f"{name + k:<42}{np.nanmean(x):>8.2f} +-{np.nanstd(x, ddof=1):4.1f}{np.nanmean(B):>8.2f} +-"
                   f"{np.nanstd(B, ddof=1):4.1f}{d:>8.2f}{se:>7.2f}  {'yes' if abs(d) <= se else 'NO '}    "
                   f"{ta[k]:.1f} / {tb:.1f}", flush=True)
 

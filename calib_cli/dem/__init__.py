@@ -1,6 +1,8 @@
 """The built-in DEM engine: polydisperse spheres, Hertz-Mindlin (no slip) with JKR
 cohesion and constant-directional-torque rolling friction, as in EDEM (SPEC section 5), or
-with ``rolling_spring = 1`` a spring-dashpot-slider rolling law (LAMMPS's `rolling sds`).
+with ``rolling_spring = 1`` a spring-dashpot-slider rolling law (LAMMPS's `rolling sds`), and
+with ``caps_pulloff = 1`` sliding and rolling capped on |F_el + 2 F_c| (Thornton 1991,
+Marshall 2009, LAMMPS's jkr).
 
 Imports nothing from the CLI. Layers, each usable alone:
 

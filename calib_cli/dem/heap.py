@@ -28,15 +28,15 @@ from .system import Particles, System, Walls
 #: cylinder alone and default to wall_*. The floor's own values belong to the rig: FLOOR_VARIABLES
 WALL_VALUES = ("static_friction", "rolling_friction", "surface_energy", "restitution")
 PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin",
-              "friction_net_force", "rolling_spring",
+              "friction_net_force", "rolling_spring", "caps_pulloff",
               *(f"{w}_{k}" for w in ("wall", "cylinder") for k in WALL_VALUES))
 #: the floor material's values against the grains (e.g. from an inclined-plane test on the rig's
 #: plate): heap-test variables, so conditions on different floors differ; unset (NaN): wall_*
 FLOOR_VARIABLES = tuple(f"floor_{k}" for k in WALL_VALUES)
 PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
-                     "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0}
+                     "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0, "caps_pulloff": 0.0}
 #: law switches (0/1), not calibrated values: the walls take the grains' choice
-LAWS = ("rolling_own_spin", "friction_net_force", "rolling_spring")
+LAWS = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff")
 
 
 #: the numeric heap-test variables (columns of a conditions table); `floor` is a name, the floor

@@ -6,8 +6,9 @@ does not recompile). A chunk of steps runs without returning to Python.
 Interaction parameter rows (``prm[row]``): 0 particle-particle, 1 floor, 2 cylinder;
 columns ``E*, G*, mu_s, mu_r, beta, gamma``, the two law switches, the derived constants
 ``k^(1/3), 4 sqrt(pi g E* k^(1/3))`` (JKR, :func:`.contact.jkr_constants`) and ``sqrt(4 G*/E*)``,
-and the rolling spring's stiffness and damping (0: the constant-torque law). Wall geometry ``geo``:
-``[cylinder radius, rim height z_edge, lift speed, cylinder on (1/0), floor on (1/0), drag (1/s)]``.
+the rolling spring's stiffness and damping (0: the constant-torque law) and the pull-off cap
+switch (``caps_pulloff``). Wall geometry ``geo``: ``[cylinder radius, rim height z_edge, lift speed,
+cylinder on (1/0), floor on (1/0), drag (1/s)]``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from .contact import SQRT_5_6, jkr_cutoff_overlap, normal_law_core
 
 PP, FLOOR, CYL = 0, 1, 2
-E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET, K13, ATT, T_RATIO, K_ROLL, G_ROLL = range(13)
+E_S, G_S, MU_S, MU_R, BETA, GAMMA, ROLL_OWN, CAP_NET, K13, ATT, T_RATIO, K_ROLL, G_ROLL, CAP_PULL = range(14)
 
 OK, NEED_CAPACITY = 0, 1
 #: columns of a contact's history row: tangential spring (3), contact radius, cached R*^(1/3),
@@ -116,7 +117,13 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     ftx = -St * hx + cd * tx
     fty = -St * hy + cd * ty
     ftz = -St * hz + cd * tz
-    cap = prm[row, MU_S] * (abs(Fel) if prm[row, CAP_NET] > 0.0 else Frep)
+    # the normal force of both caps (sliding, rolling): |F_el| (SPEC 5's rolling torque); with
+    # caps_pulloff Thornton's (1991) |F_el + 2 F_c|, F_c = 3 pi g R* the pull-off force, as
+    # LAMMPS's jkr: a cohesive contact keeps 2 F_c of both at zero net load, where |F_el| has none
+    fc = abs(Fel)
+    if prm[row, CAP_PULL] > 0.0:
+        fc = abs(Fel + 6.0 * math.pi * gamma * Rs)
+    cap = prm[row, MU_S] * (fc if prm[row, CAP_NET] + prm[row, CAP_PULL] > 0.0 else Frep)
     ft = math.sqrt(ftx * ftx + fty * fty + ftz * ftz)
     if ft > cap:
         # Coulomb: slide at the cap; the spring is rescaled to carry exactly the cap
@@ -183,7 +190,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
         frx = -kr * ux - gr * vlx
         fry = -kr * uy - gr * vly
         frz = -kr * uz - gr * vlz
-        crit = mur * abs(Fel) * (2.0 if row == PP else 1.0)
+        crit = mur * fc * (2.0 if row == PP else 1.0)
         fr = math.sqrt(frx * frx + fry * fry + frz * frz)
         if fr > crit:
             s = crit / fr
@@ -211,7 +218,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
         # -mu_r |F_n| R_i w_i/|w_i| (a wall has none), with the same no-reversal limit per body.
         # It brakes a cluster turning as one, where the relative law does not, and it does not
         # conserve angular momentum in a free collision.
-        m0 = mur * abs(Fel)
+        m0 = mur * fc
         bx, by, bz = _own_spin_brake(m0, Ri, Ii_inv, ci, wix, wiy, wiz, dt)
         tix += bx
         tiy += by
@@ -226,7 +233,7 @@ def _contact(nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
         wrz = wiz - wjz
         wr = math.sqrt(wrx * wrx + wry * wry + wrz * wrz)
         if wr > 0.0:
-            m = mur * abs(Fel)
+            m = mur * fc
             rate = m * (Ri * Ii_inv * max(ci, 1.0) + Rj * Ij_inv * max(cj, 1.0)) * dt
             if rate > wr:
                 m *= wr / rate

@@ -50,6 +50,9 @@ class Interaction:
     #: 0: the constant directional torque above; 1: a spring-dashpot-slider (Ai et al. 2011 type C,
     #: LAMMPS `rolling sds`), which holds a static torque below mu_r |F_n| R (no creep)
     rolling_spring: float = 0.0
+    #: 0: the caps above; 1: both caps (sliding and rolling) on |F_el + 2 F_c|, F_c = 3 pi g R* the
+    #: JKR pull-off force (Thornton 1991, Marshall 2009; LAMMPS's jkr): the same as 0 without cohesion
+    caps_pulloff: float = 0.0
 
     def validate(self, what: str = "interaction") -> None:
         checks = [
@@ -62,6 +65,9 @@ class Interaction:
             (self.rolling_spring in (0.0, 1.0), "rolling_spring must be 0 or 1"),
             (not (self.rolling_spring and self.rolling_own_spin), "rolling_spring and rolling_own_spin exclude "
              "each other (two rolling laws)"),
+            (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1"),
+            (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
+             "each other (two friction caps)"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -87,4 +93,4 @@ def param_row(m1: Material, m2: Material, it: Interaction, m_typ: float = 0.0) -
     kr, gr = rolling_spring_constants(Gs, m_typ) if it.rolling_spring else (0.0, 0.0)
     return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
                      it.surface_energy, it.rolling_own_spin, it.friction_net_force,
-                     k13, att, math.sqrt(4.0 * Gs / Es), kr, gr], dtype=np.float64)
+                     k13, att, math.sqrt(4.0 * Gs / Es), kr, gr, it.caps_pulloff], dtype=np.float64)

@@ -8,7 +8,13 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
   cohesion; with cohesion `jkr E eta v g` with `damping viscoelastic`, because LAMMPS refuses
   coeff_restitution and tsuji with jkr: eta is matched to our damping at a typical contact
   (approximate);
-* tangential: `mindlin NULL 1.0 mu_s` (stiffness 8 G* a from the material, like ours);
+* tangential: `mindlin/force NULL x_t mu_s`: stiffness 8 G* a from the material and the force
+  integrated incrementally (dF_t = -8 G* a v_t dt), like ours; its damping is x_t times the normal
+  one, and ours is sqrt(S_t / S_n) = sqrt(4 G* / E*) times it, so x_t = sqrt(2 (1 - v) / (2 - v));
+* caps: LAMMPS caps sliding and rolling at mu x |F_ne + 2 F_pulloff| at a jkr contact (F_ne the
+  elastic force, F_pulloff = 3 pi g R*), which is ours with ``caps_pulloff = 1`` (SPEC 5 caps
+  sliding at mu_s x the repulsive part and rolling at mu_r |F_ne|); without cohesion at mu x |F_n|,
+  damping included (ours: the elastic force);
 * rolling: `rolling sds k_r g_r mu_roll` - a spring-dashpot-slider. LAMMPS applies its torque with
   the arm R_eff (= R/2 for two equal spheres) where EDEM's constant directional torque uses R_i,
   so mu_roll = 2 mu_r between grains (exact for equal radii) and mu_r on a wall; the spring makes
@@ -117,7 +123,8 @@ def _model(E, nu, pp, Rs_typ, m_typ, roll: tuple[float, float], roll_arm: float)
     else:
         normal = f"hertz/material {E:.6g} {pp.restitution:.6g} {nu} damping coeff_restitution"
     kroll, groll = roll
-    return (f"{normal} tangential mindlin NULL 1.0 {pp.static_friction:.6g} "
+    xt = math.sqrt(2 * (1 - nu) / (2 - nu))  # sqrt(4 G*/E*) of one material: our tangential / normal damping
+    return (f"{normal} tangential mindlin/force NULL {xt:.6g} {pp.static_friction:.6g} "
             f"rolling sds {kroll:.6g} {groll:.6g} {pp.rolling_friction * roll_arm:.6g}")
 
 
@@ -141,7 +148,8 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
     pp, pf, pc = interactions(params, cond)
     if any(i.rolling_own_spin or i.friction_net_force for i in (pp, pf, pc)):
         raise CalibError("rolling_own_spin = 1 and friction_net_force = 1 are built-in only: LAMMPS has no "
-                         "rolling law on each body's own spin, and caps JKR friction at |F_ne + 2 F_pulloff|")
+                         "rolling law on each body's own spin, and caps JKR friction at |F_ne + 2 F_pulloff| "
+                         "(caps_pulloff = 1)")
     t0 = time.perf_counter()
     parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
     mat = Material(num.shear_modulus, num.poisson, num.density)
