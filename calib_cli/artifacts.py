@@ -65,6 +65,35 @@ def file_hash(path: Path) -> str:
     return h.hexdigest()[:16]
 
 
+def frame_hash(df: pd.DataFrame) -> str:
+    """Content hash of a table: its column names, dtypes and values (not its index)."""
+    h = hashlib.sha256(json.dumps([[str(c), str(t)] for c, t in df.dtypes.items()]).encode())
+    h.update(pd.util.hash_pandas_object(df, index=False).to_numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass(frozen=True, eq=False)
+class Rows:
+    """A stage input that is part of a table other stages append to (RUN/simulate/results.parquet):
+    the rows the stage read, locked by their content. Locking the whole file made every analysis
+    stale as soon as a later stage's heaps were added, so a whole chain rerun redid them all."""
+
+    path: Path
+    frame: pd.DataFrame
+
+
+def _input_hash(p: Path | Rows | None) -> str | None:
+    if p is None:
+        return None
+    return frame_hash(p.frame) if isinstance(p, Rows) else file_hash(Path(p))
+
+
+def _input_path(p: Path | Rows | None) -> str | None:
+    if isinstance(p, Rows):
+        return f"{p.path} ({len(p.frame)} rows read)"
+    return str(p) if p is not None else None
+
+
 def command_line() -> str:
     argv = list(sys.argv)
     if argv:
@@ -245,13 +274,13 @@ class Stage:
     run_dir: Path
     group: str
     name: str
-    inputs: Mapping[str, Path | None] = field(default_factory=dict)
+    inputs: Mapping[str, Path | Rows | None] = field(default_factory=dict)
     settings: Mapping[str, Any] = field(default_factory=dict)
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.run_dir = Path(self.run_dir)
-        self.input_hashes = {k: (file_hash(Path(p)) if p is not None else None) for k, p in self.inputs.items()}
+        self.input_hashes = {k: _input_hash(p) for k, p in self.inputs.items()}
         self.settings_hash = hash_obj(self.settings)
         self.fingerprint = hash_obj(
             {"stage": f"{self.group}.{self.name}", "version": __version__, "inputs": self.input_hashes,
@@ -287,8 +316,7 @@ class Stage:
             "stage": f"{self.group}.{self.name}",
             "command": command_line(),
             "version": __version__,
-            "inputs": {k: {"path": str(p) if p is not None else None, "hash": self.input_hashes[k]}
-                       for k, p in self.inputs.items()},
+            "inputs": {k: {"path": _input_path(p), "hash": self.input_hashes[k]} for k, p in self.inputs.items()},
             "settings_hash": self.settings_hash,
             "fingerprint": self.fingerprint,
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),

@@ -1,5 +1,6 @@
 """End-to-end CLI tests of pb / ascent / bbd on the paper's data."""
 
+import json
 import shutil
 
 import pandas as pd
@@ -143,6 +144,41 @@ def test_simulated_responses_are_matched_to_the_design(run):
     assert calib("pb", "analyze", "--run", run).exit_code == 0
     data = art.read_table(run / "pb" / "data.parquet")
     assert set(data["n_repeats"]) == {2, 4}  # pyDOE3's 12-run design repeats a 4-factor point, as Table 3 does
+
+
+def test_an_analysis_locks_the_rows_it_read_not_the_growing_index(run):
+    """Later stages append their heaps to RUN/simulate/results.parquet; the screening read none of
+    them and stays up to date, so a whole chain rerun skips it. A changed row of its own re-runs it."""
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    res = art.read_table(run / "pb" / "design.parquet").assign(seed=1, design="pb")
+    res["repose_angle"] = 30 + 5 * res["rolling_friction"] / 0.4
+    index = run / "simulate" / "results.parquet"
+    art.write_table(index, res)
+    assert calib("pb", "analyze", "--run", run).exit_code == 0
+    before = snapshot(run / "pb")
+    later = res.assign(design="ascent", repose_angle=res["repose_angle"] + 3)
+    art.write_table(index, pd.concat([res, later]))
+    r = calib("pb", "analyze", "--run", run)
+    assert r.exit_code == 0 and "nothing to do" in r.output
+    assert snapshot(run / "pb") == before
+    lock = json.loads((run / "pb" / "analyze.lock.json").read_text())
+    assert set(lock["inputs"]) == {"design", "results"}
+    prov = art.read_provenance(run / "pb" / "effects.parquet")
+    assert prov["inputs"]["results"]["path"].endswith("results.parquet (12 rows read)")
+    res.loc[0, "repose_angle"] += 1.0
+    art.write_table(index, pd.concat([res, later]))
+    r = calib("pb", "analyze", "--run", run)
+    assert r.exit_code == 0 and "nothing to do" not in r.output
+
+
+def test_frame_hash_follows_values_names_and_types_not_the_index():
+    df = pd.DataFrame({"a": [1.0, 2.0], "b": ["x", "y"]})
+    h = art.frame_hash(df)
+    assert art.frame_hash(df.set_axis([5, 6])) == h
+    assert art.frame_hash(df.assign(a=[1.0, 2.5])) != h
+    assert art.frame_hash(df.rename(columns={"a": "c"})) != h
+    assert art.frame_hash(df.astype({"a": "float32"})) != h
+    assert art.frame_hash(df.iloc[::-1]) != h
 
 
 def test_ascent_design_needs_screening(run):

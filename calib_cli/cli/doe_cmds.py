@@ -38,7 +38,7 @@ def _load_responses(run: Path, responses: Optional[Path], design_path: Path, fac
     if responses is not None:
         return art.read_responses(responses, factors, response), {"responses": responses}
     data = simulated_responses(run, design_path, factors, response)
-    return data, {"design": design_path, "results": Path(run) / "simulate" / "results.parquet"}
+    return data, {"design": design_path, "results": art.Rows(Path(run) / "simulate" / "results.parquet", data)}
 
 
 def _anova_table(anova: pd.DataFrame, title: str):
@@ -222,7 +222,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
         inputs = {"responses": responses}
     else:
         data = simulated_responses(run, design_path, factors, response, allow_failed=True)
-        inputs = {"design": design_path, "results": run / "simulate" / "results.parquet"}
+        inputs = {"design": design_path, "results": art.Rows(run / "simulate" / "results.parquet", data)}
     inputs |= tin
     st = art.Stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
     if st.up_to_date() and not force:

@@ -77,7 +77,7 @@ def _simulated_training_data(run: Path, stage: str, response: str) -> tuple[pd.D
                 basis = trial
     data = res.groupby(keys, as_index=False).agg({**{n: "first" for n in space.names}, **{c: "first" for c in conds},
                                                   response: "mean"})
-    return data, space.names + conds, {"design": design, "results": res_path}
+    return data, space.names + conds, {"design": design, "results": art.Rows(res_path, data)}
 
 
 def _training_data(run: Path, responses: Optional[Path], cfg: dict, from_simulations: Optional[str] = None):
