@@ -243,6 +243,13 @@ def test_loop_plumbing_on_tiny_heaps(tmp_path):
     hist = art.read_table(run / "compare" / "history.parquet")
     assert list(hist["revision"]) == [0, 1] and hist["param_surface_energy"].iloc[1] == 0.6
     assert (run / "compare" / "history.png").is_file() and (run / "compare" / "residuals.png").is_file()
+    # the same comparison again is skipped, the run directory untouched; --force redoes it
+    before = {p: p.read_bytes() for p in (run / "compare").iterdir()}
+    r = runner.invoke(app, ["compare", "--run", str(run), *SIM, "--set", "surface_energy=0.6"])
+    assert r.exit_code == 0 and "nothing to do" in r.output
+    assert {p: p.read_bytes() for p in (run / "compare").iterdir()} == before
+    r = runner.invoke(app, ["compare", "--run", str(run), *SIM, "--set", "surface_energy=0.6", "--force"])
+    assert r.exit_code == 0 and "model vs measurements" in r.output
 
 
 @pytest.mark.slow

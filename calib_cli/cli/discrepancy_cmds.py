@@ -16,14 +16,14 @@ import pandas as pd  # noqa: E402
 import typer  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
-from ..campaign import RUNS, Request, derive_seed, run_campaign  # noqa: E402
+from ..campaign import CACHE_SOURCE, RUNS, Request, derive_seed, run_campaign  # noqa: E402
 from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES, LAWS, HeapCondition  # noqa: E402
 from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condition, residual_table,  # noqa: E402
                                  score_effects, signature_noise, summary, trends)
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
-from .common import (RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
-                     heap_preset, modulus_settings, resolve_settings, space_from_design,
+from .common import (ForceOpt, RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
+                     heap_preset, modulus_settings, resolve_settings, skipped, space_from_design,
                      warn_other_modulus)  # noqa: E402
 from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
@@ -128,7 +128,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0, s
 
 
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
-            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None):
+            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, force: ForceOpt = False):
     """Calibrated model vs measurements per condition: residuals in units of the combined
     uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
     RMSE and chi2/dof, and the error history across model revisions.
@@ -138,11 +138,21 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     any the calibration switched on).
     Writes RUN/compare/residuals.parquet, adds the revision's row to RUN/compare/history.parquet
     (a rerun of the same revision replaces its row), and plots residuals.png, history.png.
+    Skipped when the revision's parameters, conditions, settings and kernel are unchanged.
     """
     run = check_run_dir(run)
     model, theta = _model_and_theta(run, set_)
     conds = _conditions(run)
     warn_other_modulus(run, shear_modulus, "the comparison's")
+    # the kernel's source too: the heaps would change with it, though nothing in the run dir does
+    st = art.Stage(run, "compare", f"rev{model.revision}",
+                   inputs={"conditions": run / "measure" / "conditions.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+    hist_path = run / "compare" / "history.parquet"
+    hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
+    if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():
+        return skipped(st)
     console.print(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
                   f"{repeats} simulations")
     sim, _ = _simulate(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
@@ -156,8 +166,6 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
         if c in conds.columns:
             table[c] = conds[c].to_numpy()
     summ = summary(res, len(model.parameters))
-    hist_path = run / "compare" / "history.parquet"
-    hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
     if len(hist):  # one row per revision: a rerun (more repeats, a recalibration) replaces its own
         hist = hist[hist["revision"] != model.revision]
     hist = pd.concat([hist, pd.DataFrame([{"revision": model.revision, "effects": ",".join(model.effects),
@@ -178,9 +186,6 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     ax.plot(hist["revision"].astype(str) + "\n" + hist["effects"].str.replace(",", "\n"), hist["rmse"], "o-")
     ax.set_ylabel("RMSE over conditions [deg]")
     ax.set_title("error per model revision")
-    st = art.Stage(run, "compare", f"rev{model.revision}", inputs={"conditions": run / "measure" / "conditions.parquet"},
-                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             **modulus_settings(shear_modulus)})
     with st.commit() as out:
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
         out.figure("residuals.png", fig1)
@@ -199,7 +204,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
              workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None,
              alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
                                                   "candidate is tested at alpha / the number of candidates "
-                                                  "(Bonferroni).")] = 0.05):
+                                                  "(Bonferroni).")] = 0.05, force: ForceOpt = False):
     """Rank the effects missing from the model by how much of the misfit each would explain
     (score test after projecting out what the current parameters absorb), with the evidence.
 
@@ -209,13 +214,19 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     test passes (p below alpha over the number of candidates) and the candidate's signature is
     resolved from the heaps' scatter, "unresolved" when the test passes but the signature is not
     (rerun with more --repeats), else "not significant".
-    Runs go through the simulation cache.
+    Runs go through the simulation cache; skipped when the comparison, parameters, settings and
+    kernel are unchanged.
     """
     run = check_run_dir(run)
     model, theta = _model_and_theta(run, set_)
     res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = _conditions(run)
     warn_other_modulus(run, shear_modulus, "the diagnosis's")
+    st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+    if st.up_to_date() and not force:
+        return skipped(st)
     cands = model.candidates
     if len(conds) <= len(model.parameters):
         raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "
@@ -322,9 +333,6 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
         sens[f"d_{EFFECTS[e].parameter}"] = J[:, k]
     for e, g in G.items():
         sens[f"candidate_{e}"] = g
-    st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
-                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             **modulus_settings(shear_modulus)})
     with st.commit() as out:
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
                                               "verdict", "evidence"]],
