@@ -3,8 +3,14 @@ prints, every ~0.1 s after the cylinder leaves, the median and 99th-percentile g
 the coordinate angle and the heap height: the creep of the constant-directional-torque
 rolling law (docs/physics.md, "Creep").
 
-Usage:  python benchmarks/heap_creep.py [--preset default] [--set surface_energy=1.25 ...]
-        [--after 3.0] [--seed 0]
+`--rig calibration` runs the 40 mm rig of `benchmarks/rolling_law.py` instead of the preset's
+geometry, and `--repeat N` its N-th seed (derive_seed(11, 0, N)), so that the heap is the one a
+`rolling_law.py` run simulated (the usual-protocol angle printed first shows it). `--during`
+samples from the start of the lift, every ~0.05 s, with the cylinder's rim height: when two laws'
+heaps part, during the lift or after it.
+
+Usage:  python benchmarks/heap_creep.py [--preset default] [--rig calibration] [--set surface_energy=1.25 ...]
+        [--after 3.0] [--seed 0 | --repeat 0] [--during]
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import time
 import numpy as np
 
 import calib_cli.dem.heap as heap
+from calib_cli.campaign import derive_seed
 
 
 def main():
@@ -24,12 +31,21 @@ def main():
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--after", type=float, default=3.0, help="seconds of rest to follow after the lift")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--rig", choices=["preset", "calibration"], default="preset")
+    ap.add_argument("--repeat", type=int, help="rolling_law.py's seed of this repeat (instead of --seed)")
+    ap.add_argument("--during", action="store_true", help="sample during the lift too")
     a = ap.parse_args()
+    if a.repeat is not None:
+        a.seed = derive_seed(11, 0, a.repeat)
     params = {"static_friction": 0.275, "rolling_friction": 0.215, "surface_energy": 1.25, "restitution": 0.2}
     for kv in a.set:
         k, v = kv.split("=", 1)
         params[k] = float(v)
     pre = heap.get_preset(a.preset)
+    if a.rig == "calibration":
+        from rolling_law import RIGS
+
+        pre = dataclasses.replace(pre, condition=RIGS["calibration"])
     # the heap is first run as usual to find its lift end, then again (same seed: bitwise the
     # same trajectory) with a fixed rest of --after seconds, sampled every chunk
     t0 = time.perf_counter()
@@ -41,11 +57,12 @@ def main():
 
     def advance(self, n):
         orig(self, n)
-        if self.walls.lift_start < np.inf and self.geo[2] == 0.0:  # the cylinder is gone
+        lifting = self.walls.lift_start <= self.t and self.geo[2] != 0.0
+        if self.walls.lift_start < np.inf and (self.geo[2] == 0.0 or (a.during and lifting)):  # the cylinder is gone
             p = self.particles
             sp = np.linalg.norm(p.vel, axis=1)
             ang = heap.repose_angle_coords(p.pos, p.rad)
-            samples.append((self.t, np.median(sp), np.percentile(sp, 99), ang.angle, ang.height))
+            samples.append((self.t, np.median(sp), np.percentile(sp, 99), ang.angle, ang.height, self.geo[1]))
 
     heap.System.advance = advance
     try:
@@ -55,12 +72,15 @@ def main():
     print(f"preset {a.preset}, {r.n_particles} grains, dt {r.system.dt:.3g} s, {params}")
     print(f"usual protocol: angle {first.angle.angle:.2f} deg at {first.t_end - first.t_lift_end:.2f} s after the "
           f"lift, drift {first.angle_drift:+.2f} deg/s ({first.status})")
-    print(f"{'t after lift [s]':>17}{'median v [mm/s]':>17}{'p99 v [mm/s]':>14}{'angle [deg]':>13}{'height [mm]':>13}")
-    next_t = 0.0
-    for t, med, p99, ang, h in samples:
+    print(f"{'t after lift [s]':>17}{'median v [mm/s]':>17}{'p99 v [mm/s]':>14}{'angle [deg]':>13}{'height [mm]':>13}"
+          f"{'rim [mm]':>10}")
+    next_t = -np.inf
+    for t, med, p99, ang, h, rim in samples:
         if t - r.t_lift_end >= next_t - 1e-9:
-            print(f"{t - r.t_lift_end:17.2f}{med * 1e3:17.2f}{p99 * 1e3:14.2f}{ang:13.2f}{h * 1e3:13.1f}")
-            next_t += 0.1 if t - r.t_lift_end < 0.5 else 0.25
+            print(f"{t - r.t_lift_end:17.2f}{med * 1e3:17.2f}{p99 * 1e3:14.2f}{ang:13.2f}{h * 1e3:13.1f}"
+                  f"{rim * 1e3:10.1f}")
+            dt_print = 0.05 if t < r.t_lift_end else 0.1 if t - r.t_lift_end < 0.5 else 0.25
+            next_t = max(next_t, t - r.t_lift_end) + dt_print
     print(f"wall {time.perf_counter() - t0:.0f} s")
 
 
