@@ -39,6 +39,9 @@ def pairs(results: pd.DataFrame) -> pd.DataFrame:
             r = r[r[c].isna()]
     for c, levels in LEVELS.items():
         r = r[r[c].round(3).isin(levels)]
+    # the Box-Behnken points: one factor at its centre (an edge of the cube) or all three (the centre)
+    mid = sum((r[c].round(3) == levels[1]).astype(int) for c, levels in LEVELS.items())
+    r = r[mid.isin([1, 3])]
     r["G"] = r["shear_modulus"].fillna(5e6) if "shear_modulus" in r else 5e6
     r["law"] = np.where(r["rolling_spring"].fillna(0) == 1, "spring", "torque") if "rolling_spring" in r else "torque"
     r["creep"] = r["angle_drift_deg_s"] * (r["t_end"] - r["t_lift_end"])
