@@ -10,7 +10,7 @@ samples from the start of the lift, every ~0.05 s, with the cylinder's rim heigh
 heaps part, during the lift or after it.
 
 Usage:  python benchmarks/heap_creep.py [--preset default] [--rig calibration] [--set surface_energy=1.25 ...]
-        [--after 3.0] [--seed 0 | --repeat 0] [--during]
+        [--after 3.0] [--seed 0 | --repeat 0] [--during] [--modulus 5e8]
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ def main():
     ap.add_argument("--rig", choices=["preset", "calibration"], default="preset")
     ap.add_argument("--repeat", type=int, help="rolling_law.py's seed of this repeat (instead of --seed)")
     ap.add_argument("--during", action="store_true", help="sample during the lift too")
+    ap.add_argument("--modulus", type=float, help="shear modulus of grains and walls [Pa] (the preset's: 5e6)")
     a = ap.parse_args()
     if a.repeat is not None:
         a.seed = derive_seed(11, 0, a.repeat)
@@ -46,6 +47,9 @@ def main():
         from rolling_law import RIGS
 
         pre = dataclasses.replace(pre, condition=RIGS["calibration"])
+    if a.modulus is not None:
+        pre = dataclasses.replace(pre, numerics=dataclasses.replace(pre.numerics, shear_modulus=a.modulus,
+                                                                    wall_shear_modulus=a.modulus))
     # the heap is first run as usual to find its lift end, then again (same seed: bitwise the
     # same trajectory) with a fixed rest of --after seconds, sampled every chunk
     t0 = time.perf_counter()
