@@ -25,9 +25,8 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import derive_seed
+from spring_vs_creep import LEVELS  # the BBD's levels, surface energy x 0.4
 
-LEVELS = {"static_friction": (0.112, 0.275, 0.438), "rolling_friction": (0.122, 0.215, 0.308),
-          "surface_energy": (0.35, 0.5, 0.65)}
 ONSET = 0.02  # m/s: the median grain speed at which the fill counts as flowing
 
 
