@@ -536,3 +536,19 @@ def test_a_design_that_drags_the_floors_friction_along_is_pointed_out():
     assert not floor_follows_grains(reqs(wall_static_friction=0.5))
     assert not floor_follows_grains(reqs(replace(TINY, floor_static_friction=0.5)))
     assert floor_follows_grains(reqs(cylinder_static_friction=0.5))  # the cylinder's own value leaves the floor tied
+
+
+def test_cohesive_grains_below_the_stiff_reference_modulus_are_pointed_out():
+    """simulate-heap notes that a cohesive calibration depends on the modulus when the grains are
+    cohesive and softer than the stiff reference; the ratio is the JKR work of separation's G^-2/3."""
+    from calib_cli.cli.simulate_cmd import STIFF_REFERENCE, cohesion_modulus_note
+
+    def walls(g):
+        return [interactions({"surface_energy": g, "static_friction": 0.3}, TINY)]
+
+    note = cohesion_modulus_note(walls(0.5), 5e6)
+    assert "5 MPa" in note and "21.5x" in note and "--shear-modulus" in note
+    assert "4.64x" in cohesion_modulus_note(walls(0.5), 5e7)
+    assert cohesion_modulus_note(walls(0.5), STIFF_REFERENCE) == ""
+    assert cohesion_modulus_note(walls(0.0), 5e6) == ""
+    assert cohesion_modulus_note(walls(0.0) + walls(0.5), 5e6) != ""  # a design that reaches cohesion

@@ -74,6 +74,28 @@ def floor_follows_grains(walls: list[tuple]) -> bool:
     return len({pp.static_friction for pp, pf, _ in walls if pf.static_friction == pp.static_friction}) > 1
 
 
+#: the stiffest modulus the paper's design was simulated at (`make default-bbd-stiff`); below it a
+#: cohesive calibration is noted as modulus-dependent
+STIFF_REFERENCE = 5e8
+
+
+def cohesion_modulus_note(walls: list[tuple], shear_modulus: float) -> str:
+    """A note when cohesive grains run softer than :data:`STIFF_REFERENCE`, else "".
+
+    The JKR pull-off force 3 pi g R* does not depend on the modulus, but the work that parts two
+    grains goes as g^(5/3) R*^(4/3) E*^(-2/3), so a reduced modulus makes cohesion act more strongly
+    while a heap forms, and on the paper's design it changes which parameter matters most
+    (docs/physics.md, "Stiffness")."""
+    if not any(pp.surface_energy > 0 for pp, _, _ in walls) or shear_modulus >= STIFF_REFERENCE:
+        return ""
+    ratio = (STIFF_REFERENCE / shear_modulus) ** (2 / 3)
+    return (f"cohesive grains at a shear modulus of {shear_modulus / 1e6:g} MPa: the JKR work that parts two "
+            f"grains goes as G^-2/3, {ratio:.3g}x that at {STIFF_REFERENCE / 1e6:g} MPa, so these heaps and the "
+            "order in which the parameters matter depend on the modulus (on the paper's design surface energy "
+            "comes first at 5 MPa, rolling friction at 500 MPa; docs/physics.md, 'Stiffness'). A calibration "
+            "holds at the modulus it was simulated at: give --shear-modulus the one you mean.")
+
+
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
     fields = {f.name for f in dataclasses.fields(HeapCondition)}
     bad = set(overrides) - fields
@@ -191,6 +213,9 @@ def simulate_heap(
                       "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
                       "change with the grains, and on sphere heaps this choice can reverse static friction's effect "
                       "(docs/physics.md, 'Wall friction'). Give the floor's measured values if you know them.")
+    cohesive = cohesion_modulus_note(walls, pre.numerics.shear_modulus)
+    if cohesive:
+        console.print(f"[yellow]note:[/] {cohesive}")
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
                   TimeElapsedColumn(), console=console, transient=False) as prog:
         total = prog.add_task("runs", total=len(requests))
