@@ -90,9 +90,9 @@ def cohesion_modulus_note(walls: list[tuple], shear_modulus: float) -> str:
         return ""
     ratio = (STIFF_REFERENCE / shear_modulus) ** (2 / 3)
     return (f"cohesive grains at a shear modulus of {shear_modulus / 1e6:g} MPa: the JKR work that parts two "
-            f"grains goes as G^-2/3, {ratio:.3g}x that at {STIFF_REFERENCE / 1e6:g} MPa, so these heaps and the "
+            f"grains goes as G^-2/3 and is here {ratio:.3g}x that at {STIFF_REFERENCE / 1e6:g} MPa, so these heaps and the "
             "order in which the parameters matter depend on the modulus (on the paper's design surface energy "
-            "comes first at 5 MPa, rolling friction at 500 MPa; docs/physics.md, 'Stiffness'). A calibration "
+            "comes first at 5 and 50 MPa, rolling friction from 150 MPa; docs/physics.md, 'Stiffness'). A calibration "
             "holds at the modulus it was simulated at: give --shear-modulus the one you mean.")
 
 
