@@ -216,21 +216,7 @@ default-bbd-half-g: setup
 	$(CALIB) bbd analyze --run $(DBBD2)
 	$(CALIB) report --run $(DBBD2)
 
-# The same design at a 100x stiffer shear modulus (500 MPa, grains and walls): the JKR work of
-# separation falls as G^-2/3, so cohesion matters less (docs/physics.md, 'Stiffness'; ~100 min on 2 cores)
-DBBD3  := sample_runs/default-bbd-stiff
-default-bbd-stiff: setup
-	$(call paper_screening,$(DBBD3))
-	$(CALIB) bbd design --run $(DBBD3)
-	$(CALIB) simulate-heap --run $(DBBD3) --design $(DBBD3)/bbd/design.parquet --preset default --workers 2 \
-		--shear-modulus 5e8
-	$(CALIB) bbd analyze --run $(DBBD3)
-	$(CALIB) report --run $(DBBD3)
-
-# The same design at 50 and 150 MPa: where between 5 and 500 MPa the order of influence turns to the
-# paper's (docs/physics.md, 'Stiffness'; ~26 and ~50 min on 2 cores)
-DBBD50  := sample_runs/default-bbd-50mpa
-DBBD150 := sample_runs/default-bbd-150mpa
+# the paper's screening on its tables, the BBD design, its heaps at a shear modulus, the analysis
 define default_bbd_at
 $(call paper_screening,$(1))
 $(CALIB) bbd design --run $(1)
@@ -238,6 +224,17 @@ $(CALIB) simulate-heap --run $(1) --design $(1)/bbd/design.parquet --preset defa
 $(CALIB) bbd analyze --run $(1)
 $(CALIB) report --run $(1)
 endef
+
+# The same design at a 100x stiffer shear modulus (500 MPa, grains and walls): the JKR work of
+# separation falls as G^-2/3, so cohesion matters less (docs/physics.md, 'Stiffness'; ~100 min on 2 cores)
+DBBD3  := sample_runs/default-bbd-stiff
+default-bbd-stiff: setup
+	$(call default_bbd_at,$(DBBD3),5e8)
+
+# The same design at 50 and 150 MPa: where between 5 and 500 MPa the order of influence turns to the
+# paper's (docs/physics.md, 'Stiffness'; ~26 and ~40 min on 2 cores)
+DBBD50  := sample_runs/default-bbd-50mpa
+DBBD150 := sample_runs/default-bbd-150mpa
 default-bbd-50mpa: setup
 	$(call default_bbd_at,$(DBBD50),5e7)
 default-bbd-150mpa: setup
