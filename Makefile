@@ -216,11 +216,11 @@ default-bbd-half-g: setup
 	$(CALIB) bbd analyze --run $(DBBD2)
 	$(CALIB) report --run $(DBBD2)
 
-# the paper's screening on its tables, the BBD design, its heaps at a shear modulus, the analysis
+# the paper's screening on its tables, the BBD design, its heaps at a shear modulus (and options), the analysis
 define default_bbd_at
 $(call paper_screening,$(1))
 $(CALIB) bbd design --run $(1)
-$(CALIB) simulate-heap --run $(1) --design $(1)/bbd/design.parquet --preset default --workers 2 --shear-modulus $(2)
+$(CALIB) simulate-heap --run $(1) --design $(1)/bbd/design.parquet --preset default --workers 2 --shear-modulus $(2) $(3)
 $(CALIB) bbd analyze --run $(1)
 $(CALIB) report --run $(1)
 endef
@@ -245,12 +245,7 @@ default-bbd-150mpa: setup
 # grains' 0.112 the base of a heap slides on the floor (docs/physics.md, 'Wall friction'; ~85 min on 2 cores)
 DBBD4  := sample_runs/default-bbd-walls
 default-bbd-walls: setup
-	$(call paper_screening,$(DBBD4))
-	$(CALIB) bbd design --run $(DBBD4)
-	$(CALIB) simulate-heap --run $(DBBD4) --design $(DBBD4)/bbd/design.parquet --preset default --workers 2 \
-		--shear-modulus 5e8 --set wall_static_friction=0.5 --set wall_rolling_friction=0.1
-	$(CALIB) bbd analyze --run $(DBBD4)
-	$(CALIB) report --run $(DBBD4)
+	$(call default_bbd_at,$(DBBD4),5e8,--set wall_static_friction=0.5 --set wall_rolling_friction=0.1)
 
 # regenerate the shipped photographs: drawn heaps for the smoke chain, DEM heaps for make calibrate
 # (the truth of each goes to a truth.toml beside them, which no stage reads)
