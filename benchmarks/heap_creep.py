@@ -23,6 +23,7 @@ import numpy as np
 
 import calib_cli.dem.heap as heap
 from calib_cli.campaign import derive_seed
+from calib_cli.cli.common import heap_preset
 
 
 def main():
@@ -42,14 +43,11 @@ def main():
     for kv in a.set:
         k, v = kv.split("=", 1)
         params[k] = float(v)
-    pre = heap.get_preset(a.preset)
+    pre = heap_preset(a.preset, a.modulus)
     if a.rig == "calibration":
         from rolling_law import RIGS
 
         pre = dataclasses.replace(pre, condition=RIGS["calibration"])
-    if a.modulus is not None:
-        pre = dataclasses.replace(pre, numerics=dataclasses.replace(pre.numerics, shear_modulus=a.modulus,
-                                                                    wall_shear_modulus=a.modulus))
     # the heap is first run as usual to find its lift end, then again (same seed: bitwise the
     # same trajectory) with a fixed rest of --after seconds, sampled every chunk
     t0 = time.perf_counter()
@@ -62,7 +60,7 @@ def main():
     def advance(self, n):
         orig(self, n)
         lifting = self.walls.lift_start <= self.t and self.geo[2] != 0.0
-        if self.walls.lift_start < np.inf and (self.geo[2] == 0.0 or (a.during and lifting)):  # the cylinder is gone
+        if self.walls.lift_start < np.inf and (self.geo[2] == 0.0 or (a.during and lifting)):  # gone, or lifting
             p = self.particles
             sp = np.linalg.norm(p.vel, axis=1)
             ang = heap.repose_angle_coords(p.pos, p.rad)

@@ -17,30 +17,16 @@ Usage:  python benchmarks/lift_onset.py [--seeds 3] [--modulus 5e6] [--workers 2
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import itertools
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import derive_seed
-from spring_vs_creep import LEVELS  # the BBD's levels, surface energy x 0.4
+from calib_cli.cli.common import heap_preset
+from spring_vs_creep import FACTORS, bbd_points
 
 ONSET = 0.02  # m/s: the median grain speed at which the fill counts as flowing
-
-
-def bbd_points():
-    """The 13 distinct points of a 3-factor Box-Behnken design (12 edge midpoints and the centre)."""
-    names = list(LEVELS)
-    pts = []
-    for i, j in itertools.combinations(range(3), 2):
-        for a, b in itertools.product((0, 2), repeat=2):
-            idx = [1, 1, 1]
-            idx[i], idx[j] = a, b
-            pts.append(idx)
-    pts.append([1, 1, 1])
-    return [{n: LEVELS[n][k] for n, k in zip(names, idx)} for idx in pts]
 
 
 def follow(job):
@@ -49,8 +35,7 @@ def follow(job):
     from rolling_law import RIGS
 
     params, law, repeat, modulus = job
-    pre = heap.get_preset("default")
-    num = dataclasses.replace(pre.numerics, shear_modulus=modulus, wall_shear_modulus=modulus)
+    num = heap_preset("default", modulus).numerics
     rec = {"onset_rim_mm": np.nan, "peak_median_mm_s": 0.0, "angle_after_lift": np.nan}
     gone = []
     orig = heap.System.advance
@@ -70,7 +55,7 @@ def follow(job):
 
     heap.System.advance = advance
     try:
-        r = heap.run_heap({**params, "restitution": 0.2, "rolling_spring": float(law == "spring")},
+        r = heap.run_heap({**params, "rolling_spring": float(law == "spring")},
                           RIGS["calibration"], num, seed=derive_seed(11, 0, repeat))
     finally:
         heap.System.advance = orig
@@ -94,7 +79,7 @@ def main():
     print(f"shear modulus {a.modulus:.0e} Pa, {len(df)} heaps ({a.seeds} seeds x 13 points x 2 laws); "
           f"onset: median grain speed > {ONSET * 1e3:g} mm/s")
     print(df.groupby("law")[cols].mean().round(2).to_string())
-    key = [*LEVELS, "repeat"]
+    key = [*FACTORS, "repeat"]
     w = df.pivot(index=key, columns="law", values=cols).dropna()
     d = pd.DataFrame({c: w[(c, "spring")] - w[(c, "torque")] for c in cols})
     print(f"\nspring - torque over {len(d)} pairs (mean, sd):")

@@ -63,6 +63,7 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
+from calib_cli.cli.common import heap_preset
 from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
 from factorial import coded_levels, effects
 
@@ -106,11 +107,9 @@ def variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
 
 
 def _variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
-    num = get_preset("default").numerics
-    if a.modulus is not None:
-        if a.compare == "stiffness":
-            ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
-        num = replace(num, shear_modulus=a.modulus, wall_shear_modulus=a.modulus)
+    if a.modulus is not None and a.compare == "stiffness":
+        ap.error("--modulus sets every variant's modulus; --compare stiffness sets its own")
+    num = heap_preset("default", a.modulus).numerics
     if a.compare == "rolling":
         return {"relative (SPEC 5, EDEM RVD)": (BASE, num, 1.0),
                 "own spin (EDEM Standard)": ({"rolling_own_spin": 1.0}, num, 1.0)}
@@ -144,7 +143,7 @@ def _variants(a, ap) -> dict[str, tuple[dict, Numerics, float]]:
     # W ~ g^(5/3) E^(-2/3) is constant along g ~ E^(2/5)
     soft, f = f"G {num.shear_modulus / 1e6:g} MPa", (num.shear_modulus / a.stiff) ** 0.4
     return {soft: (BASE, num, 1.0),
-            f"G {a.stiff / 1e6:g} MPa": (BASE, replace(num, shear_modulus=a.stiff, wall_shear_modulus=a.stiff), 1.0),
+            f"G {a.stiff / 1e6:g} MPa": (BASE, heap_preset("default", a.stiff).numerics, 1.0),
             f"{soft}, g x {f:.3f}": (BASE, num, f)}
 
 

@@ -16,15 +16,22 @@ Usage:  python benchmarks/spring_vs_creep.py /tmp/calib-pb
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-# the paper's Table 6 levels (Table 7 design); the surface energies are x 0.4 on the 40 mm rig
-LEVELS = {"static_friction": [0.112, 0.275, 0.438], "rolling_friction": [0.122, 0.215, 0.308],
-          "surface_energy": [0.35, 0.5, 0.65]}
+from rolling_law import design
+
+FACTORS = ["static_friction", "rolling_friction", "surface_energy"]
+
+
+def bbd_points() -> list[dict[str, float]]:
+    """The 13 distinct points of the paper's Table 7 as `rolling_law.py --design bbd` simulates
+    them (surface energy x 0.4 on the 40 mm rig)."""
+    return design(argparse.Namespace(design="bbd", g=None, g_factor=0.4))[1]
 
 
 def pairs(results: pd.DataFrame) -> pd.DataFrame:
@@ -37,15 +44,12 @@ def pairs(results: pd.DataFrame) -> pd.DataFrame:
     for c in ("floor_static_friction", "floor_rolling_friction", "wall_static_friction", "wall_rolling_friction"):
         if c in r:
             r = r[r[c].isna()]
-    for c, levels in LEVELS.items():
-        r = r[r[c].round(3).isin(levels)]
-    # the Box-Behnken points: one factor at its centre (an edge of the cube) or all three (the centre)
-    mid = sum((r[c].round(3) == levels[1]).astype(int) for c, levels in LEVELS.items())
-    r = r[mid.isin([1, 3])]
+    points = {tuple(round(p[c], 3) for c in FACTORS) for p in bbd_points()}
+    r = r[[tuple(x) in points for x in r[FACTORS].round(3).itertuples(index=False)]]
     r["G"] = r["shear_modulus"].fillna(5e6) if "shear_modulus" in r else 5e6
     r["law"] = np.where(r["rolling_spring"].fillna(0) == 1, "spring", "torque") if "rolling_spring" in r else "torque"
     r["creep"] = r["angle_drift_deg_s"] * (r["t_end"] - r["t_lift_end"])
-    key = ["G", "static_friction", "rolling_friction", "surface_energy", "seed"]
+    key = ["G", *FACTORS, "seed"]
     r = r.drop_duplicates([*key, "law"])  # the BBD's five centre runs are one heap per seed
     p = r.pivot(index=key, columns="law", values=["repose_angle", "creep"]).dropna()
     p.columns = [f"{a}_{b}" for a, b in p.columns]
@@ -61,7 +65,7 @@ def main():
         print(f"shear modulus {G:.0e} Pa: {len(g)} heap pairs; spring - torque {g['difference'].mean():+.2f} deg "
               f"(sd {g['difference'].std():.2f}); the torque heap's creep after the lift, median "
               f"{g['creep_torque'].median():+.2f} deg; correlation {r:+.2f}")
-        means = g.groupby(level=["static_friction", "rolling_friction", "surface_energy"]).mean()
+        means = g.groupby(level=FACTORS).mean()
         print(means[["repose_angle_torque", "repose_angle_spring", "difference", "creep_torque"]].round(2)
               .to_string(), "\n")
 
