@@ -24,7 +24,7 @@ import pandas as pd
 from . import __version__
 from . import artifacts as art
 from .dem import KERNEL_VERSION, SOURCE_HASH
-from .dem.heap import HeapCondition, Numerics, condition_dict, run_heap, run_key
+from .dem.heap import LAWS, HeapCondition, Numerics, condition_dict, run_heap, run_key
 from .dem.render import render_side_view
 from .engines.clumps import SPHERES
 from .imaging.measure import measure_image
@@ -233,6 +233,30 @@ def current_results(run_dir: Path) -> pd.DataFrame:
         return df.reset_index(drop=True)
     keys = [k for k in ("run_hash", "design", "run_id", "repeat", "condition_id") if k in df.columns]
     return df.drop_duplicates(subset=keys, keep="last").reset_index(drop=True)
+
+
+def row_moduli(rows: pd.DataFrame) -> pd.Series:
+    """Each simulation row's shear modulus (rows at the presets' modulus do not carry the column)."""
+    if "shear_modulus" in rows.columns:
+        return rows["shear_modulus"].fillna(Numerics.shear_modulus)
+    return pd.Series(Numerics.shear_modulus, index=rows.index)
+
+
+def row_laws(rows: pd.DataFrame) -> list[dict[str, float]]:
+    """Each simulation row's contact-law switches that are on (:data:`..dem.heap.LAWS`; off, 0,
+    is every law's default, and rows that did not set one lack its column or hold NaN)."""
+    on = [k for k in LAWS if k in rows.columns]
+    return [{k: float(r[k]) for k in on if pd.notna(r[k]) and r[k] != 0} for _, r in rows[on].iterrows()] \
+        if on else [{} for _ in range(len(rows))]
+
+
+def heap_setups(rows: pd.DataFrame) -> list[str]:
+    """The distinct (preset, shear modulus, contact laws switched on) of simulation rows, as
+    'preset default at 5 MPa' or 'preset default at 5 MPa, rolling_spring 1'."""
+    if rows.empty or "preset" not in rows.columns:
+        return []
+    return sorted({f"preset {p} at {m / 1e6:g} MPa" + "".join(f", {k} {v:g}" for k, v in sorted(law.items()))
+                   for p, m, law in zip(rows["preset"], row_moduli(rows), row_laws(rows))})
 
 
 def _save_index(run_dir: Path, rows: list[dict]) -> None:

@@ -38,12 +38,35 @@ def _table(df: pd.DataFrame, max_rows: int = 40) -> str:
     return shown.to_html(index=False, float_format=lambda v: f"{v:.5g}", na_rep="", border=0) + more
 
 
+def _heap_setups(run: Path) -> list[str]:
+    """One line per group of the run's heaps (design, validation, compare, ...): how many, and
+    at which preset, shear modulus and contact laws - what its calibrated parameters hold at."""
+    path = run / "simulate" / "results.parquet"
+    if not path.is_file():
+        return []
+    from .campaign import heap_setups
+
+    rows = art.read_table(path)
+    if rows.empty:
+        return []
+    label = rows["design"].fillna("").replace("", "single runs") if "design" in rows.columns \
+        else pd.Series("all", index=rows.index)
+    items = []
+    for name, grp in rows.groupby(label, sort=False):
+        engines = sorted(set(grp["engine"].dropna()) - {"builtin"}) if "engine" in grp.columns else []
+        items.append(f"<li>{html.escape(str(name))}: {len(grp)} heap(s), {html.escape('; '.join(heap_setups(grp)))}"
+                     + (f" (engine {html.escape(', '.join(engines))})" if engines else "") + "</li>")
+    return ["<p>Heaps in this run directory, by what they were simulated for: a calibration holds at the "
+            "preset and shear modulus its heaps had (docs/physics.md, 'Which modulus').</p><ul>", *items, "</ul>"]
+
+
 def build_report(run: Path) -> str:
     run = Path(run)
     parts = [f"<!doctype html><meta charset=utf-8><title>calib report: {html.escape(run.name)}</title>"
              f"<style>{CSS}</style><h1>calib report: {html.escape(str(run))}</h1>"
              f"<p class=prov>calib {__version__}. Every table is a Parquet artefact in the run directory; "
              f"its provenance (command, inputs, settings hash) is in its schema metadata.</p>"]
+    parts.extend(_heap_setups(run))
     found = False
     for folder, title, ref, tables, figs in SECTIONS:
         d = run / folder

@@ -78,6 +78,14 @@ DEFAULTS: dict[str, Any] = {
         # a round is accepted when the rms over the conditions of z (compare's statistic) is at most this
         "refine_z": 1.0,
     },
+    # the heaps of this run directory: every command that simulates them (simulate-heap, invert
+    # --validate, compare, diagnose) takes these unless its --preset / --shear-modulus says otherwise,
+    # so that a run directory is simulated at one setup without repeating the options on each command
+    "heap": {
+        "preset": "default",
+        # Pa; None (no key in a TOML file) -> the preset's reduced 5 MPa (docs/physics.md, 'Stiffness')
+        "shear_modulus": None,
+    },
 }
 
 _OPEN_TABLES = {"factors", "ascent.fixed", "bbd.fixed", "bbd.ranges"}
@@ -158,6 +166,9 @@ def factor_space(settings: Mapping, names: Iterable[str] | None = None) -> Param
 
 
 def validate(s: Mapping) -> None:
+    for k, v in DEFAULTS.items():
+        if isinstance(v, Mapping) and not isinstance(s[k], Mapping):
+            raise CalibError(f"setting {k!r} must be a table, got {s[k]!r}")
     factor_space(s)  # every factor well-formed
     for stage in ("pb", "bbd"):
         for n in s[stage].get("factors", []):
@@ -181,6 +192,12 @@ def validate(s: Mapping) -> None:
         raise CalibError("invert needs generations >= 1, population >= 2 and a positive tolerance")
     if int(iv["refine"]) < 0 or not float(iv["refine_z"]) > 0:
         raise CalibError("invert.refine must be >= 0 and invert.refine_z > 0")
+    h = s["heap"]
+    if not isinstance(h["preset"], str):
+        raise CalibError(f"heap.preset must be a preset's name, got {h['preset']!r}")
+    g = h["shear_modulus"]
+    if g is not None and (isinstance(g, bool) or not isinstance(g, (int, float))):
+        raise CalibError(f"heap.shear_modulus must be a number in Pa, got {g!r}")
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"] or len(rng) != 2:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")

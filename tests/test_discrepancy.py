@@ -547,3 +547,23 @@ def test_report_shows_the_discrepancy_loop(tmp_path):
     assert "Model against the measurements" in page and 'src="compare/history.png"' in page
     assert "ranking.parquet (model revision 0)" in page and "residuals.parquet (model revision 1)" in page
     assert "unresolved" in page and "significant" in page
+    assert "Heaps in this run directory" not in page  # no simulate/ copied: nothing to say
+
+
+def test_report_says_at_which_modulus_the_heaps_ran(tmp_path):
+    """The report lists the run's heaps by what they were for, with the preset, shear modulus and
+    contact laws of each group: a calibration holds only at its heaps' modulus."""
+    import shutil
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "sample_runs"
+    run = tmp_path / "run"
+    shutil.copytree(src / "default-bbd-150mpa", run)
+    rows = art.read_table(run / "simulate" / "results.parquet")
+    extra = rows.head(2).assign(design="compare", shear_modulus=float("nan"), rolling_spring=1.0)
+    art.write_table(run / "simulate" / "results.parquet", pd.concat([rows, extra], ignore_index=True))
+    r = runner.invoke(app, ["report", "--run", str(run)])
+    assert r.exit_code == 0, r.output
+    page = (run / "report.html").read_text()
+    assert "<li>bbd: 17 heap(s), preset default at 150 MPa</li>" in page
+    assert "<li>compare: 2 heap(s), preset default at 5 MPa, rolling_spring 1</li>" in page

@@ -272,6 +272,27 @@ def test_shear_modulus_option_sets_grains_and_walls_and_is_recorded(tmp_path):
     assert key["numerics"]["shear_modulus"] == key["numerics"]["wall_shear_modulus"] == 2e7
 
 
+def test_the_run_settings_heap_setup_is_every_simulating_commands_default(tmp_path):
+    """RUN/settings.toml [heap] sets the preset and modulus of the run's heaps once: simulate-heap
+    without options runs exactly the heap the options name (one cache entry), and an option wins."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "settings.toml").write_text('[heap]\npreset = "smoke"\nshear_modulus = 2e7\n')
+    cond = ["--condition", "particle_d_min_mm=5", "--condition", "particle_d_max_mm=6", "--condition",
+            "cylinder_diameter_mm=30", "--condition", "fill_height_mm=24", "--set", "surface_energy=0"]
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond])
+    assert r.exit_code == 0, r.output
+    assert "preset smoke" in r.output and "shear modulus 20 MPa" in r.output
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, "--preset", "smoke", "--shear-modulus", "2e7"])
+    assert r.exit_code == 0 and "1 cached" in r.output, r.output
+    res = art.read_table(run / "simulate" / "results.parquet")
+    assert len(res) == 1 and res["preset"].iloc[0] == "smoke" and res["shear_modulus"].iloc[0] == 2e7
+    (run / "settings.toml").write_text('[heap]\npreset = "smoke"\nshear_modulus = -1\n')
+    r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond])
+    assert r.exit_code == 2 and "heap.shear_modulus" in r.output, r.output
+    assert art.read_table(run / "simulate" / "results.parquet").equals(res)
+
+
 def _fake_design_results(run, moduli, stage="pb", laws=({},)):
     """RUN/simulate/results.parquet with one row per design run, modulus and set of contact-law
     switches (current kernel)."""
@@ -547,7 +568,7 @@ def test_cohesive_grains_below_the_stiff_reference_modulus_are_pointed_out():
         return [interactions({"surface_energy": g, "static_friction": 0.3}, TINY)]
 
     note = cohesion_modulus_note(walls(0.5), 5e6)
-    assert "5 MPa" in note and "21.5x" in note and "--shear-modulus" in note
+    assert "5 MPa" in note and "21.5x" in note and "heap.shear_modulus in its settings.toml" in note
     assert "4.64x" in cohesion_modulus_note(walls(0.5), 5e7)
     assert cohesion_modulus_note(walls(0.5), STIFF_REFERENCE) == ""
     assert cohesion_modulus_note(walls(0.0), 5e6) == ""

@@ -28,11 +28,29 @@ def test_overrides_parse_types():
 
 
 @pytest.mark.parametrize("bad", ["pb.alfa=0.1", "nonsense=1", "pb.alpha=2", "ascent.method=zigzag",
-                                 "ascent.steps=2", "factors.restitution.low=0.9", "noequals"])
+                                 "ascent.steps=2", "factors.restitution.low=0.9", "noequals", "heap.modulus=1e8",
+                                 "heap.shear_modulus='stiff'", "heap.shear_modulus=true", "heap.preset=3", "heap=5",
+                                 "pb=1"])
 def test_bad_settings_are_one_line_errors(bad):
     with pytest.raises(CalibError) as e:
         load_settings(overrides=[bad])
     assert "\n" not in str(e.value)
+
+
+def test_heap_setup_of_a_run_is_a_setting_the_options_override():
+    """[heap] preset / shear_modulus: the run's heaps; an option wins; the preset's own modulus is
+    no modulus (the heaps' cache keys and the stages' hashes stay those of a run that named none)."""
+    from calib_cli.cli.common import heap_setup
+
+    assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None}
+    stiff = load_settings(overrides=["heap.shear_modulus=1.5e8", "heap.preset='smoke'"])
+    assert heap_setup(load_settings(), None, None) == ("default", None)
+    assert heap_setup(stiff, None, None) == ("smoke", 1.5e8)
+    assert heap_setup(stiff, "default", 5e7) == ("default", 5e7)
+    assert heap_setup(load_settings(overrides=["heap.shear_modulus=5000000"]), None, None) == ("default", None)
+    for bad, needle in [(["heap.preset='huge'"], "unknown preset"), (["heap.shear_modulus=0"], "outside")]:
+        with pytest.raises(CalibError, match=needle):
+            heap_setup(load_settings(overrides=bad), None, None)
 
 
 def test_bad_toml_file(tmp_path):

@@ -15,7 +15,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from .. import artifacts as art
-from ..dem.heap import LAWS, Numerics, Preset, get_preset
+from ..campaign import heap_setups, row_laws, row_moduli  # noqa: F401 (re-exported: the CLI's helpers)
+from ..dem.heap import Numerics, Preset, get_preset
 from ..errors import CalibError
 from ..settings import load_settings
 from ..space import ParameterSpace
@@ -41,9 +42,11 @@ ResponsesOpt = Annotated[
 
 ShearModulusOpt = Annotated[
     Optional[float],
-    typer.Option("--shear-modulus", help="Shear modulus of the grains and walls [Pa], instead of the preset's reduced "
-                 "5 MPa. Cohesive heaps depend on it (docs/physics.md, 'Stiffness'); the time step shrinks as "
-                 "G^-1/2. Give every command of a run the same value, as the same --preset.", show_default=False),
+    typer.Option("--shear-modulus", help="Shear modulus of the grains and walls [Pa]. Default: the run's setting "
+                 "heap.shear_modulus (where the command has a run), else the preset's reduced 5 MPa. Cohesive "
+                 "heaps depend on it (docs/physics.md, 'Stiffness'); the time step shrinks as G^-1/2. Set it once "
+                 "for a run, as heap.shear_modulus in RUN/settings.toml, rather than on each command.",
+                 show_default=False),
 ]
 
 SETTINGS_FILE = "settings.toml"
@@ -59,38 +62,38 @@ def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
         return pre
     lo, hi = SHEAR_MODULUS_RANGE
     if not (np.isfinite(shear_modulus) and lo <= shear_modulus <= hi):
-        raise CalibError(f"--shear-modulus {shear_modulus:g} Pa is outside [{lo:g}, {hi:g}] Pa")
+        raise CalibError(f"shear modulus {shear_modulus:g} Pa (--shear-modulus or heap.shear_modulus) is outside "
+                         f"[{lo:g}, {hi:g}] Pa")
     num = dataclasses.replace(pre.numerics, shear_modulus=float(shear_modulus), wall_shear_modulus=float(shear_modulus))
     return dataclasses.replace(pre, numerics=num)
+
+
+def heap_setup(cfg: dict, preset: Optional[str], shear_modulus: Optional[float]) -> tuple[str, Optional[float]]:
+    """The preset and shear modulus of a command's heaps: the option where given, else the run's
+    settings (``[heap]`` preset and shear_modulus), else ``default`` at its own reduced modulus.
+
+    A modulus equal to the preset's own comes back as None, so that naming it changes neither the
+    heaps' cache keys nor the stages' hashes. The preset and the modulus are checked here, before
+    any stage or heap starts.
+    """
+    name = preset if preset is not None else cfg["heap"]["preset"]
+    g = shear_modulus if shear_modulus is not None else cfg["heap"]["shear_modulus"]
+    g = None if g is None else float(g)
+    try:
+        heap_preset(name, g)
+    except CalibError as e:
+        if preset is None and shear_modulus is None:
+            raise CalibError(f"the run's heap settings: {e}") from None
+        raise
+    own = get_preset(name).numerics
+    if own.shear_modulus == own.wall_shear_modulus == g:  # the preset itself, to the last bit
+        g = None
+    return name, g
 
 
 def modulus_settings(shear_modulus: Optional[float]) -> dict:
     """The modulus as a stage setting, only when given: stages run at the presets' modulus keep their hash."""
     return {} if shear_modulus is None else {"shear_modulus": shear_modulus}
-
-
-def row_moduli(rows: pd.DataFrame) -> pd.Series:
-    """Each simulation row's shear modulus (rows at the presets' modulus do not carry the column)."""
-    if "shear_modulus" in rows.columns:
-        return rows["shear_modulus"].fillna(Numerics.shear_modulus)
-    return pd.Series(Numerics.shear_modulus, index=rows.index)
-
-
-def row_laws(rows: pd.DataFrame) -> list[dict[str, float]]:
-    """Each simulation row's contact-law switches that are on (:data:`..dem.heap.LAWS`; off, 0,
-    is every law's default, and rows that did not set one lack its column or hold NaN)."""
-    on = [k for k in LAWS if k in rows.columns]
-    return [{k: float(r[k]) for k in on if pd.notna(r[k]) and r[k] != 0} for _, r in rows[on].iterrows()] \
-        if on else [{} for _ in range(len(rows))]
-
-
-def heap_setups(rows: pd.DataFrame) -> list[str]:
-    """The distinct (preset, shear modulus, contact laws switched on) of simulation rows, as
-    'preset default at 5 MPa' or 'preset default at 5 MPa, rolling_spring 1'."""
-    if rows.empty or "preset" not in rows.columns:
-        return []
-    return sorted({f"preset {p} at {m / 1e6:g} MPa" + "".join(f", {k} {v:g}" for k, v in sorted(law.items()))
-                   for p, m, law in zip(rows["preset"], row_moduli(rows), row_laws(rows))})
 
 
 def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str) -> None:

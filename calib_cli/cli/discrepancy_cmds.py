@@ -23,13 +23,14 @@ from ..discrepancy.stats import (at_bounds, confounded, difference_se, per_condi
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model, save_model  # noqa: E402
 from .common import (ForceOpt, RunOpt, ShearModulusOpt, bbd_fixed, check_run_dir, console, df_table, handle_errors,
-                     heap_preset, modulus_settings, resolve_settings, skipped, space_from_design,
+                     heap_preset, heap_setup, modulus_settings, resolve_settings, skipped, space_from_design,
                      warn_other_modulus)  # noqa: E402
 from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
 model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
 COND_VARS = list(CONDITION_VARIABLES)
-PresetOpt = Annotated[str, typer.Option(help="smoke | default | paper: geometry not given by the conditions table.")]
+PresetOpt = Annotated[Optional[str], typer.Option(help="smoke | default | paper: geometry not given by the conditions "
+                     "table, and numerics. Default: the run's setting heap.preset, else default.", show_default=False)]
 RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Parallel simulations.")]
 SetOpt = Annotated[Optional[list[str]], typer.Option("--set", help="Calibrated parameter KEY=VALUE (default: "
@@ -127,7 +128,7 @@ def _simulate(run, model, theta, conds, preset, repeats, workers, tag, seed=0, s
     return per_condition(rows, conds["condition_id"]), rows
 
 
-def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
+def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3,
             workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, force: ForceOpt = False):
     """Calibrated model vs measurements per condition: residuals in units of the combined
     uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
@@ -141,6 +142,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
     Skipped when the revision's parameters, conditions, settings and kernel are unchanged.
     """
     run = check_run_dir(run)
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = _model_and_theta(run, set_)
     conds = _conditions(run)
     warn_other_modulus(run, shear_modulus, "the comparison's")
@@ -200,7 +202,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", rep
         console.print(df_table(hist[["revision", "effects", "rmse", "chi2_dof", "n_fail"]], "error history"))
 
 
-def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", repeats: RepeatsOpt = 3,
+def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3,
              workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None,
              alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
                                                   "candidate is tested at alpha / the number of candidates "
@@ -218,6 +220,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = "default", re
     kernel are unchanged.
     """
     run = check_run_dir(run)
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = _model_and_theta(run, set_)
     res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = _conditions(run)
@@ -371,7 +374,10 @@ def synth_lab(
     fill_ratio: Annotated[float, typer.Option(help="Fill height / cylinder diameter (without --fills).")] = 1.0,
     fills: Annotated[Optional[str], typer.Option(help="Fill heights (mm), comma separated, crossed with the sizes "
                      "and cylinders: heap size is where cohesion leaves a signature friction cannot mimic.")] = None,
-    repeats: RepeatsOpt = 3, preset: PresetOpt = "smoke", workers: WorkersOpt = 1,
+    repeats: RepeatsOpt = 3,
+    preset: Annotated[str, typer.Option(help="smoke | default | paper: geometry not given by the conditions, and "
+                      "numerics.")] = "smoke",
+    workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
     floor: Annotated[Optional[list[str]], typer.Option("--floor", help="A floor material NAME:KEY=VALUE,... "
                      "(repeatable; keys static_friction, rolling_friction, surface_energy, restitution against the "

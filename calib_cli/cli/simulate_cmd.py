@@ -16,7 +16,8 @@ from ..campaign import REUSE_ENV, RUNS, Request, derive_seed, reusable, run_camp
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, interactions
 from ..errors import CalibError
 from ..settings import _parse_value
-from .common import RunOpt, ShearModulusOpt, check_run_dir, console, df_table, heap_preset, modulus_note
+from .common import (RunOpt, ShearModulusOpt, check_run_dir, console, df_table, heap_preset, heap_setup, modulus_note,
+                     resolve_settings)
 
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
@@ -93,7 +94,8 @@ def cohesion_modulus_note(walls: list[tuple], shear_modulus: float) -> str:
             f"grains goes as G^-2/3 and is here {ratio:.3g}x that at {STIFF_REFERENCE / 1e6:g} MPa, so these heaps and the "
             "order in which the parameters matter depend on the modulus (on the paper's design surface energy "
             "comes first at 5 and 50 MPa, rolling friction from 150 MPa; docs/physics.md, 'Stiffness'). A calibration "
-            "holds at the modulus it was simulated at: give --shear-modulus the one you mean.")
+            "holds at the modulus it was simulated at: set the one you mean for the run, heap.shear_modulus in its "
+            "settings.toml (or --shear-modulus on each command; docs/physics.md, 'Which modulus').")
 
 
 def _condition(base: HeapCondition, overrides: dict) -> HeapCondition:
@@ -116,7 +118,8 @@ def simulate_heap(
     design: Annotated[Optional[Path], typer.Option(help="Simulate every row of a design (e.g. RUN/bbd/design.parquet).")] = None,
     repeats: Annotated[int, typer.Option(min=1, help="Runs per parameter point, each with its own seed.")] = 1,
     seed: Annotated[int, typer.Option(help="Base seed (the run seeds derive from it, the run id and the repeat).")] = 0,
-    preset: Annotated[str, typer.Option(help="smoke | default | paper (geometry, particle count, numerics).")] = "default",
+    preset: Annotated[Optional[str], typer.Option(help="smoke | default | paper (geometry, particle count, "
+                      "numerics). Default: the run's setting heap.preset, else default.", show_default=False)] = None,
     shear_modulus: ShearModulusOpt = None,
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Override a heap-test variable, e.g. "
                          "--condition lift_speed_mm_s=20 or the floor's own friction --condition "
@@ -158,6 +161,7 @@ def simulate_heap(
         from ..engines.lammps import open_lammps
 
         open_lammps().close()  # fail now, with the extra named, not after the first run
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus)
     cond = _condition(pre.condition, _pairs(condition, "condition"))
     fixed = _params(_pairs(set_, "--set"))

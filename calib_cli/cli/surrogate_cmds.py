@@ -24,7 +24,7 @@ from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noq
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
 from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt, bbd_fixed,  # noqa: E402
-                     check_run_dir, console, df_table, heap_preset, modulus_settings, resolve_settings, skipped,
+                     check_run_dir, console, df_table, heap_preset, heap_setup, modulus_settings, resolve_settings, skipped,
                      space_from_design, warn_other_modulus)
 from .simulate_cmd import _condition, _pairs, _params, condition_from_row  # noqa: E402
 
@@ -216,7 +216,8 @@ def invert(
     validate: Annotated[int, typer.Option(min=0, help="Simulations at the solution, each with its own seed "
                                           "(paper 3.6: five), on the measured rig: N per measured "
                                           "condition, or the preset's rig with --condition.")] = 0,
-    preset: Annotated[str, typer.Option(help="Preset of the validation simulations.")] = "default",
+    preset: Annotated[Optional[str], typer.Option(help="Preset of the validation simulations. Default: the run's "
+                      "setting heap.preset, else default.", show_default=False)] = None,
     shear_modulus: ShearModulusOpt = None,
     condition: Annotated[Optional[list[str]], typer.Option("--condition", help="Heap-test variable of the "
                          "validation runs, KEY=VALUE (repeatable); given, the validation runs on the preset's "
@@ -239,6 +240,7 @@ def invert(
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
     iv = cfg["invert"]
+    preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     models, best = _load_models(run, model)
     name = model or best["best"]
     m = models[name]
