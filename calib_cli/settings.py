@@ -9,6 +9,7 @@ Unknown keys are an error (a typo must not be silently ignored).
 from __future__ import annotations
 
 import copy
+import json
 import tomllib
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -135,6 +136,32 @@ def read_toml(path: Path) -> dict:
         return tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise CalibError(f"settings file {path} is not valid TOML: {e}") from None
+
+
+def with_overrides(text: str, items: Iterable[str]) -> str:
+    """Settings TOML ``text`` with ``KEY=VALUE`` overrides written in front of it as dotted keys
+    (``heap.shear_modulus = 1.5e8``: before any table header TOML reads them as top-level keys),
+    so that a file's comments and layout survive. A value that is not TOML is written as a string,
+    as ``parse_overrides`` reads it. Checked as ``load_settings`` checks a file."""
+    items = list(items)
+    lines = []
+    for item in items:
+        if "=" not in item:
+            raise CalibError(f"setting {item!r} is not KEY=VALUE")
+        key, val = (t.strip() for t in item.split("=", 1))
+        try:
+            tomllib.loads(f"v = {val}")
+        except tomllib.TOMLDecodeError:
+            val = json.dumps(val)
+        lines.append(f"{key} = {val}")
+    out = "# set with calib init -s\n" + "\n".join(lines) + "\n\n" + text
+    try:
+        data = tomllib.loads(out)
+    except tomllib.TOMLDecodeError as e:
+        raise CalibError(f"cannot write -s {' '.join(items)} into the settings: {e} (a key the file sets "
+                         "already? edit the file)") from None
+    validate(_merge(DEFAULTS, data))
+    return out
 
 
 def load_settings(files: Iterable[Path] = (), overrides: Iterable[str] = ()) -> dict:

@@ -238,3 +238,40 @@ def test_ascent_aims_at_the_measured_angle(tmp_path):
     assert "vs target 33 deg" in r.output
     r = calib("ascent", "analyze", "--run", run, "--responses", PAPER / "table5_ascent.csv", "--target", "30")
     assert "vs target 30 deg" in r.output
+
+
+def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
+    """init -s writes KEY=VALUE in front of the copied settings (its comments kept), reruns
+    without change, and never replaces a different settings file without --force; bad input
+    leaves nothing behind."""
+    from calib_cli.settings import load_settings
+
+    run = tmp_path / "run"
+    r = calib("init", "--run", run, "--settings", STAGES / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
+              "-s", "heap.preset=smoke")
+    assert r.exit_code == 0, r.output
+    target = run / "settings.toml"
+    text = target.read_text()
+    assert text.endswith((STAGES / "paper.toml").read_text())
+    s = load_settings([target])
+    assert s["heap"] == {"preset": "smoke", "shear_modulus": 1.5e8}
+    assert s["ascent"]["method"] == "diagonal"  # the copied file's own settings still hold
+    r = calib("init", "--run", run, "--settings", STAGES / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
+              "-s", "heap.preset=smoke")
+    assert r.exit_code == 0 and "initialised" in r.output and target.read_text() == text
+    r = calib("init", "--run", run, "-s", "heap.shear_modulus=1.5e8")
+    assert r.exit_code == 0 and "already" in r.output and target.read_text() == text
+    for args, needle in [(["-s", "heap.shear_modulus=5e8"], "edit the file"),
+                         (["--settings", STAGES / "smoke.toml"], "--force"),
+                         (["-s", "heap.shear_modulus=stiff"], "heap.shear_modulus must be a number"),
+                         (["-s", "heap.presets=smoke"], "unknown setting")]:
+        r = calib("init", "--run", run, *args)
+        assert r.exit_code == 2 and needle in " ".join(r.output.split()), (args, r.output)
+        assert target.read_text() == text
+    r = calib("init", "--run", run, "--settings", STAGES / "smoke.toml", "--force")
+    assert r.exit_code == 0 and target.read_text() == (STAGES / "smoke.toml").read_text()
+    # -s alone on a fresh run: the defaults with the override; a missing --settings file is one line
+    r = calib("init", "--run", tmp_path / "fresh", "-s", "heap.shear_modulus=5e7")
+    assert r.exit_code == 0 and load_settings([tmp_path / "fresh" / "settings.toml"])["heap"]["shear_modulus"] == 5e7
+    r = calib("init", "--run", tmp_path / "none", "--settings", tmp_path / "nope.toml")
+    assert r.exit_code == 2 and "not found" in r.output and not (tmp_path / "none").exists()

@@ -250,6 +250,10 @@ def test_loop_plumbing_on_tiny_heaps(tmp_path):
     assert {p: p.read_bytes() for p in (run / "compare").iterdir()} == before
     r = runner.invoke(app, ["compare", "--run", str(run), *SIM, "--set", "surface_energy=0.6", "--force"])
     assert r.exit_code == 0 and "model vs measurements" in r.output
+    # the run's [heap] setting stands for --preset: the same comparison, so nothing to do
+    (run / "settings.toml").write_text('[heap]\npreset = "smoke"\n')
+    r = runner.invoke(app, ["compare", "--run", str(run), "--repeats", "1", *TRUTH, "--set", "surface_energy=0.6"])
+    assert r.exit_code == 0 and "nothing to do" in r.output, r.output
 
 
 @pytest.mark.slow

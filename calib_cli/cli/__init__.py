@@ -9,8 +9,12 @@ import typer
 
 from .. import __version__
 from .. import artifacts as art
-from ..settings import load_settings
-from .common import SETTINGS_FILE, ForceOpt, RunOpt, SettingsOpt, check_run_dir, console, err_console, handle_errors
+from ..errors import CalibError
+from ..settings import load_settings, with_overrides
+from .common import (SETTINGS_FILE, ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
+                     handle_errors)
+
+DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
@@ -52,18 +56,32 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
 
 @app.command("init")
 @handle_errors
-def init(run: RunOpt, settings: SettingsOpt = None, force: ForceOpt = False):
-    """Create a run directory with its settings (RUN/settings.toml, copied from --settings)."""
+def init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
+    """Create a run directory with its settings: RUN/settings.toml, a copy of --settings (else the
+    built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
+    for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
+    replaced only with --force; -s without --settings adds to it."""
     run = check_run_dir(run)
     target = run / SETTINGS_FILE
-    text = settings.read_text() if settings is not None else None
     load_settings([settings] if settings is not None else [])  # validate before touching the run dir
-    if target.exists() and not force and (text is None or target.read_text() == text):
+    if settings is not None:
+        text = settings.read_text()
+    elif target.is_file() and setting:
+        if load_settings([target], setting) == load_settings([target]):
+            console.print(f"[green]✓[/] {run} is initialised ({target} has {' '.join(setting)} already)")
+            return
+        text = target.read_text()
+    else:
+        text = None
+    if setting:
+        text = with_overrides(text if text is not None else DEFAULT_TEXT, setting)
+    if target.exists() and (text is None or target.read_text() == text):
         console.print(f"[green]✓[/] {run} is initialised ({target})")
         return
-    if text is None:
-        text = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
-    art.atomic_write_bytes(target, text.encode())
+    if target.exists() and not force and not (setting and settings is None):
+        raise CalibError(f"{target} exists and differs from --settings: give --force to replace it (the stages "
+                         "that depend on a changed setting will then rerun)")
+    art.atomic_write_bytes(target, (text if text is not None else DEFAULT_TEXT).encode())
     console.print(f"[green]✓[/] wrote {target}")
 
 
