@@ -569,5 +569,5 @@ def test_report_says_at_which_modulus_the_heaps_ran(tmp_path):
     r = runner.invoke(app, ["report", "--run", str(run)])
     assert r.exit_code == 0, r.output
     page = (run / "report.html").read_text()
-    assert "<li>bbd: 17 heap(s), preset default at 150 MPa</li>" in page
+    assert "<li>bbd: 34 heap(s), preset default at 150 MPa</li>" in page
     assert "<li>compare: 2 heap(s), preset default at 5 MPa, rolling_spring 1</li>" in page
