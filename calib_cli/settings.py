@@ -144,10 +144,9 @@ def with_overrides(text: str, items: Iterable[str]) -> str:
     so that a file's comments and layout survive. A value that is not TOML is written as a string,
     as ``parse_overrides`` reads it. Checked as ``load_settings`` checks a file."""
     items = list(items)
+    parse_overrides(items)  # every item KEY=VALUE, with parse_overrides' message where not
     lines = []
     for item in items:
-        if "=" not in item:
-            raise CalibError(f"setting {item!r} is not KEY=VALUE")
         key, val = (t.strip() for t in item.split("=", 1))
         try:
             tomllib.loads(f"v = {val}")

@@ -13,13 +13,13 @@ from ..errors import CalibError
 from ..settings import load_settings, with_overrides
 from .common import (SETTINGS_FILE, ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
                      handle_errors)
-
-DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
 from .simulate_cmd import simulate_heap
 from .surrogate_cmds import fit_surrogate, invert, predict
+
+DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 
 app = typer.Typer(
     name="calib",
