@@ -5,12 +5,12 @@
     python benchmarks/reproduce_heaps.py sample_runs/smoke --query "surface_energy == 0"
 
 Every row of ``RUN/simulate/results.parquet`` holds what determines its heap (parameters,
-condition, preset, seed, kernel source hash); this runs the same heap with the kernel of this
+condition, preset, seed, physics version); this runs the same heap with the kernel of this
 tree, one process and one numba thread (as a campaign worker does), and prints, per heap, the
 committed and the new coordinate angle and step count. A heap is a chaotic many-body system: a
 difference of one unit in the last place anywhere grows until the heap settles differently, so
-the figure that matters is how many heaps come out bitwise equal. Rows made by another kernel
-source are skipped (their run hash would not match either).
+the figure that matters is how many heaps come out bitwise equal. Rows made under another
+physics version are skipped (their run hash would not match either).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def main() -> None:
     if args.query:
         res = res.query(args.query)
     if res.empty:
-        sys.exit(f"no builtin heaps of this kernel source ({CACHE_SOURCE}) in {args.run} {args.query}")
+        sys.exit(f"no builtin heaps of this physics version ({CACHE_SOURCE}) in {args.run} {args.query}")
     numba.set_num_threads(1)
     made = sorted(res["host"].dropna().unique()) if "host" in res else []
     print(f"here: {host()}, NUMBA_CPU_NAME={numba.config.CPU_NAME or 'host'}; "

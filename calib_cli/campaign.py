@@ -23,7 +23,8 @@ import pandas as pd
 
 from . import __version__
 from . import artifacts as art
-from .dem import KERNEL_VERSION, SOURCE_HASH
+from .dem import KERNEL_VERSION
+from .dem.laws import REGISTRY
 from .dem.heap import LAWS, HeapCondition, Numerics, condition_dict, run_heap, run_key
 from .dem.render import render_side_view
 from .engines.clumps import SPHERES
@@ -35,27 +36,27 @@ RUNS = Path("simulate") / "runs"
 #: campaign copies instead of recomputing (docs/campaigns.md)
 REUSE_ENV = "CALIB_REUSE"
 
-#: Kernel sources that compute, bit for bit, the heaps of an earlier source, mapped to it: a change
-#: that adds an option and leaves the arithmetic of every request without it alone (dvc's `commit`
-#: after an edit that moves no output). Cache keys and the results' `source` column then name the
-#: earlier source, so finished heaps stay current. Declare one only after re-simulating committed
-#: heaps of the earlier source bit for bit (benchmarks/reproduce_heaps.py); tests/test_heap.py
-#: re-simulates two on every test run while a declaration applies. Any other change of
-#: calib_cli/dem/ gets new keys by itself.
-SAME_BITS = {
-    # the two walls apart: cylinder_* parameters and the floor's values as heap-test variables;
-    # without them both walls get the values they had (docs/physics.md, "Walls")
-    "e03ab8f525a2": "77675d5eca62",
-    # the spring-dashpot-slider rolling law (`rolling_spring = 1`); without it the constant torque as
-    # before (19 of 19 committed heaps bitwise). Its own heaps are keyed under the earlier source too, so
-    # a later change of the spring's arithmetic alone must not be declared here
-    "03b2f41779f6": "77675d5eca62",
-    # the pull-off caps (`caps_pulloff = 1`, Thornton 1991 / LAMMPS's jkr); without them the caps as
-    # before. Their own heaps are keyed under the earlier source too (as the spring's, above)
-    "40b3d0ba8393": "77675d5eca62",
-}
-#: the source hash that cache keys and the results index use
-CACHE_SOURCE = SAME_BITS.get(SOURCE_HASH, SOURCE_HASH)
+#: The physics a heap's cache key names: every contact law's name and version (calib_cli.dem.laws) and the
+#: kernel's version (integration, neighbour search, the force loop's assembly), not the bytes of the
+#: source, so that a comment or a refactoring that keeps the arithmetic re-simulates nothing. Changing a
+#: law's arithmetic means raising its version (and KERNEL_VERSION for the rest of the kernel); every
+#: heap's key then changes. The laws at their first versions compute, bit for bit, the heaps of kernel
+#: source 77675d5eca62 (the last one keyed by its bytes), which keeps naming them: tests/test_heap.py
+#: re-simulates committed heaps of it on every test run (the golden heaps) to hold that true.
+PHYSICS = {"kernel": KERNEL_VERSION, **{f"{law.family}={law.name}": law.version
+                                         for family in REGISTRY.values() for law in family.values()}}
+
+
+def cache_source(physics: Mapping[str, object]) -> str:
+    """The name of a physics version in cache keys and the results' `source` column: 77675d5eca62
+    while every law and the kernel are at their first version, a hash of the versions after."""
+    if str(physics.get("kernel")) == "1" and all(v == 1 for k, v in physics.items() if k != "kernel"):
+        return "77675d5eca62"
+    return art.hash_obj(dict(physics))[:12]
+
+
+#: the physics version that cache keys and the results index use
+CACHE_SOURCE = cache_source(PHYSICS)
 #: the second engines' own source (calib_cli/engines/: the LAMMPS parameter mapping, clumps), in their
 #: heaps' keys beside CACHE_SOURCE: a changed mapping re-simulates instead of serving the old one's heaps
 ENGINE_SOURCE = art.hash_obj({f.name: art.file_hash(f)

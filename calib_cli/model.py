@@ -31,6 +31,10 @@ class Effect:
     step: float  # the step away from neutral that diagnose simulates
     description: str
     signature: str  # how its misfit shows across conditions (diagnose's words)
+    #: an absent effect's parameter is written into every simulation at its neutral value; an effect
+    #: added after heaps were cached leaves it out instead (the heap's own default is the same "off"),
+    #: so that the cache keys of the heaps made before it stay what they were
+    pinned_when_absent: bool = True
 
     @property
     def two_sided(self) -> bool:
@@ -76,6 +80,12 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("wall_rolling", "wall_rolling_friction", 0.0, 0.5, float("nan"), 0.1,
            "rolling resistance on the floor distinct from the grains'",
            "the toe of the heap: the residual changes with the floor material and heap size"),
+    Effect("capillary", "surface_tension", 0.0, 0.15, 0.0, 0.07,
+           "capillary liquid bridges between wet grains (Willett et al. 2000): the liquid's surface tension, "
+           "with the bridge volume and contact angle as set",
+           "like JKR cohesion the residual grows as grains and heaps get smaller (a bridge pulls with 2 pi R gamma, "
+           "a grain weighs ~R^3); unlike it the pull does not fall with the contact stiffness and reaches across a "
+           "gap, so it holds loose grains on the flank", pinned_when_absent=False),
 ]}
 #: wall_* effects are neutral when they equal the particles' own value (NaN marks "tied")
 
@@ -114,7 +124,7 @@ class Model:
             if name in self.effects:
                 if eff.parameter in params:
                     out[eff.parameter] = float(params[eff.parameter])
-            elif eff.neutral == eff.neutral:  # not NaN: a value of its own
+            elif eff.neutral == eff.neutral and eff.pinned_when_absent:  # not NaN: a value of its own
                 out[eff.parameter] = eff.neutral
         return out
 

@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from calib_cli.dem import kernel
-from calib_cli.dem.contact import (hertz_contact_time, jkr_cutoff_overlap, jkr_force_of_radius,
-                                   jkr_overlap_of_radius, normal_law, normal_law_a, rayleigh_time_step)
-from calib_cli.dem.materials import Interaction, Material, effective_moduli
+from calib_cli.dem.forces import evaluate_contact
+from calib_cli.dem.laws import ContactModel
+from calib_cli.dem.laws.columns import A_OLD, G_ROLL, HIST, K_ROLL
+from calib_cli.dem.laws.normal import (jkr_cutoff_overlap, jkr_force_of_radius, jkr_overlap_of_radius, normal_law,
+                                       normal_law_a)
+from calib_cli.dem.materials import Interaction, Material, contact_model, effective_moduli
+from calib_cli.dem.neighbours import build_pairs
+from calib_cli.dem.timestep import hertz_contact_time, rayleigh_time_step
 from calib_cli.dem.system import Particles, System, UnstableError, Walls
 from calib_cli.errors import CalibError
 
@@ -260,7 +264,7 @@ def test_rolling_spring_holds_a_static_torque_where_the_constant_torque_creeps()
     springs carrying exactly the static load f = m g sin(theta): f / (8 G* a) tangentially and
     f (R - delta) / (R k_r) in rolling (torque balance about the centre). The constant directional torque gives no torque at rest, so gravity turns
     the sphere a little every step and it creeps at a speed of order g dt (docs/physics.md)."""
-    from calib_cli.dem.contact import rolling_spring_constants
+    from calib_cli.dem.laws.rolling import rolling_spring_constants
 
     th = math.atan(0.25)
     end = {}
@@ -283,7 +287,7 @@ def test_rolling_spring_holds_a_static_torque_where_the_constant_torque_creeps()
 def _spring_torques(wi, wj, dt=1e-7, mur=0.2, delta=2e-5, gr=0.0):
     """Torques of one Hertz pair contact under the rolling spring (no sliding friction), n = +x."""
     ti, tj, fel, _, ht, prm = _pair_contact(Interaction(0.0, mur, 0.5, 0.0, 0.0, 0.0, 1.0), wi, wj, delta, dt, gr)
-    return ti, tj, prm[0, kernel.K_ROLL], fel, ht[0]
+    return ti, tj, prm[0, K_ROLL], fel, ht[0]
 
 
 def test_rolling_spring_contact_law():
@@ -387,7 +391,7 @@ def test_neighbour_list_matches_brute_force(n, seed, reach):
     pos[0] = [5.0, 0, 0]  # one escaped particle only coarsens the grid
     rad = rng.uniform(1e-3, 3e-3, n)
     pi, pj = np.zeros(n * n, np.int64), np.zeros(n * n, np.int64)
-    cnt = kernel.build_pairs(pos, rad, reach, pi, pj)
+    cnt = build_pairs(pos, rad, reach, pi, pj)
     got = set(zip(pi[:cnt].tolist(), pj[:cnt].tolist()))
     want = {(i, j) for i in range(n) for j in range(i + 1, n)
             if np.linalg.norm(pos[i] - pos[j]) < rad[i] + rad[j] + reach}
@@ -417,12 +421,12 @@ def _pair_contact(it, wi, wj, delta=2e-5, dt=1e-10, g_roll=None):
 
     prm = np.vstack([param_row(MAT, MAT, it)] * 3)
     if g_roll is not None:
-        prm[:, kernel.G_ROLL] = g_roll
-    ht = np.zeros((1, kernel.HIST))
+        prm[:, G_ROLL] = g_roll
+    ht = np.zeros((1, HIST))
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)
     arm = R - delta / 2
-    out = kernel._contact(1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
+    out = evaluate_contact(contact_model(it).spec, 1.0, 0.0, 0.0, delta, arm, arm, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 0.0, 0.0,
                           *wi, *wj, ht, 0, prm, 0, dt)
     fel = 4 / 3 * ES * math.sqrt(R / 2) * delta**1.5
     return np.array(out[3:6]), np.array(out[6:9]), fel, arm, ht, prm
@@ -455,12 +459,14 @@ def test_friction_cap_repulsive_part_or_net_force(net):
     from calib_cli.dem.materials import param_row
 
     gamma, mu, delta = 1.0, 0.3, 1e-6
-    prm = np.vstack([param_row(MAT, MAT, Interaction(mu, 0.0, 0.5, gamma, 0.0, net))] * 3)
-    ht = np.zeros((1, kernel.HIST))
-    ht[0, 3] = -1.0  # an engaged contact, no warm start
+    it = Interaction(mu, 0.0, 0.5, gamma, 0.0, net)
+    assert contact_model(it) == ContactModel(normal="jkr", cap="net" if net else "repulsive")
+    prm = np.vstack([param_row(MAT, MAT, it)] * 3)
+    ht = np.zeros((1, HIST))
+    ht[0, A_OLD] = -1.0  # an engaged contact, no warm start
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)
-    out = kernel._contact(1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
+    out = evaluate_contact(contact_model(it).spec, 1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
                           0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ht, 0, prm, 0, 1e-6)  # sliding at 1 m/s along y
     fel, frep, _ = normal_law(delta, R / 2, ES, gamma)
     assert frep > 2 * abs(fel)  # near zero load the two caps differ by far
@@ -473,11 +479,11 @@ def _cohesive_pair_step(it, wi, delta):
     from calib_cli.dem.materials import param_row
 
     prm = np.vstack([param_row(MAT, MAT, it, 1e-4)] * 3)
-    ht = np.zeros((1, kernel.HIST))
-    ht[0, 3] = -1.0  # an engaged contact, no warm start
+    ht = np.zeros((1, HIST))
+    ht[0, A_OLD] = -1.0  # an engaged contact, no warm start
     m = 4 / 3 * math.pi * R**3 * MAT.density
     inv_i = 1 / (0.4 * m * R * R)
-    out = kernel._contact(1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
+    out = evaluate_contact(contact_model(it).spec, 1.0, 0.0, 0.0, delta, R, R, R / 2, m / 2, inv_i, inv_i, 1.0, 1.0, 0.0, 1.0, 0.0,
                           *wi, 0.0, 0.0, 0.0, ht, 0, prm, 0, 1e-3)
     fel, _, _ = normal_law(delta, R / 2, ES, it.surface_energy)
     return np.array(out[:3]), np.array(out[3:6]), fel, 3 * math.pi * it.surface_energy * R / 2

@@ -478,22 +478,21 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
     assert len(c) == 1 and c.iloc[0]["run_hash"] not in set(b["run_hash"])
 
 
-def test_a_source_declared_same_bits_reproduces_committed_heaps():
-    """campaign.SAME_BITS lets this kernel source keep an earlier source's cache keys, claiming it
-    computes the same heaps bit for bit. Check the claim on two committed smoke heaps of that source
-    (one cohesive, one not): rebuilt from their results rows (the per-run artefacts are not
-    committed), they keep their run hash and come out with the same step count, coordinate angle
-    and its sd, heap height, base radius and largest overlap, to the last bit. On a machine other
-    than the one that made them (the rows' `host`) a difference is no evidence against the claim:
-    skipped there."""
+def test_golden_heaps_the_committed_runs_name_come_out_bit_for_bit():
+    """The golden heaps: cache keys name the physics (each contact law's version and the kernel's,
+    campaign.PHYSICS), not the bytes of the source, so a change of the kernel that keeps every version
+    must compute the committed heaps bit for bit. Two committed smoke heaps (one cohesive, one not),
+    rebuilt from their results rows (the per-run artefacts are not committed), keep their run hash and
+    come out with the same step count, coordinate angle and its sd, heap height, base radius and largest
+    overlap, to the last bit. On a machine other than the one that made them (the rows' `host`) a
+    difference is no evidence against the claim: skipped there."""
     from calib_cli import campaign
     from calib_cli.cli.simulate_cmd import request_from_row
-    from calib_cli.dem import SOURCE_HASH
 
-    if campaign.CACHE_SOURCE == SOURCE_HASH:
-        pytest.skip("this kernel source declares no earlier one")
     res = pd.read_parquet(Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate" / "results.parquet")
     res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    assert len(res), f"no committed smoke heap of the current physics {campaign.CACHE_SOURCE}: raise no law's version " \
+                     "without regenerating the sample runs"
     for row in (res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]):
         req = request_from_row(row)
         assert req.hash == row["run_hash"]
@@ -504,7 +503,18 @@ def test_a_source_declared_same_bits_reproduces_committed_heaps():
                                       "base_radius_mm", "max_overlap"))
         if got != want and row["host"] != host():
             pytest.skip(f"the committed heaps were made on {row['host']}, this is {host()}")
-        assert got == want, f"run {row['run_hash']}: {got} != {want}: SAME_BITS claims too much"
+        assert got == want, f"run {row['run_hash']}: {got} != {want}: the physics changed without a new version"
+
+
+def test_cache_keys_name_law_versions_not_source_bytes():
+    """A heap's key depends on campaign.PHYSICS (each law's version, the kernel's), not on the source's
+    bytes: every law at its first version keeps the committed heaps' name; a raised version renames."""
+    from calib_cli import campaign
+
+    assert campaign.CACHE_SOURCE == campaign.cache_source(campaign.PHYSICS) == "77675d5eca62"
+    assert Request({"static_friction": 0.4}, TINY, TINY_NUM, 1).key["source"] == "77675d5eca62"
+    bumped = campaign.cache_source({**campaign.PHYSICS, "rolling=sds": 2})
+    assert bumped != "77675d5eca62" and bumped != campaign.cache_source({**campaign.PHYSICS, "kernel": "2"})
 
 
 def test_the_benchmarks_paper_designs_are_the_papers_tables(monkeypatch):

@@ -101,7 +101,7 @@ def _spin_histories(pos, radii, w0, on_floor, steps, gamma=0.0, caps=0.0):
 
     import numpy as np
 
-    from calib_cli.dem.contact import rolling_spring_constants
+    from calib_cli.dem.laws.rolling import rolling_spring_constants
     from calib_cli.dem.materials import Interaction, Material, effective_moduli
     from calib_cli.dem.system import Particles, System, Walls
     from calib_cli.engines.lammps import _model, open_lammps, write_data

@@ -1,15 +1,18 @@
-"""The built-in DEM engine: polydisperse spheres, Hertz-Mindlin (no slip) with JKR
-cohesion and constant-directional-torque rolling friction, as in EDEM (SPEC section 5), or
-with ``rolling_spring = 1`` a spring-dashpot-slider rolling law (LAMMPS's `rolling sds`), and
-with ``caps_pulloff = 1`` sliding and rolling capped on |F_el + 2 F_c| (Thornton 1991,
-Marshall 2009, LAMMPS's jkr).
+"""The built-in DEM engine: polydisperse spheres with contact laws composed by name
+(:mod:`.laws`): Hertz-Mindlin (no slip) with JKR cohesion and constant-directional-torque rolling
+friction, as in EDEM, by default; a spring-dashpot-slider rolling law (LAMMPS's `rolling sds`),
+other friction caps and capillary liquid bridges on request.
 
 Imports nothing from the CLI. Layers, each usable alone:
 
-- :mod:`.contact`   scalar contact laws (numba-compiled, tested against analytic results)
-- :mod:`.materials` materials and interaction parameters -> packed kernel arrays
-- :mod:`.kernel`    neighbour list, forces, velocity-Verlet integration (numba)
-- :mod:`.system`    a particle system with walls; a factory returns its step function
+- :mod:`.laws`       contact laws, one module per family, composed by name (numba-compiled,
+                     tested against analytic results)
+- :mod:`.materials`  materials and interactions -> the contact model and its parameter rows
+- :mod:`.neighbours` Verlet neighbour list from a cell list, contact history carried over
+- :mod:`.forces`     one composed contact, and every contact of a step
+- :mod:`.integrate`  velocity-Verlet steps in compiled chunks
+- :mod:`.timestep`   critical time steps
+- :mod:`.system`     a particle system with walls; a factory returns its step function
 - :mod:`.heap`      the heap test scenario (fill, settle, lift, rest) and presets
 - :mod:`.angle`     repose angle from particle coordinates
 - :mod:`.render`    rendered side view (silhouette) of a heap
@@ -24,8 +27,9 @@ KERNEL_VERSION = "1"
 
 def _source_hash() -> str:
     h = hashlib.sha256()
-    for f in sorted(Path(__file__).parent.glob("*.py")):
-        h.update(f.read_bytes())
+    here = Path(__file__).parent
+    for f in sorted(here.rglob("*.py")):
+        h.update(str(f.relative_to(here)).encode() + f.read_bytes())
     return h.hexdigest()[:12]
 
 

@@ -20,6 +20,7 @@ from ..errors import CalibError
 from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, repose_angle_coords
+from .laws.capillary import DEFAULTS as LIQUID_DEFAULTS
 from .materials import Interaction, Material
 from .system import Particles, System, Walls
 
@@ -29,14 +30,20 @@ from .system import Particles, System, Walls
 WALL_VALUES = ("static_friction", "rolling_friction", "surface_energy", "restitution")
 PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin",
               "friction_net_force", "rolling_spring", "caps_pulloff",
-              *(f"{w}_{k}" for w in ("wall", "cylinder") for k in WALL_VALUES))
+              *(f"{w}_{k}" for w in ("wall", "cylinder") for k in WALL_VALUES),
+              "surface_tension", "contact_angle", "liquid_volume")
 #: the floor material's values against the grains (e.g. from an inclined-plane test on the rig's
 #: plate): heap-test variables, so conditions on different floors differ; unset (NaN): wall_*
 FLOOR_VARIABLES = tuple(f"floor_{k}" for k in WALL_VALUES)
 PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
-                     "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0, "caps_pulloff": 0.0}
-#: law switches (0/1), not calibrated values: the walls take the grains' choice
-LAWS = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff")
+                     "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0, "caps_pulloff": 0.0,
+                     "surface_tension": 0.0, **LIQUID_DEFAULTS}
+#: law switches (0/1) and a law's fixed settings (the liquid's contact angle, a bridge's volume), not
+#: calibrated values: the walls take the grains' choice
+LAWS = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff", "contact_angle", "liquid_volume")
+#: values the walls never take from the grains: no wall sticks (a wet fill glued to the lifting cylinder is
+#: an effect of its own, and would be carried up with it), and a wall holds no liquid bridge
+WALL_ZERO = ("surface_energy", "surface_tension")
 
 
 #: the numeric heap-test variables (columns of a conditions table); `floor` is a name, the floor
@@ -136,10 +143,8 @@ def interactions(params: Mapping[str, float], condition: HeapCondition | None = 
         raise CalibError(f"unknown heap parameter(s) {sorted(unknown)}; known: {', '.join(PARAMETERS)}")
     own = {k: float(v) for k, v in params.items() if not k.startswith(("wall_", "cylinder_"))}
     p = {**PARTICLE_DEFAULTS, **own}
-    # walls share the particles' friction and restitution unless given; they do not stick
-    # (wall surface energy 0) unless given: a wet fill glued to the lifting cylinder is a
-    # separate effect, and would be carried up with it
-    w = {k: float(params.get(f"wall_{k}", 0.0 if k == "surface_energy" else p[k])) for k in PARTICLE_DEFAULTS}
+    # walls share the particles' friction and restitution unless given; they do not stick (WALL_ZERO)
+    w = {k: float(params.get(f"wall_{k}", 0.0 if k in WALL_ZERO else p[k])) for k in PARTICLE_DEFAULTS}
     pp = Interaction(**p)
     floor = condition.floor_values() if condition is not None else {}
     pf = Interaction(**{k: floor.get(f"floor_{k}", v) for k, v in w.items()})

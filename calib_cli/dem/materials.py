@@ -1,4 +1,5 @@
-"""Materials and interactions -> the packed parameter rows the kernel reads."""
+"""Materials and interactions -> the run's contact model (which laws) and the parameter rows its
+laws read (:mod:`.laws.columns`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CalibError
-from .contact import damping_ratio, jkr_constants, rolling_spring_constants
+from .laws import ContactModel, capillary
+from .laws.columns import NCOL
+from .laws.damping import damping_ratio
+from .laws.normal import jkr_constants
+from .laws.rolling import rolling_spring_constants
 
 
 @dataclass(frozen=True)
@@ -53,6 +58,11 @@ class Interaction:
     #: 0: the caps above; 1: both caps (sliding and rolling) on |F_el + 2 F_c|, F_c = 3 pi g R* the
     #: JKR pull-off force (Thornton 1991, Marshall 2009; LAMMPS's jkr): the same as 0 without cohesion
     caps_pulloff: float = 0.0
+    #: a capillary liquid bridge (:mod:`.laws.capillary`): the liquid's surface tension (N/m; 0: none,
+    #: water 0.072), contact angle (deg) and a bridge's volume over a grain's
+    surface_tension: float = 0.0
+    contact_angle: float = capillary.DEFAULTS["contact_angle"]
+    liquid_volume: float = capillary.DEFAULTS["liquid_volume"]
 
     def validate(self, what: str = "interaction") -> None:
         checks = [
@@ -68,11 +78,15 @@ class Interaction:
             (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1"),
             (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
              "each other (two friction caps)"),
+            (0 <= self.surface_tension <= 1, "surface_tension must lie in [0, 1] N/m (water: 0.072)"),
+            (0 <= self.contact_angle < 90, "contact_angle must lie in [0, 90) deg"),
+            (0 < self.liquid_volume <= 0.5, "liquid_volume (a bridge's volume over a grain's) must lie in (0, 0.5]"),
         ]
         for ok, msg in checks:
             if not ok:
                 raise CalibError(f"{what}: {msg} (got {self})")
-        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy):
+        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy,
+                  self.surface_tension, self.contact_angle, self.liquid_volume):
             if not np.isfinite(v):
                 raise CalibError(f"{what}: parameters must be finite (got {self})")
 
@@ -86,11 +100,25 @@ def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
 
 
 def param_row(m1: Material, m2: Material, it: Interaction, m_typ: float = 0.0) -> np.ndarray:
-    """The kernel's row of one interaction (columns: :mod:`.kernel`); ``m_typ`` (a typical grain's
+    """The laws' row of one interaction (columns: :mod:`.laws.columns`); ``m_typ`` (a typical grain's
     mass) sets the rolling spring's damping."""
     Es, Gs = effective_moduli(m1, m2)
     k13, att = jkr_constants(Es, it.surface_energy)
     kr, gr = rolling_spring_constants(Gs, m_typ) if it.rolling_spring else (0.0, 0.0)
-    return np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
-                     it.surface_energy, it.rolling_own_spin, it.friction_net_force,
-                     k13, att, math.sqrt(4.0 * Gs / Es), kr, gr, it.caps_pulloff], dtype=np.float64)
+    row = np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
+                    it.surface_energy, k13, att, math.sqrt(4.0 * Gs / Es), kr, gr,
+                    *capillary.constants(it.surface_tension, it.contact_angle, it.liquid_volume)], dtype=np.float64)
+    assert len(row) == NCOL
+    return row
+
+
+def contact_model(*its: Interaction) -> ContactModel:
+    """The laws a run's interactions (particle-particle first; the walls take the grains' law
+    switches) call for: JKR where any has a surface energy, a liquid bridge where the grains have a
+    surface tension, and the rolling law and friction caps the switches name."""
+    pp = its[0]
+    return ContactModel(
+        normal="jkr" if any(it.surface_energy > 0 for it in its) else "hertz",
+        cohesion="capillary" if pp.surface_tension > 0 else "none",
+        cap="pulloff" if pp.caps_pulloff else "net" if pp.friction_net_force else "repulsive",
+        rolling="sds" if pp.rolling_spring else "cdt_own" if pp.rolling_own_spin else "cdt_relative")

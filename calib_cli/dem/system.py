@@ -7,10 +7,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibError
-from . import kernel
-from .kernel import HIST
-from .contact import jkr_cutoff_overlap, jkr_time_step, rayleigh_time_step
-from .materials import Interaction, Material, param_row
+from .forces import forces_of
+from .integrate import NEED_CAPACITY, stepper
+from .laws.columns import CYL, E_S, FLOOR, G_S, GAMMA, HIST, PP
+from .materials import Interaction, Material, contact_model, param_row
+from .neighbours import build_pairs, transfer_history
+from .timestep import jkr_time_step, rayleigh_time_step
 
 
 class UnstableError(CalibError):
@@ -47,7 +49,8 @@ class System:
     """State and parameters of one simulation; :meth:`advance` integrates it.
 
     ``dt`` defaults to ``safety`` x the critical step: the smaller of the Rayleigh time
-    of the smallest particle and the JKR contact step (:func:`.contact.jkr_time_step`).
+    of the smallest particle and the JKR contact step (:func:`.timestep.jkr_time_step`).
+    The contact laws are the composition the interactions call for (:func:`.materials.contact_model`).
     """
 
     particles: Particles
@@ -86,7 +89,7 @@ class System:
                               param_row(self.material, self.wall_material, self.cylinder, m_typ)])
         rmin, rho = p.rad.min(), self.material.density
         self.rayleigh_dt = rayleigh_time_step(rmin, rho, self.material.shear_modulus, self.material.poisson)
-        self.jkr_dt = min(jkr_time_step(rmin, rho, row[0], row[1], row[5], wall=w)
+        self.jkr_dt = min(jkr_time_step(rmin, rho, row[E_S], row[G_S], row[GAMMA], wall=w)
                           for row, w in ((self.prm[0], False), (self.prm[1], True), (self.prm[2], True)))
         self.critical_dt = min(self.rayleigh_dt, self.jkr_dt)
         if self.dt is None:
@@ -95,10 +98,13 @@ class System:
             raise CalibError(f"time step {self.dt:.3g} s exceeds the critical step {self.critical_dt:.3g} s "
                              f"(Rayleigh {self.rayleigh_dt:.3g} s, JKR contact {self.jkr_dt:.3g} s): the run would "
                              f"be unstable; lower it")
+        self.model = contact_model(self.pp, self.floor, self.cylinder)
         rmax = p.rad.max()
+        # the widest gap any law acts across: the largest pair's (R* = r_max / 2), a grain on a wall (R* = r_max)
+        self.gap = np.array([self.model.reach(self.prm[PP], rmax / 2.0), self.model.reach(self.prm[FLOOR], rmax),
+                             self.model.reach(self.prm[CYL], rmax)])
         self.skin = self.skin_ratio * p.rad.mean()
-        dc = -jkr_cutoff_overlap(rmax / 2.0, self.prm[0, 0], self.pp.surface_energy)
-        self.reach = self.skin + dc
+        self.reach = self.skin + self.gap[PP]
         w = self.walls
         self.geo = np.array([w.cylinder_radius, 0.0, w.lift_speed, 1.0 if w.cylinder_radius > 0 else 0.0,
                              1.0 if w.floor else 0.0, 0.0])
@@ -111,9 +117,9 @@ class System:
         self.cnew = np.zeros(n)
         self._alloc(16 * n + 64)
         self._rebuild()
-        kernel.compute_forces(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
-                              self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.geo, self.grav, self.dt,
-                              self.force, self.torque, self.ncont, self.cnew, self.pf)
+        forces_of(self.model.spec)(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
+                       self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.gap, self.geo, self.grav, self.dt,
+                       self.force, self.torque, self.ncont, self.cnew, self.pf)
 
     def _alloc(self, cap: int, keep: int = 0):
         old = getattr(self, "pi", None)
@@ -129,12 +135,11 @@ class System:
     def _rebuild(self):
         p = self.particles
         while True:
-            cnt = kernel.build_pairs(p.pos, p.rad, self.reach, self.spare_i, self.spare_j)
+            cnt = build_pairs(p.pos, p.rad, self.reach, self.spare_i, self.spare_j)
             if cnt >= 0:
                 break
             self._alloc(2 * len(self.pi), keep=int(self.npairs[0]))
-        kernel.transfer_history(self.pi, self.pj, self.ht, self.npairs[0], self.spare_i, self.spare_j,
-                                self.spare_h, cnt)
+        transfer_history(self.pi, self.pj, self.ht, self.npairs[0], self.spare_i, self.spare_j, self.spare_h, cnt)
         self.pi[:cnt], self.pj[:cnt], self.ht[:cnt] = self.spare_i[:cnt], self.spare_j[:cnt], self.spare_h[:cnt]
         self.npairs[0] = cnt
         self.ref_pos = p.pos.copy()
@@ -160,17 +165,17 @@ class System:
         p = self.particles
         done = 0
         while done < nsteps:
-            status, k, worst, reb = kernel.run_steps(
+            status, k, worst, reb = stepper(self.model.spec)(
                 nsteps - done, self.t, self.dt, p.pos, p.vel, p.omg, self.force, self.torque, p.rad, self.mass,
                 self.inv_inertia, self.pi, self.pj, self.npairs, self.ht, self.ref_pos, self.skin, self.reach,
-                self.hf, self.hc, self.prm, self.geo, self.walls.lift_start, self.grav, self.overlap_limit,
+                self.hf, self.hc, self.prm, self.gap, self.geo, self.walls.lift_start, self.grav, self.overlap_limit,
                 self.speed_limit, self.spare_i, self.spare_j, self.spare_h, self.ncont, self.cnew, self.pf)
             done += k
             self.t += k * self.dt
             self.n_steps += k
             self.n_rebuilds += reb
             self.max_overlap = max(self.max_overlap, worst)
-            if status == kernel.NEED_CAPACITY:
+            if status == NEED_CAPACITY:
                 self._alloc(2 * len(self.pi), keep=int(self.npairs[0]))
                 continue
             if status == 2:

@@ -22,7 +22,7 @@ Parameter mapping (docs/physics.md, "LAMMPS"):
   (approximate); that torque also resists twist about the normal, which LAMMPS's rolling model
   does not see (`twisting sds` was tried and agreed worse, docs/physics.md). With
   `rolling_spring = 1` the built-in kernel runs this same law with the same constants
-  (:func:`..dem.contact.rolling_spring_constants`), so the two engines then share the rolling law;
+  (:func:`..dem.laws.rolling.rolling_spring_constants`), so the two engines then share the rolling law;
 * walls: the floor `wall/gran zplane`, the cylinder a `region cylinder ... open 1 open 2` moving
   up at the lift speed with `wall/gran/region`; the settling drag is `fix viscous` with the
   mean grain mass (ours is proportional to each grain's mass);
@@ -46,7 +46,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dem.angle import repose_angle_coords
-from ..dem.contact import jkr_time_step, rayleigh_time_step, rolling_spring_constants
+from ..dem.laws.rolling import rolling_spring_constants
+from ..dem.timestep import jkr_time_step, rayleigh_time_step
 from ..dem.heap import DriftMeter, HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
 from ..dem.materials import Material, effective_moduli
 from ..errors import CalibError

@@ -1,8 +1,9 @@
-"""Scalar contact laws (SPEC section 5; EDEM Hertz-Mindlin no-slip + JKR).
+"""Normal elastic laws: Hertz, and JKR cohesion (EDEM's Hertz-Mindlin with JKR; paper Eqs. 2-3, 6).
 
-Conventions: overlap ``delta > 0`` in contact; normal force ``F > 0`` repulsive.
-Equivalent quantities: 1/E* = (1-v1^2)/E1 + (1-v2^2)/E2, 1/G* = 2(2-v1)(1+v1)/E1 + 2(2-v2)(1+v2)/E2,
-1/R* = 1/R1 + 1/R2, 1/m* = 1/m1 + 1/m2.
+Conventions: overlap ``delta > 0`` in contact; normal force ``F > 0`` repulsive; R* the pair's
+equivalent radius (1/R* = 1/R1 + 1/R2, a wall's R* the grain's radius), E* the equivalent modulus.
+
+Hertz (paper Eq. 6): F = 4/3 E* sqrt(R*) delta^(3/2), contact radius a = sqrt(R* delta).
 
 JKR (paper Eqs. 2-3, exponent corrected):
     F = -4 sqrt(pi g E*) a^(3/2) + 4 E* a^3 / (3 R*),   delta = a^2/R* - 2 sqrt(pi g a / E*).
@@ -10,7 +11,11 @@ With k = pi g / E*, a = u (k R*^2)^(1/3) and delta = k^(2/3) R*^(1/3) (u^2 - 2 s
 dimensionless equation serves every pair. The stable branch (u above the minimum of
 delta(u), u^3 > 1/4) is followed. The force minimum is -3 pi g R* (at u^3 = 9/4); the
 attraction ends at the cutoff gap delta_c of a_c = [9 pi g R*^2/(2E*) (3/4 - 1/sqrt 2)]^(1/3).
-With g = 0 the law is Hertz: F = 4/3 E* sqrt(R*) delta^(3/2) (paper Eq. 6).
+With g = 0 the law is Hertz.
+
+Each law: ``(delta, Rs, a_old, ht, k, prm, row) -> (F_el, F_rep, a)``: elastic force, its repulsive
+part 4E*a^3/(3R*), contact radius (0: not in contact). ``a_old`` is the contact's radius at the last
+step (0: apart); ``ht[k, R13]`` caches R*^(1/3).
 """
 
 from __future__ import annotations
@@ -20,20 +25,14 @@ import math
 import numba as nb
 import numpy as np
 
-SQRT_5_6 = math.sqrt(5.0 / 6.0)
+from .columns import ATT, E_S, GAMMA, K13, R13
+
 #: u_c^3 = 9/2 (3/4 - 1/sqrt 2): the cutoff contact radius in units of (k R*^2)^(1/3)
 U_CUT = (4.5 * (0.75 - 1.0 / math.sqrt(2.0))) ** (1.0 / 3.0)
 #: dimensionless cutoff overlap u_c^2 - 2 sqrt(u_c) (about -1.1864)
 DELTA_CUT = U_CUT**2 - 2.0 * math.sqrt(U_CUT)
-
-
-@nb.njit(cache=True, inline="always")
-def damping_ratio(e):
-    """beta = ln e / sqrt(ln^2 e + pi^2) (negative for e < 1, 0 for e = 1)."""
-    if e >= 1.0:
-        return 0.0
-    le = math.log(e)
-    return le / math.sqrt(le * le + math.pi * math.pi)
+#: s = sqrt(u) at the turning point of delta(u) (u^3 = 1/4): every stable-branch root lies above it
+S_TURN = 0.25 ** (1.0 / 6.0)
 
 
 @nb.njit(cache=True)
@@ -43,10 +42,6 @@ def jkr_cutoff_overlap(Rs, Es, gamma):
         return 0.0
     k = math.pi * gamma / Es
     return DELTA_CUT * k ** (2.0 / 3.0) * Rs ** (1.0 / 3.0)
-
-
-#: s = sqrt(u) at the turning point of delta(u) (u^3 = 1/4): every stable-branch root lies above it
-S_TURN = 0.25 ** (1.0 / 6.0)
 
 
 @nb.njit(cache=True)
@@ -150,38 +145,25 @@ def jkr_force_of_radius(a, Rs, Es, gamma):
     return -4.0 * math.sqrt(math.pi * gamma * Es) * a ** 1.5 + 4.0 * Es * a ** 3 / (3.0 * Rs)
 
 
-def rayleigh_time_step(r_min, density, shear_modulus, poisson):
-    """Rayleigh time: pi R sqrt(rho/G) / (0.1631 v + 0.8766)."""
-    return math.pi * r_min * math.sqrt(density / shear_modulus) / (0.1631 * poisson + 0.8766)
+@nb.njit(cache=True, inline="always")
+def hertz(delta, Rs, a_old, ht, k, prm, row):
+    """Hertz (paper Eq. 6): F = 4/3 E* sqrt(R*) delta^(3/2) in contact, nothing apart."""
+    return normal_law_core(delta, Rs, 0.0, prm[row, E_S], 0.0, 0.0, 0.0, a_old)
 
 
-def jkr_time_step(r_min, density, Es, Gs, gamma, wall=False):
-    """Critical step 2/omega of the stiffest zero-load JKR contact (inf without cohesion).
-
-    A JKR contact keeps a finite radius a0 at zero load (u^(3/2) = 3), so its tangential
-    stiffness 8 G* a0 does not vanish as Hertz's does; with the rotational inertia the
-    relative tangential motion has omega^2 = 7 k_t / m for equal spheres (3.5 k_t / m on a
-    wall). The Rayleigh step does not see this, and reducing G makes it relatively worse
-    (omega * t_R ~ G^(-1/6)). Measured: a settled cohesive packing hummed at 30 % of
-    min(t_R, this) and came to rest at 20 %.
-    """
-    if gamma <= 0.0:
-        return math.inf
-    Rs = r_min if wall else r_min / 2.0
-    a0 = 3.0 ** (2.0 / 3.0) * (math.pi * gamma / Es) ** (1.0 / 3.0) * Rs ** (2.0 / 3.0)
-    m = density * 4.0 / 3.0 * math.pi * r_min**3
-    omega = math.sqrt((3.5 if wall else 7.0) * 8.0 * Gs * a0 / m)
-    return 2.0 / omega
+@nb.njit(cache=True, inline="always")
+def jkr(delta, Rs, a_old, ht, k, prm, row):
+    """JKR (paper Eqs. 2-3), hysteretic (:func:`normal_law_a`); Hertz where the row's g is 0 (a wall)."""
+    gamma = prm[row, GAMMA]
+    r13 = ht[k, R13]
+    if r13 == 0.0 and gamma > 0.0:
+        # R*^(1/3) is fixed for a pair (or a particle on a wall): a cube root per contact and
+        # step was a fifth of the step's time
+        r13 = np.cbrt(Rs)
+        ht[k, R13] = r13
+    return normal_law_core(delta, Rs, r13, prm[row, E_S], gamma, prm[row, K13], prm[row, ATT], a_old)
 
 
-def rolling_spring_constants(Gs, m_typ):
-    """(k_r, g_r) of the spring-dashpot-slider rolling law: the stiffness of the order of a contact's
-    tangential one, 8 G* x 0.1 mm, and the damping critical at a typical grain, 2 sqrt(k_r m)
-    (the LAMMPS engine's `rolling sds` mapping, docs/physics.md "Rolling spring")."""
-    k = 8 * Gs * 1e-4
-    return k, 2 * math.sqrt(k * m_typ)
-
-
-def hertz_contact_time(Rs, Es, ms, v):
-    """Duration of an elastic Hertz impact at speed v: 2.868 (m*^2/(R* E*^2 v))^(1/5)."""
-    return 2.8683 * (ms * ms / (Rs * Es * Es * v)) ** 0.2
+def jkr_reach(row: np.ndarray, r_max: float) -> float:
+    """The JKR cutoff gap -delta_c of the largest pair (a grain of radius r_max on a wall: R* = r_max)."""
+    return -jkr_cutoff_overlap(r_max, row[E_S], row[GAMMA])
