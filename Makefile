@@ -34,7 +34,7 @@ calibrate: paper calibration
 
 # Table 1 -> target, Tables 3 and 5 -> screening and ascent, into run directory $(1)
 define paper_screening
-$(CALIB) init --run $(1) --settings stages/paper.toml
+$(CALIB) init --run $(1) --settings stages/settings/paper.toml
 $(CALIB) measure-angle --run $(1) --angles $(DATA)/table1_angles.csv
 $(CALIB) pb design --run $(1)
 $(CALIB) pb analyze --run $(1) --responses $(DATA)/table3_pb.csv
@@ -55,7 +55,7 @@ paper: setup
 # A whole calibration on simulations, in minutes: photographs -> screening -> ascent -> BBD ->
 # surrogates -> inversion -> validation runs -> compare, every simulation with the smoke preset
 smoke: setup
-	$(CALIB) init --run $(SMOKE) --settings stages/smoke.toml
+	$(CALIB) init --run $(SMOKE) --settings stages/settings/smoke.toml
 	$(CALIB) measure-angle --run $(SMOKE) --images $(PHOTOS) --conditions $(PHOTOS)/conditions.csv
 	$(CALIB) pb design --run $(SMOKE)
 	$(CALIB) simulate-heap --run $(SMOKE) --design $(SMOKE)/pb/design.parquet $(SIM)
@@ -79,7 +79,7 @@ CDATA  := sample_data/calibration
 CSIM   := --preset default --workers 2
 # the chain into run directory $(1), every design heap simulated with the extra options $(2)
 define calibration_chain
-$(CALIB) init --run $(1) --settings stages/calibration.toml
+$(CALIB) init --run $(1) --settings stages/settings/calibration.toml
 $(CALIB) measure-angle --run $(1) --images $(CDATA) --conditions $(CDATA)/conditions.csv
 $(CALIB) pb design --run $(1)
 $(CALIB) simulate-heap --run $(1) --design $(1)/pb/design.parquet --conditions $(1)/measure/conditions.parquet $(CSIM) $(2)
@@ -123,7 +123,7 @@ REV1   := -s 'bbd.factors=["static_friction","rolling_friction","surface_energy"
 # noise (wall friction last, p 0.76); with 6 it ranked wall friction first (p 3e-5, and 2e-6 on the
 # committed sample run)
 define lab_rev0
-$(CALIB) init --run $(1) --settings stages/hidden-effect.toml
+$(CALIB) init --run $(1) --settings stages/settings/hidden-effect.toml
 $(CALIB) measure-angle --run $(1) --images $(1)/lab --conditions $(1)/lab/conditions.csv
 $(CALIB) bbd design --run $(1)
 $(CALIB) simulate-heap --run $(1) --design $(1)/bbd/design.parquet --conditions $(1)/measure/conditions.parquet $(LABSIM)
