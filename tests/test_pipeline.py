@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from calib_cli import artifacts as art
 from calib_cli.cli import app
 from calib_cli.errors import CalibError
-from calib_cli.pipeline import UP_TO_DATE, execute, load_pipeline, plan
+from calib_cli.pipeline import UP_TO_DATE, execute, load_pipeline, parse_vars, plan
 from conftest import ROOT
 
 runner = CliRunner()
@@ -408,3 +408,15 @@ def test_an_interrupted_pipeline_resumes(tmp_path, at_root, monkeypatch):
     monkeypatch.setattr(art.Stage, "commit", commit)
     result = execute(plan(load_pipeline("stages/paper.toml", run)))
     assert [s.status for s in result.steps] == [UP_TO_DATE] * 6 + ["ran"] * 5
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+@pytest.mark.parametrize("target", sorted(OLD_MAKEFILE))
+def test_committed_run_holds_its_pipelines_settings_file(target, at_root):
+    """`calib init` in a shipped pipeline is a no-op on the committed run directory of its target:
+    RUN/settings.toml is the pipeline's settings file byte for byte, so the stages stay up to date."""
+    args = make_call(target)
+    variables = parse_vars([args[i + 1] for i, a in enumerate(args) if a == "--var"])
+    init = next(s for s in plan(load_pipeline(args[1], args[3], variables)).steps if s.argv[0] == "init")
+    run, settings = init.argv[init.argv.index("--run") + 1], init.argv[init.argv.index("--settings") + 1]
+    assert (ROOT / run / "settings.toml").read_bytes() == (ROOT / settings).read_bytes()
