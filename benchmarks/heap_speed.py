@@ -8,7 +8,7 @@ versions run the same heap (the `default` preset at the centre of the paper's Ta
 mu_s 0.275, mu_r 0.215, g 1.25 J/m2) at the same time, one process and one numba thread
 each, so the two share the machine alike; each first runs a `smoke` heap to compile.
 ``--rig calibration`` runs instead the sample calibration's photographed rig (4-5 mm grains,
-40 mm cylinder filled 75 mm, ~1,200 grains) at the centre of its ranges (stages/calibration.toml).
+40 mm cylinder filled 75 mm, ~1,200 grains) at the centre of its ranges (stages/settings/calibration.toml).
 Where the kernels' floating-point results differ in the last bits the heaps take slightly
 different paths: then compare time per step, not total time ("same bits" says which).
 """

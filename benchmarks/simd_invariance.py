@@ -45,7 +45,7 @@ print(json.dumps(dict(host=host(), heaps=out)))
 
 
 def points(n: int) -> list[dict]:
-    """n points spread over the sample calibration's ranges (stages/calibration.toml), half of them cohesive."""
+    """n points spread over the sample calibration's ranges (stages/settings/calibration.toml), half of them cohesive."""
     out = []
     for i in range(n):
         f = (i * 0.618034) % 1.0

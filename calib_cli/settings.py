@@ -2,7 +2,7 @@
 
 The built-in defaults are the paper's setup (Tables 2 and 6, GA/PSO settings of
 sections 3.5-3.6), so a bare ``calib`` call does what the paper did. A settings
-file in ``stages/`` overrides any part; ``--setting pb.alpha=0.1`` overrides one key.
+file in ``stages/settings/`` overrides any part; ``--setting pb.alpha=0.1`` overrides one key.
 Unknown keys are an error (a typo must not be silently ignored).
 """
 

@@ -5,7 +5,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "sample_data" / "paper"
-STAGES = ROOT / "stages"
+SETTINGS_DIR = ROOT / "stages" / "settings"
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
 from calib_cli.cli import app
-from conftest import PAPER, STAGES
+from conftest import PAPER, SETTINGS_DIR
 
 runner = CliRunner()
 
@@ -25,7 +25,7 @@ def snapshot(d):
 @pytest.fixture
 def run(tmp_path):
     d = tmp_path / "run"
-    assert calib("init", "--run", d, "--settings", STAGES / "paper.toml").exit_code == 0
+    assert calib("init", "--run", d, "--settings", SETTINGS_DIR / "paper.toml").exit_code == 0
     return d
 
 
@@ -222,7 +222,7 @@ def test_ascent_aims_at_the_measured_angle(tmp_path):
     """Without ascent.target the path is judged against the measured angle (the photographs'
     mean), not the settings' placeholder target."""
     run, toml = tmp_path / "run", tmp_path / "no_ascent_target.toml"
-    toml.write_text((STAGES / "paper.toml").read_text().replace("target = 32.84", ""))
+    toml.write_text((SETTINGS_DIR / "paper.toml").read_text().replace("target = 32.84", ""))
     assert calib("init", "--run", run, "--settings", toml).exit_code == 0
     assert calib("pb", "design", "--run", run).exit_code == 0
     assert calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv").exit_code == 0
@@ -247,29 +247,29 @@ def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     from calib_cli.settings import load_settings
 
     run = tmp_path / "run"
-    r = calib("init", "--run", run, "--settings", STAGES / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
+    r = calib("init", "--run", run, "--settings", SETTINGS_DIR / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
               "-s", "heap.preset=smoke")
     assert r.exit_code == 0, r.output
     target = run / "settings.toml"
     text = target.read_text()
-    assert text.endswith((STAGES / "paper.toml").read_text())
+    assert text.endswith((SETTINGS_DIR / "paper.toml").read_text())
     s = load_settings([target])
     assert s["heap"] == {"preset": "smoke", "shear_modulus": 1.5e8}
     assert s["ascent"]["method"] == "diagonal"  # the copied file's own settings still hold
-    r = calib("init", "--run", run, "--settings", STAGES / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
+    r = calib("init", "--run", run, "--settings", SETTINGS_DIR / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
               "-s", "heap.preset=smoke")
     assert r.exit_code == 0 and "initialised" in r.output and target.read_text() == text
     r = calib("init", "--run", run, "-s", "heap.shear_modulus=1.5e8")
     assert r.exit_code == 0 and "already" in r.output and target.read_text() == text
     for args, needle in [(["-s", "heap.shear_modulus=5e8"], "edit the file"),
-                         (["--settings", STAGES / "smoke.toml"], "--force"),
+                         (["--settings", SETTINGS_DIR / "smoke.toml"], "--force"),
                          (["-s", "heap.shear_modulus=stiff"], "heap.shear_modulus must be a number"),
                          (["-s", "heap.presets=smoke"], "unknown setting")]:
         r = calib("init", "--run", run, *args)
         assert r.exit_code == 2 and needle in " ".join(r.output.split()), (args, r.output)
         assert target.read_text() == text
-    r = calib("init", "--run", run, "--settings", STAGES / "smoke.toml", "--force")
-    assert r.exit_code == 0 and target.read_text() == (STAGES / "smoke.toml").read_text()
+    r = calib("init", "--run", run, "--settings", SETTINGS_DIR / "smoke.toml", "--force")
+    assert r.exit_code == 0 and target.read_text() == (SETTINGS_DIR / "smoke.toml").read_text()
     # -s alone on a fresh run: the defaults with the override; a missing --settings file is one line
     r = calib("init", "--run", tmp_path / "fresh", "-s", "heap.shear_modulus=5e7")
     assert r.exit_code == 0 and load_settings([tmp_path / "fresh" / "settings.toml"])["heap"]["shear_modulus"] == 5e7

@@ -14,9 +14,9 @@ def test_defaults_are_the_paper_setup():
 
 
 def test_paper_toml_loads(tmp_path):
-    from conftest import STAGES
+    from conftest import SETTINGS_DIR
 
-    s = load_settings([STAGES / "paper.toml"])
+    s = load_settings([SETTINGS_DIR / "paper.toml"])
     assert s["ascent"]["method"] == "diagonal" and s["bbd"]["fixed"] == {"restitution": 0.2}
 
 

@@ -15,7 +15,7 @@ from calib_cli.surrogate.inversion import invert
 from calib_cli.surrogate.metrics import aad, leave_one_out, mse, r2, scores, split_80_20
 from calib_cli.surrogate.models import BPNetwork, PSOBPNetwork, RSMSurrogate, make_model, model_from_state
 from calib_cli.surrogate.pso import pso_minimize
-from conftest import PAPER, STAGES
+from conftest import PAPER, SETTINGS_DIR
 
 INP = ["static_friction", "rolling_friction", "surface_energy"]
 runner = CliRunner()
@@ -99,7 +99,7 @@ def test_rsm_inversion_to_the_paper_target(xy):
 
 def test_cli_fit_predict_invert(tmp_path):
     run = tmp_path / "run"
-    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(SETTINGS_DIR / "paper.toml")]).exit_code == 0
     r = runner.invoke(app, ["fit-surrogate", "--run", str(run)])
     assert r.exit_code == 2 and "bbd analyze" in r.output
     r = runner.invoke(app, ["bbd", "analyze", "--run", str(run), "--responses", str(PAPER / "table7_bbd.csv")])
@@ -184,7 +184,7 @@ def _simulated_bbd(tmp_path, lost, var=("fill_height_mm", "H", (50.0, 100.0), -0
 
     name, tag, levels, slope = var
     run = tmp_path / "run"
-    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(SETTINGS_DIR / "paper.toml")]).exit_code == 0
     assert runner.invoke(app, ["bbd", "design", "--run", str(run)]).exit_code == 0
     design = art.read_table(run / "bbd" / "design.parquet")
     rows = []
@@ -293,7 +293,7 @@ def test_nearest_point_of_a_set_is_measured_in_coded_units():
 
 def test_cli_refine_needs_validation_heaps(tmp_path):
     run = tmp_path / "run"
-    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(SETTINGS_DIR / "paper.toml")]).exit_code == 0
     assert runner.invoke(app, ["bbd", "analyze", "--run", str(run), "--responses",
                                str(PAPER / "table7_bbd.csv")]).exit_code == 0
     assert runner.invoke(app, ["fit-surrogate", "--run", str(run)]).exit_code == 0
@@ -358,7 +358,7 @@ def test_invert_warns_when_the_solution_sits_on_the_edge_of_the_fitted_range(tmp
     surrogate was fitted on: `invert` must say that the data may want a value beyond it. The
     paper's own target (32.07 deg) lies inside the box: no such warning."""
     run = tmp_path / "run"
-    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(STAGES / "paper.toml")]).exit_code == 0
+    assert runner.invoke(app, ["init", "--run", str(run), "--settings", str(SETTINGS_DIR / "paper.toml")]).exit_code == 0
     assert runner.invoke(app, ["bbd", "analyze", "--run", str(run), "--responses",
                                str(PAPER / "table7_bbd.csv")]).exit_code == 0
     assert runner.invoke(app, ["fit-surrogate", "--run", str(run)]).exit_code == 0

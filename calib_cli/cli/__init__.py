@@ -16,6 +16,7 @@ from .common import (SETTINGS_FILE, ForceOpt, RunOpt, SettingOpt, SettingsOpt, c
 from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
+from .run_cmd import run_pipeline
 from .simulate_cmd import simulate_heap
 from .surrogate_cmds import fit_surrogate, invert, predict
 
@@ -40,6 +41,7 @@ app.add_typer(model_app, name="model")
 app.command("compare")(handle_errors(compare))
 app.command("diagnose")(handle_errors(diagnose))
 app.command("synth-lab")(handle_errors(synth_lab))
+app.command("run")(handle_errors(run_pipeline))
 
 
 def _version(value: bool):
@@ -92,9 +94,13 @@ def report(run: RunOpt):
     from ..report import build_report
 
     run = check_run_dir(run)
-    page = build_report(run)
-    art.atomic_write_bytes(run / "report.html", page.encode())
-    console.print(f"[green]✓[/] wrote {run / 'report.html'}")
+    page = build_report(run).encode()
+    target = run / "report.html"
+    if target.is_file() and target.read_bytes() == page:
+        console.print(f"[green]✓[/] {target} is up to date")
+        return
+    art.atomic_write_bytes(target, page)
+    console.print(f"[green]✓[/] wrote {target}")
 
 
 def main() -> None:

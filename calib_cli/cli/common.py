@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import functools
 from pathlib import Path
@@ -116,11 +118,27 @@ def modulus_note(shear_modulus: Optional[float]) -> str:
     return "" if shear_modulus is None else f", shear modulus {shear_modulus / 1e6:g} MPa"
 
 
+#: set while a pipeline runs a command in-process (calib run): its errors reach the pipeline, which names the step
+_PROPAGATE = contextvars.ContextVar("calib_errors_propagate", default=False)
+
+
+@contextlib.contextmanager
+def errors_propagate():
+    """Commands called inside raise their CalibError and KeyboardInterrupt instead of printing them and exiting."""
+    token = _PROPAGATE.set(True)
+    try:
+        yield
+    finally:
+        _PROPAGATE.reset(token)
+
+
 def handle_errors(fn: Callable) -> Callable:
-    """A user error becomes one red line and exit code 2; Ctrl-C exits 130."""
+    """A user error becomes one red line and exit code 2; Ctrl-C exits 130 (inside errors_propagate: raised)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        if _PROPAGATE.get():
+            return fn(*args, **kwargs)
         try:
             return fn(*args, **kwargs)
         except CalibError as e:
