@@ -13,6 +13,7 @@ LAB    := sample_runs/hidden-effect
 CTRL   := sample_runs/control-lab
 WALL   := sample_runs/hidden-wall
 FLOOR  := sample_runs/hidden-floor
+CAPL   := sample_runs/hidden-capillary
 DBBD   := sample_runs/default-bbd
 DBBD2  := sample_runs/default-bbd-half-g
 DBBD3  := sample_runs/default-bbd-stiff
@@ -20,7 +21,7 @@ DBBD50 := sample_runs/default-bbd-50mpa
 DBBD150 := sample_runs/default-bbd-150mpa
 DBBD4  := sample_runs/default-bbd-walls
 
-.PHONY: setup test test-all calibrate paper calibration calibration-spring smoke hidden-effect control-lab hidden-wall hidden-floor default-bbd default-bbd-half-g default-bbd-stiff default-bbd-50mpa default-bbd-150mpa default-bbd-walls sample-photos docs clean
+.PHONY: setup test test-all calibrate paper calibration calibration-spring smoke hidden-effect control-lab hidden-wall hidden-floor hidden-capillary default-bbd default-bbd-half-g default-bbd-stiff default-bbd-50mpa default-bbd-150mpa default-bbd-walls sample-photos docs clean
 
 setup: $(VENV)/.installed
 
@@ -90,6 +91,11 @@ hidden-wall: setup
 # the hidden-effect run's heaps to copy, ~47 min from nothing; docs/tutorial-hidden-effect.md section 8)
 hidden-floor: setup
 	$(CALIB) run stages/hidden-floor.toml --run $(FLOOR) --var reuse=$(LAB)
+
+# Capillary bridges hidden where the hidden-effect lab has JKR cohesion: does diagnose tell them apart?
+# (docs/tutorial-hidden-effect.md, "A capillary lab"; revision 0 only)
+hidden-capillary: setup
+	$(CALIB) run stages/hidden-capillary.toml --run $(CAPL) --var reuse=$(LAB)
 
 # The paper's own BBD design (Table 6, from its Tables 3 and 5) simulated with our kernel at the
 # `default` preset: does the simulated heap respond like the paper's EDEM one? (~12 min on 2 cores)
