@@ -83,9 +83,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("capillary", "surface_tension", 0.0, 0.15, 0.0, 0.07,
            "capillary liquid bridges between wet grains (Willett et al. 2000): the liquid's surface tension, "
            "with the bridge volume and contact angle as set",
-           "like JKR cohesion the residual grows as grains and heaps get smaller (a bridge pulls with 2 pi R gamma, "
-           "a grain weighs ~R^3); unlike it the pull does not fall with the contact stiffness and reaches across a "
-           "gap, so it holds loose grains on the flank", pinned_when_absent=False),
+           "steeper heaps, most for small grains (a bridge pulls with 2 pi R gamma, a grain weighs ~R^3); on 4-6 mm "
+           "grains water bridges raised every heap by about the same amount whatever its size, where JKR cohesion "
+           "grew with the fill; unlike JKR the pull does not fall with the contact stiffness and reaches across a gap",
+           pinned_when_absent=False),
 ]}
 #: wall_* effects are neutral when they equal the particles' own value (NaN marks "tied")
 

@@ -62,7 +62,12 @@ def test_every_registered_law_has_a_reference_a_version_and_composes():
     (Interaction(surface_tension=0.07), ContactModel(cohesion="capillary")),
 ])
 def test_interactions_name_their_laws(it, want):
-    assert contact_model(it, Interaction(), Interaction()) == want
+    walls = Interaction(rolling_own_spin=it.rolling_own_spin, friction_net_force=it.friction_net_force,
+                        rolling_spring=it.rolling_spring, caps_pulloff=it.caps_pulloff)
+    assert contact_model(it, walls, walls) == want
+    if it.rolling_spring:  # one law a run: the walls cannot have another
+        with pytest.raises(CalibError, match="the walls take the grains' contact laws"):
+            contact_model(it, Interaction(), Interaction())
 
 
 def test_capillary_force_at_contact_is_two_pi_r_gamma_cos_theta():

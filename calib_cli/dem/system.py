@@ -98,14 +98,16 @@ class System:
             raise CalibError(f"time step {self.dt:.3g} s exceeds the critical step {self.critical_dt:.3g} s "
                              f"(Rayleigh {self.rayleigh_dt:.3g} s, JKR contact {self.jkr_dt:.3g} s): the run would "
                              f"be unstable; lower it")
-        self.model = contact_model(self.pp, self.floor, self.cylinder)
+        w = self.walls
+        # one composition of laws a run: the walls that exist must ask for the grains' laws
+        self.model = contact_model(self.pp, *[it for it, on in ((self.floor, w.floor),
+                                                               (self.cylinder, w.cylinder_radius > 0)) if on])
         rmax = p.rad.max()
         # the widest gap any law acts across: the largest pair's (R* = r_max / 2), a grain on a wall (R* = r_max)
         self.gap = np.array([self.model.reach(self.prm[PP], rmax / 2.0), self.model.reach(self.prm[FLOOR], rmax),
                              self.model.reach(self.prm[CYL], rmax)])
         self.skin = self.skin_ratio * p.rad.mean()
         self.reach = self.skin + self.gap[PP]
-        w = self.walls
         self.geo = np.array([w.cylinder_radius, 0.0, w.lift_speed, 1.0 if w.cylinder_radius > 0 else 0.0,
                              1.0 if w.floor else 0.0, 0.0])
         self.grav = np.asarray(self.gravity, dtype=np.float64)
