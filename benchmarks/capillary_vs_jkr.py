@@ -92,7 +92,7 @@ def main():
     w = 1 / se**2
     m = float((w * r).sum() / w.sum())
     chi2 = float((w * (r - m) ** 2).sum())
-    print(f"\nratio d capillary / d jkr per condition: " + ", ".join(f"{x:.2f} +- {e:.2f}" for x, e in zip(r, se))
+    print("\nratio d capillary / d jkr per condition: " + ", ".join(f"{x:.2f} +- {e:.2f}" for x, e in zip(r, se))
           + f"\none constant ratio {m:.2f} +- {w.sum() ** -0.5:.2f}: chi2 {chi2:.2f} on {len(r) - 1} dof, "
           f"p = {stats.chi2.sf(chi2, len(r) - 1):.3f} (small p: the signatures differ across these conditions)")
 

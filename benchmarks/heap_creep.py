@@ -23,7 +23,7 @@ import numpy as np
 
 import calib_cli.dem.heap as heap
 from calib_cli.campaign import derive_seed
-from calib_cli.cli.common import heap_preset
+from calib_cli.requests import heap_preset
 
 
 def main():

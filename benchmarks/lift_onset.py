@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import derive_seed
-from calib_cli.cli.common import heap_preset
+from calib_cli.requests import heap_preset
 from spring_vs_creep import FACTORS, bbd_points
 
 ONSET = 0.02  # m/s: the median grain speed at which the fill counts as flowing

@@ -18,7 +18,7 @@ import time
 
 import numba
 
-from calib_cli.cli.common import heap_preset
+from calib_cli.requests import heap_preset
 from calib_cli.dem import heap
 
 CENTRE = dict(static_friction=0.275, rolling_friction=0.215, surface_energy=1.25)

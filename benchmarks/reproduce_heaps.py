@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import CACHE_SOURCE, host
-from calib_cli.cli.simulate_cmd import request_from_row
+from calib_cli.requests import request_from_row
 from calib_cli.dem import heap
 
 

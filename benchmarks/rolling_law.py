@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from calib_cli.campaign import Request, derive_seed, run_campaign
-from calib_cli.cli.common import heap_preset
+from calib_cli.requests import heap_preset
 from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
 from factorial import coded_levels, effects
 

@@ -316,7 +316,7 @@ def test_heaps_of_two_rolling_laws_are_not_averaged_and_the_bbd_law_carries_on(t
     setups, not repeats; a BBD simulated with the spring hands it to the simulations at the
     calibrated point (bbd_fixed: validation, compare, diagnose), a BBD with the default laws
     hands on nothing (their cache keys stay as they were)."""
-    from calib_cli.cli.common import bbd_fixed
+    from calib_cli.stages.common import bbd_fixed
     from calib_cli.settings import load_settings
 
     run = tmp_path / "run"
@@ -364,7 +364,7 @@ def test_simulate_heap_refuses_two_friction_caps(tmp_path):
 
 
 def test_heaps_of_two_moduli_are_not_averaged_as_repeats(tmp_path, capsys):
-    from calib_cli.cli.common import warn_other_modulus
+    from calib_cli.stages.common import warn_other_modulus
 
     run = tmp_path / "run"
     assert runner.invoke(app, ["pb", "design", "--run", str(run)]).exit_code == 0
@@ -489,7 +489,7 @@ def test_golden_heaps_the_committed_runs_name_come_out_bit_for_bit():
     overlap, to the last bit. On a machine other than the one that made them (the rows' `host`) a
     difference is no evidence against the claim: skipped there."""
     from calib_cli import campaign
-    from calib_cli.cli.simulate_cmd import request_from_row
+    from calib_cli.requests import request_from_row
 
     res = pd.read_parquet(Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate" / "results.parquet")
     res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
@@ -559,7 +559,7 @@ def test_the_benchmarks_paper_designs_are_the_papers_tables(monkeypatch):
 def test_a_design_that_drags_the_floors_friction_along_is_pointed_out():
     """simulate-heap notes when the runs vary the grains' static friction and the floor's follows
     it; not when the floor's (or all walls') friction is given, nor for runs at one friction."""
-    from calib_cli.cli.simulate_cmd import floor_follows_grains
+    from calib_cli.stages.simulate import floor_follows_grains
 
     def reqs(cond=TINY, **extra):
         return [interactions({"static_friction": mu, **extra}, cond) for mu in [0.3, 0.6]]
@@ -574,7 +574,7 @@ def test_a_design_that_drags_the_floors_friction_along_is_pointed_out():
 def test_cohesive_grains_below_the_stiff_reference_modulus_are_pointed_out():
     """simulate-heap notes that a cohesive calibration depends on the modulus when the grains are
     cohesive and softer than the stiff reference; the ratio is the JKR work of separation's G^-2/3."""
-    from calib_cli.cli.simulate_cmd import STIFF_REFERENCE, cohesion_modulus_note
+    from calib_cli.stages.simulate import STIFF_REFERENCE, cohesion_modulus_note
 
     def walls(g):
         return [interactions({"surface_energy": g, "static_friction": 0.3}, TINY)]

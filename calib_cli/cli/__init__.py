@@ -9,9 +9,8 @@ import typer
 
 from .. import __version__
 from .. import artifacts as art
-from ..errors import CalibError
-from ..settings import load_settings, with_overrides
-from .common import (SETTINGS_FILE, ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
+from ..stages.run_dir import init_run
+from .common import (ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
                      handle_errors)
 from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
@@ -19,8 +18,6 @@ from .measure_cmd import measure_angle
 from .run_cmd import run_pipeline
 from .simulate_cmd import simulate_heap
 from .surrogate_cmds import fit_surrogate, invert, predict
-
-DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 
 app = typer.Typer(
     name="calib",
@@ -63,28 +60,11 @@ def init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, 
     built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
     for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
     replaced only with --force; -s without --settings adds to it."""
-    run = check_run_dir(run)
-    target = run / SETTINGS_FILE
-    load_settings([settings] if settings is not None else [])  # validate before touching the run dir
-    if settings is not None:
-        text = settings.read_text()
-    elif target.is_file() and setting:
-        if load_settings([target], setting) == load_settings([target]):
-            console.print(f"[green]✓[/] {run} is initialised ({target} has {' '.join(setting)} already)")
-            return
-        text = target.read_text()
+    r = init_run(run, settings, setting, force)
+    if r.wrote:
+        console.print(f"[green]✓[/] wrote {r.path}")
     else:
-        text = None
-    if setting:
-        text = with_overrides(text if text is not None else DEFAULT_TEXT, setting)
-    if target.exists() and (text is None or target.read_text() == text):
-        console.print(f"[green]✓[/] {run} is initialised ({target})")
-        return
-    if target.exists() and not force and not (setting and settings is None):
-        raise CalibError(f"{target} exists and differs from --settings: give --force to replace it (the stages "
-                         "that depend on a changed setting will then rerun)")
-    art.atomic_write_bytes(target, (text if text is not None else DEFAULT_TEXT).encode())
-    console.print(f"[green]✓[/] wrote {target}")
+        console.print(f"[green]✓[/] {r.summary()}")
 
 
 @app.command("report")

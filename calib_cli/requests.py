@@ -1,0 +1,169 @@
+"""Simulation requests: the one place that turns parameters, conditions and a heap setup into
+:class:`~calib_cli.campaign.Request` objects, with the one seed scheme every command uses.
+
+A campaign is a list of *points* (a design run id and its parameter values; a single point has
+id 0) crossed with *conditions* (a condition id and its :class:`HeapCondition`) and repeats. Each
+heap's seed is ``derive_seed(base, index, repeat)`` with the index of :func:`seed_index`: the
+point's id on one rig, ``id * 1000 + k + 1`` for the k-th condition of a table. The seed, with
+the parameters, condition, numerics and model, makes the heap's cache key (``Request.hash``): a
+change here re-simulates every committed run, and tests/test_requests.py checks that it does not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Iterable, Mapping, Optional, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .campaign import Request, derive_seed
+from .dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, get_preset
+from .engines.clumps import SPHERES
+from .errors import CalibError
+from .settings import _parse_value
+
+#: the heap-test variables a conditions table (or a surrogate's inputs) may carry
+COND_VARS = list(CONDITION_VARIABLES)
+
+#: Pa: the accepted shear moduli (a soft gel to steel); outside, a typo rather than a material
+SHEAR_MODULUS_RANGE = (1e5, 1e11)
+
+
+# ------------------------------------------------------------------ heap setup
+def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
+    """The named preset, with the grains' and walls' shear modulus replaced when one is given."""
+    pre = get_preset(name)
+    if shear_modulus is None:
+        return pre
+    lo, hi = SHEAR_MODULUS_RANGE
+    if not (np.isfinite(shear_modulus) and lo <= shear_modulus <= hi):
+        raise CalibError(f"shear modulus {shear_modulus:g} Pa (--shear-modulus or heap.shear_modulus) is outside "
+                         f"[{lo:g}, {hi:g}] Pa")
+    num = dataclasses.replace(pre.numerics, shear_modulus=float(shear_modulus), wall_shear_modulus=float(shear_modulus))
+    return dataclasses.replace(pre, numerics=num)
+
+
+def heap_setup(cfg: dict, preset: Optional[str], shear_modulus: Optional[float]) -> tuple[str, Optional[float]]:
+    """The preset and shear modulus of a command's heaps: the option where given, else the run's
+    settings (``[heap]`` preset and shear_modulus), else ``default`` at its own reduced modulus.
+
+    A modulus equal to the preset's own comes back as None, so that naming it changes neither the
+    heaps' cache keys nor the stages' hashes. The preset and the modulus are checked here, before
+    any stage or heap starts.
+    """
+    name = preset if preset is not None else cfg["heap"]["preset"]
+    g = shear_modulus if shear_modulus is not None else cfg["heap"]["shear_modulus"]
+    g = None if g is None else float(g)
+    try:
+        heap_preset(name, g)
+    except CalibError as e:
+        if preset is None and shear_modulus is None:
+            raise CalibError(f"the run's heap settings: {e}") from None
+        raise
+    own = get_preset(name).numerics
+    if own.shear_modulus == own.wall_shear_modulus == g:  # the preset itself, to the last bit
+        g = None
+    return name, g
+
+
+def modulus_settings(shear_modulus: Optional[float]) -> dict:
+    """The modulus as a stage setting, only when given: stages run at the presets' modulus keep their hash."""
+    return {} if shear_modulus is None else {"shear_modulus": shear_modulus}
+
+
+def modulus_note(shear_modulus: Optional[float]) -> str:
+    return "" if shear_modulus is None else f", shear modulus {shear_modulus / 1e6:g} MPa"
+
+
+# ------------------------------------------------------------------ parameters and conditions
+def parse_pairs(items: Optional[Iterable[str]], what: str) -> dict:
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}`` (values read as TOML, else kept as text)."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise CalibError(f"{what} {item!r} is not KEY=VALUE")
+        k, v = item.split("=", 1)
+        out[k.strip()] = _parse_value(v.strip())
+    return out
+
+
+def parse_params(values: Mapping) -> dict[str, float]:
+    """Heap parameter values, checked: known names, finite numbers."""
+    out = {}
+    for k, v in values.items():
+        if k not in PARAMETERS:
+            raise CalibError(f"unknown parameter {k!r}; known: {', '.join(PARAMETERS)}")
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            raise CalibError(f"parameter {k} must be a number, got {v!r}") from None
+        if not np.isfinite(f):
+            raise CalibError(f"parameter {k} must be finite, got {v!r}")
+        out[k] = f
+    return out
+
+
+def make_condition(base: HeapCondition, overrides: Mapping) -> HeapCondition:
+    """The base condition with some variables replaced (``floor`` is a name), validated."""
+    fields = {f.name for f in dataclasses.fields(HeapCondition)}
+    bad = set(overrides) - fields
+    if bad:
+        raise CalibError(f"unknown condition variable(s) {sorted(bad)}; known: {', '.join(sorted(fields))}")
+    try:
+        c = dataclasses.replace(base, **{k: (str(v) if k == "floor" else float(v)) for k, v in overrides.items()})
+    except (TypeError, ValueError):
+        raise CalibError(f"condition values must be numbers: {dict(overrides)}") from None
+    c.validate()
+    return c
+
+
+def condition_from_row(base: HeapCondition, row) -> HeapCondition:
+    """The base condition with the variables a conditions-table row gives (missing or NaN: kept),
+    and the floor's name, which the results rows then show beside its values."""
+    return make_condition(base, {k: row[k] for k in (*CONDITION_VARIABLES, "floor")
+                                 if k in row.index and pd.notna(row[k])})
+
+
+def table_conditions(base: HeapCondition, table: pd.DataFrame) -> list[tuple[str, HeapCondition]]:
+    """(condition_id, condition) of each distinct condition of a conditions table, in its order."""
+    return [(str(row["condition_id"]), condition_from_row(base, row))
+            for _, row in table.drop_duplicates("condition_id").iterrows()]
+
+
+# ------------------------------------------------------------------ seeds and requests
+def seed_index(point_id: int, condition_index: Optional[int]) -> int:
+    """The run index a heap's seed derives from (with the base seed and the repeat): the point's id
+    on one rig (``condition_index`` None), else ``point_id * 1000 + condition_index + 1`` for the
+    (0-based) condition of a table, so that every condition draws its own heaps."""
+    return int(point_id) if condition_index is None else int(point_id) * 1000 + int(condition_index) + 1
+
+
+def build_requests(points: Sequence[tuple[int, Mapping[str, float]]],
+                   conditions: Sequence[tuple[str, HeapCondition]], numerics: Numerics, *, seed: int,
+                   repeats: int = 1, first_repeat: int = 0, from_table: bool = True, preset: str = "",
+                   design: str = "", model: str = "", label_by_condition: bool = False,
+                   engine: str = "builtin", mpi: int = 1, shapes: tuple[str, ...] = SPHERES) -> list[Request]:
+    """Every point under every condition, ``repeats`` heaps each (repeat numbers from ``first_repeat``).
+
+    ``from_table``: the conditions are rows of a conditions table, each with its own seeds
+    (:func:`seed_index`); else the one rig of the point (the preset's, or a single condition
+    standing for it), seeded by the point's id alone. ``label_by_condition``: the results rows of a
+    single point take the condition's 1-based position as their run id (validation, compare,
+    diagnose, a synthetic lab) instead of the point's id (a design).
+    """
+    return [Request(dict(p), c, numerics, derive_seed(seed, seed_index(rid, k if from_table else None), r), preset,
+                    design, k + 1 if label_by_condition else int(rid), r, model, cid, engine, mpi, tuple(shapes))
+            for rid, p in points for k, (cid, c) in enumerate(conditions)
+            for r in range(first_repeat, first_repeat + repeats)]
+
+
+def request_from_row(row) -> Request:
+    """The request a built-in engine's results row was made from (parameters, condition, preset
+    with the row's shear modulus, seed, model), to simulate it again; its hash is the row's
+    run_hash unless the row lacks something that went into it."""
+    params = {k: float(row[k]) for k in PARAMETERS if k in row.index and pd.notna(row[k])}
+    g = row.get("shear_modulus")
+    pre = heap_preset(row["preset"], float(g) if g is not None and pd.notna(g) else None)
+    return Request(params, condition_from_row(pre.condition, row), pre.numerics, int(row["seed"]),
+                   model=row["model"])

@@ -1,0 +1,167 @@
+"""Compare the calibrated model with the measurements, condition by condition (residuals in units of
+the combined uncertainty, RMSE, chi2/dof), and keep the error of every model revision."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from .. import artifacts as art  # noqa: E402
+from ..campaign import CACHE_SOURCE, run_campaign  # noqa: E402
+from ..dem.heap import LAWS  # noqa: E402
+from ..discrepancy.stats import per_condition, residual_table, summary  # noqa: E402
+from ..errors import CalibError  # noqa: E402
+from ..model import EFFECTS, Model, load_model  # noqa: E402
+from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, modulus_settings,  # noqa: E402
+                        parse_params, table_conditions)
+from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, warn_other_modulus  # noqa: E402
+from .simulate import Pairs, pairs  # noqa: E402
+
+
+def measured_conditions(run: Path) -> pd.DataFrame:
+    p = run / "measure" / "conditions.parquet"
+    c = art.read_table(p, columns=["condition_id", "mean", "sd", "n"],
+                       what="measured conditions (run `calib measure-angle` first)")
+    if (c["n"] < 1).any():
+        raise CalibError(f"condition(s) {', '.join(c.loc[c['n'] < 1, 'condition_id'])} have no measured angle")
+    return c
+
+
+def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, float]]:
+    """The model and its calibrated parameter values: the BBD's fixed values < the inversion's
+    solution < --set. Without a model file (revision 0) simulate-heap pins nothing, so an effect
+    the calibration switched on (a non-neutral value, e.g. surface_energy 0.5) joins the model."""
+    model = load_model(run)
+    given = parse_params(pairs(set_, "--set")) if set_ else {}
+    sol = run / "invert" / "solution.parquet"
+    known = {e.parameter for e in EFFECTS.values()}
+    base = {}
+    if sol.is_file():
+        s = art.read_table(sol).iloc[0]
+        base = {k: float(s[k]) for k in s.index if k in known}
+    # parameters the response surface held fixed keep their fixed values (the surrogate and
+    # the inversion know nothing else about them)
+    fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known or k in LAWS}
+    theta = {**fixed, **base, **given}
+    if model.revision == 0:
+        used = [e.name for e in EFFECTS.values() if e.name not in model.effects and e.parameter in theta
+                and not (e.neutral == e.neutral and theta[e.parameter] == e.neutral)]
+        if used:
+            model = Model((*model.effects, *used), 0, f"default model + {', '.join(used)} (set by the calibration)")
+    missing = [p for p in model.parameters if p not in theta]
+    if missing:
+        raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
+    # with the contact laws the BBD's heaps had (or --set gives): its surrogate learnt those
+    return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
+
+
+def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
+    """Mean, sd, n of the simulated angle per condition at parameters theta."""
+    pre = heap_preset(preset, shear_modulus)
+    reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
+                          repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True)
+    rows = run_campaign(reqs, run, workers)
+    return per_condition(rows, conds["condition_id"]), rows
+
+
+def _history(hist: pd.DataFrame, model: Model, theta: dict, summ: dict) -> pd.DataFrame:
+    """The error history with this revision's row (replacing an earlier row of the same revision)."""
+    if len(hist):  # one row per revision: a rerun (more repeats, a recalibration) replaces its own
+        hist = hist[hist["revision"] != model.revision]
+    hist = pd.concat([hist, pd.DataFrame([{"revision": model.revision, "effects": ",".join(model.effects),
+                                           "rmse": summ["rmse"], "chi2_dof": summ["chi2_dof"],
+                                           "n_conditions": summ["n_conditions"], "n_fail": summ["n_fail"],
+                                           **{f"param_{k}": v for k, v in theta.items()}}])], ignore_index=True)
+    hist = hist.sort_values("revision", kind="stable").reset_index(drop=True)
+    return hist
+
+
+def _compare_plots(table: pd.DataFrame, hist: pd.DataFrame, revision: int):
+    """The residuals against every condition variable that varies, and the error per model revision."""
+    vars_ = [c for c in COND_VARS if c in table.columns and table[c].nunique() > 1]
+    fig1, axes = plt.subplots(1, max(len(vars_), 1), figsize=(4.5 * max(len(vars_), 1), 4), squeeze=False)
+    for ax, v in zip(axes[0], vars_ or ["condition_id"]):
+        x = table[v] if v in table.columns else np.arange(len(table))
+        ax.errorbar(x, table["residual"], yerr=2 * table["uncertainty"], fmt="o", capsize=3)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel(v)
+        ax.set_ylabel("measured - simulated [deg] (+-2u)")
+    fig1.suptitle(f"residuals, model revision {revision}")
+    fig2, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(hist["revision"].astype(str) + "\n" + hist["effects"].str.replace(",", "\n"), hist["rmse"], "o-")
+    ax.set_ylabel("RMSE over conditions [deg]")
+    ax.set_title("error per model revision")
+    return fig1, fig2
+
+
+@dataclass
+class CompareResult(Result):
+    """RUN/compare/: ``residuals`` per condition, the ``history`` of every revision, and the fit's
+    ``stats`` (rmse, chi2_dof, n_conditions, n_fail)."""
+
+    residuals: Optional[pd.DataFrame] = None
+    history: Optional[pd.DataFrame] = None
+    stats: Optional[dict] = None
+    revision: int = 0
+
+    def __post_init__(self):
+        if self.residuals is None and (self.dir / "residuals.parquet").is_file():
+            self.residuals = art.read_table(self.dir / "residuals.parquet")
+            self.history = art.read_table(self.dir / "history.parquet")
+
+    def summary(self) -> pd.DataFrame:
+        """Measured against simulated angle per condition, the residual and its z."""
+        return self.residuals[["condition_id", "measured", "measured_sd", "simulated", "simulated_sd", "residual",
+                               "z", "fails"]]
+
+
+def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
+            shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None) -> CompareResult:
+    """Simulate ``repeats`` heaps at every measured condition at the calibrated parameters (``set_``
+    overrides them) and compare them with the measurements. Writes RUN/compare/residuals.parquet,
+    residuals.png, and adds the model revision's row to history.parquet (history.png)."""
+    say = say or plain
+    run = check_run_dir(run)
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
+    model, theta = model_and_theta(run, set_)
+    conds = measured_conditions(run)
+    warn_other_modulus(run, shear_modulus, "the comparison's", say)
+    # the kernel's source too: the heaps would change with it, though nothing in the run dir does
+    st = art.Stage(run, "compare", f"rev{model.revision}",
+                   inputs={"conditions": run / "measure" / "conditions.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+    hist_path = run / "compare" / "history.parquet"
+    hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
+    if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():
+        return CompareResult(st, True)
+    say(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
+        f"{repeats} simulations")
+    sim, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
+    res = residual_table(conds["mean"], conds["sd"], conds["n"], sim["mean"].to_numpy(), sim["sd"].to_numpy(),
+                         sim["n"].to_numpy())
+    table = pd.DataFrame({"condition_id": conds["condition_id"].astype(str), "measured": conds["mean"],
+                          "measured_sd": conds["sd"], "measured_n": conds["n"], "simulated": sim["mean"].to_numpy(),
+                          "simulated_sd": sim["sd"].to_numpy(), "simulated_n": sim["n"].to_numpy(),
+                          **{k: res[k].to_numpy() for k in ("residual", "uncertainty", "z", "fails")}})
+    for c in COND_VARS:
+        if c in conds.columns:
+            table[c] = conds[c].to_numpy()
+    summ = summary(res, len(model.parameters))
+    hist = _history(hist, model, theta, summ)
+    fig1, fig2 = _compare_plots(table, hist, model.revision)
+    with st.commit() as out:
+        out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
+        out.figure("residuals.png", fig1)
+    art.write_table(hist_path, hist, {"stage": "compare.history"})
+    fig2.savefig(run / "compare" / "history.png", dpi=120, bbox_inches="tight")
+    plt.close(fig2)
+    return CompareResult(st, False, table, hist, summ, model.revision)

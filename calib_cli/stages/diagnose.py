@@ -1,0 +1,211 @@
+"""Diagnose what the model lacks: rank the candidate effects by how much of compare's misfit each
+would explain (a score test after projecting out what the calibrated parameters absorb), with the
+evidence and whether the signature is resolved from the heaps' scatter."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import pandas as pd
+
+from .. import artifacts as art
+from ..campaign import CACHE_SOURCE
+from ..discrepancy.stats import at_bounds, confounded, difference_se, score_effects, signature_noise, trends
+from ..errors import CalibError
+from ..model import EFFECTS, Model
+from ..requests import COND_VARS, heap_setup, modulus_settings
+from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, warn_other_modulus
+from .compare import measured_conditions, model_and_theta, simulate_at
+from .simulate import Pairs
+
+
+@dataclass
+class DiagnoseResult(Result):
+    """RUN/diagnose/: the missing effects ``ranking`` (effect, score, p_value, explained_fraction,
+    signature_p, verdict, evidence), most likely first."""
+
+    ranking: Optional[pd.DataFrame] = None
+    revision: int = 0
+    bar: float = 0.05
+
+    def __post_init__(self):
+        if self.ranking is None and (self.dir / "ranking.parquet").is_file():
+            self.ranking = art.read_table(self.dir / "ranking.parquet")
+
+    def summary(self) -> pd.DataFrame:
+        return self.ranking[["effect", "score", "p_value", "explained_fraction", "signature_p"]]
+
+    def conclusion(self) -> list[str]:
+        """Each effect's evidence, and what to do when none is significant and resolved."""
+        r = self.ranking
+        out = [f"[bold]{e}[/]: {ev}" for e, ev in zip(r["effect"], r["evidence"])]
+        if (r["verdict"] == "unresolved").any() and not (r["verdict"] == "significant").any():
+            out.append("No missing effect is both significant and resolved: the candidates that pass the test leave "
+                       "signatures within the heaps' scatter; rerun with more --repeats before adding one.")
+        elif not (r["p_value"] < self.bar).any():
+            out.append("No missing effect is significant: the misfit is within what the measurement noise explains.")
+        return out
+
+
+def _signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, preset: str, repeats: int, workers: int,
+                shear_modulus: Optional[float]):
+    """Simulated sensitivities: J (angle per unit of each calibrated parameter, per condition), G (per
+    unit of each candidate effect's parameter) with its standard error, and each candidate's start."""
+    cands = model.candidates
+    base, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
+    b = base["mean"].to_numpy()
+    J, G = [], {}
+    for e in model.effects:
+        eff = EFFECTS[e]
+        h = eff.step if theta[eff.parameter] + eff.step <= eff.high else -eff.step
+        sim, _ = simulate_at(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
+                             workers, f"sens-{e}", shear_modulus=shear_modulus)
+        J.append((sim["mean"].to_numpy() - b) / h)
+    starts, G_se = {}, {}
+    for e in cands:
+        eff = EFFECTS[e]
+        down, up = eff.probe(theta)
+        starts[e] = eff.start(theta)
+        m2 = Model((*model.effects, e), model.revision)
+        sim, _ = simulate_at(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}",
+                             shear_modulus=shear_modulus)
+        if eff.two_sided:  # a central difference (Effect.probe): both ends simulated
+            dn, _ = simulate_at(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
+                                f"cand-{e}-down", shear_modulus=shear_modulus)
+            G[e] = (sim["mean"].to_numpy() - dn["mean"].to_numpy()) / (up - down)
+            G_se[e] = difference_se(sim, dn, up - down)
+        else:  # a forward step from neutral: the model's own simulations stand there
+            G[e] = (sim["mean"].to_numpy() - b) / eff.step
+            G_se[e] = difference_se(sim, base, eff.step)
+    return b, J, G, G_se, starts
+
+
+def _ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]:
+    """Each calibrated parameter's range, in the model's order: the BBD's, else the effect's own."""
+    # the current parameters can absorb misfit only within the ranges the calibration searched
+    sp = space_from_design(run / "bbd" / "design.parquet")
+    ranges = {}
+    for e in model.effects:  # in J's column order
+        q = EFFECTS[e].parameter
+        ranges[q] = (sp[q].low, sp[q].high) if sp is not None and q in sp.names else (EFFECTS[e].low, EFFECTS[e].high)
+    return ranges
+
+
+def _rank(run: Path, model: Model, theta: dict, res: pd.DataFrame, conds: pd.DataFrame, b, J, G, G_se, starts,
+          say: Say):
+    """The score test of every candidate on the usable conditions, with its signature's noise p-value,
+    and the residuals' trends against the condition variables."""
+    J = np.column_stack(J) if J else np.zeros((len(b), 0))
+    r_all, u_all = res["residual"].to_numpy(float), res["uncertainty"].to_numpy(float)
+    ok = np.isfinite(r_all) & np.isfinite(u_all) & np.all(np.isfinite(J), axis=1)
+    for g in G.values():
+        ok &= np.isfinite(g)
+    if not ok.all():
+        dropped = ", ".join(conds["condition_id"].astype(str)[~ok])
+        say(f"[yellow]warning:[/] left out condition(s) {dropped}: a simulation formed no heap there "
+            "or the uncertainty is unknown")
+    if ok.sum() <= J.shape[1]:
+        raise CalibError(f"only {int(ok.sum())} usable condition(s) for {J.shape[1]} parameters: cannot diagnose")
+    J, G, G_se = J[ok], {k: g[ok] for k, g in G.items()}, {k: v[ok] for k, v in G_se.items()}
+    ranges = _ranges(run, model)
+    pars = list(ranges)
+    lo = np.array([ranges[q][0] - theta[q] for q in pars])
+    hi = np.array([ranges[q][1] - theta[q] for q in pars])
+    cand_b = {e: (EFFECTS[e].low - starts[e], EFFECTS[e].high - starts[e]) for e in G}
+    edge = at_bounds(theta, ranges)
+    for q, side in edge.items():
+        say(f"[yellow]note:[/] {q} = {theta[q]:.4g} is at the {side} end of its range "
+            f"[{ranges[q][0]:.4g}, {ranges[q][1]:.4g}]: it cannot absorb misfit beyond it, so the test "
+            "keeps each parameter inside its range (a residual it cannot reach is evidence of a "
+            "missing effect, or of a range set too narrow)")
+    ranking = score_effects(r_all[ok], u_all[ok], J, G, bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)),
+                            cand_bounds=cand_b)
+    # as in the ranking, a parameter stuck at the edge of its range absorbs nothing: judge the
+    # candidates' signatures after projecting out only the parameters that are free to move
+    free = [k for k, q in enumerate(pars) if q not in edge]
+    for a, c in confounded(u_all[ok], J[:, free], G):
+        say(f"[yellow]warning:[/] {a} and {c} leave the same signature across these conditions: "
+            "the data cannot tell them apart; add conditions that separate them")
+    # a signature within the scatter of the heaps that measured it ranks noise (discrepancy/stats.py)
+    ranking["signature_p"] = [signature_noise(G[e], G_se[e])[1] for e in ranking["effect"]]
+    tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
+    top = tr.sort_values("p_value").iloc[0] if len(tr) else None
+    return ranking, tr, top, ok, J, G
+
+
+def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) -> float:
+    """Each candidate's verdict and evidence (columns added to ``ranking``); returns the corrected level."""
+    # several candidates are tested at once: without the correction a lab with nothing missing would
+    # flag one of three candidates 14 % of the time instead of 5 %
+    bar = alpha / max(len(ranking), 1)
+    words, verdicts = [], []
+    for _, r in ranking.iterrows():
+        eff = EFFECTS[r["effect"]]
+        resolved = r["signature_p"] < alpha  # NaN (one heap a step: no scatter to judge by) counts as unresolved
+        if not r["p_value"] < bar:
+            verdict = "not significant"
+        else:  # the test passes, but a signature within the heaps' scatter makes the pass (and the rank) noise
+            verdict = "significant" if resolved else "unresolved"
+        verdicts.append(verdict)
+        txt = (f"{verdict} (p = {r['p_value']:.3g}); would remove {100 * r['explained_fraction']:.0f} % of the "
+               f"misfit; its signature: {eff.signature}")
+        if not resolved:
+            say(f"[yellow]warning:[/] {r['effect']}'s signature is not resolved from the pile-to-pile "
+                f"scatter with {repeats} heap(s) a step (p = {r['signature_p']:.2g} that it is zero): its "
+                "rank is noise; rerun with more --repeats (cached heaps are reused)")
+            txt += (f"; its signature is within the simulation noise (p = {r['signature_p']:.2g}): "
+                    "the rank is unreliable")
+        if top is not None and verdict == "significant":
+            way = "grows" if top["slope"] > 0 else "falls"
+            txt += f"; observed: the residual {way} with {top['variable']} (p = {top['p_value']:.3g})"
+        words.append(txt)
+    ranking["verdict"] = verdicts
+    ranking["evidence"] = words
+    return bar
+
+
+def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
+             shear_modulus: Optional[float] = None, alpha: float = 0.05, force: bool = False,
+             say: Optional[Say] = None) -> DiagnoseResult:
+    """Rank the effects missing from the model by how much of compare's misfit each would explain.
+    Writes RUN/diagnose/ranking.parquet, sensitivities.parquet and trends.parquet."""
+    say = say or plain
+    run = check_run_dir(run)
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
+    model, theta = model_and_theta(run, set_)
+    res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
+    conds = measured_conditions(run)
+    warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
+    st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
+                   settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
+                             "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+    if st.up_to_date() and not force:
+        return DiagnoseResult(st, True)
+    cands = model.candidates
+    if len(conds) <= len(model.parameters):
+        raise CalibError(f"diagnose needs more conditions ({len(conds)}) than calibrated parameters "
+                         f"({len(model.parameters)}): otherwise the current parameters can absorb any pattern of "
+                         "residuals and no missing effect can be told apart. Measure heaps under more conditions.")
+    two_sided = [e for e in cands if EFFECTS[e].two_sided]
+    n_sims = (len(model.parameters) + len(cands) + len(two_sided)) * len(conds) * repeats
+    say(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects "
+        f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
+        "simulations (cached runs are reused)")
+    b, J, G, G_se, starts = _signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus)
+    ranking, tr, top, ok, J, G = _rank(run, model, theta, res, conds, b, J, G, G_se, starts, say)
+    bar = _verdicts(ranking, top, alpha, repeats, say)
+    sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})
+    for k, e in enumerate(model.effects):
+        sens[f"d_{EFFECTS[e].parameter}"] = J[:, k]
+    for e, g in G.items():
+        sens[f"candidate_{e}"] = g
+    with st.commit() as out:
+        out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
+                                              "verdict", "evidence"]],
+                  model_revision=model.revision)
+        out.table("sensitivities.parquet", sens)
+        out.table("trends.parquet", tr)
+    return DiagnoseResult(st, False, ranking, model.revision, bar)

@@ -1,0 +1,54 @@
+"""A run directory: where every stage of one calibration reads and writes (docs/artefacts.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+from .. import artifacts as art
+from ..errors import CalibError
+from ..settings import load_settings, with_overrides
+from .common import SETTINGS_FILE, check_run_dir
+
+DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
+
+
+@dataclass
+class InitResult:
+    """The run's settings file, and whether this call wrote it."""
+
+    path: Path
+    wrote: bool
+    note: str = ""
+
+    def summary(self) -> str:
+        return f"wrote {self.path}" if self.wrote else f"{self.path.parent} is initialised ({self.note or self.path})"
+
+
+def init_run(run: Path, settings: Optional[Path] = None, setting: Optional[list[str]] = None,
+             force: bool = False) -> InitResult:
+    """Create a run directory with its settings: RUN/settings.toml, a copy of ``settings`` (else the
+    built-in defaults) with each KEY=VALUE of ``setting`` written in front of it. An existing, different
+    RUN/settings.toml is replaced only with ``force``; ``setting`` without ``settings`` adds to it."""
+    run = check_run_dir(run)
+    target = run / SETTINGS_FILE
+    settings = Path(settings) if settings is not None else None
+    load_settings([settings] if settings is not None else [])  # validate before touching the run dir
+    if settings is not None:
+        text = settings.read_text()
+    elif target.is_file() and setting:
+        if load_settings([target], setting) == load_settings([target]):
+            return InitResult(target, False, f"{target} has {' '.join(setting)} already")
+        text = target.read_text()
+    else:
+        text = None
+    if setting:
+        text = with_overrides(text if text is not None else DEFAULT_TEXT, setting)
+    if target.exists() and (text is None or target.read_text() == text):
+        return InitResult(target, False)
+    if target.exists() and not force and not (setting and settings is None):
+        raise CalibError(f"{target} exists and differs from --settings: give --force to replace it (the stages "
+                         "that depend on a changed setting will then rerun)")
+    art.atomic_write_bytes(target, (text if text is not None else DEFAULT_TEXT).encode())
+    return InitResult(target, True)

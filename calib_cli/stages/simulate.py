@@ -1,0 +1,223 @@
+"""Simulate heaps into a run directory: a design's rows (or one point), crossed with a conditions
+table and repeats, on the built-in kernel or LAMMPS, cached by each heap's hash (calib_cli.campaign)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Optional, Union
+
+import numpy as np
+import pandas as pd
+
+from .. import artifacts as art
+from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
+from ..dem.heap import PARAMETERS, Preset, interactions
+from ..errors import CalibError
+from ..requests import (build_requests, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
+                        parse_params, table_conditions)
+from .common import Say, check_run_dir, plain, resolve_settings
+
+Pairs = Union[Mapping, Iterable[str], None]
+
+
+def pairs(items: Pairs, what: str) -> dict:
+    """KEY=VALUE strings (the command line's) or a mapping (Python's) as a dict."""
+    return dict(items) if isinstance(items, Mapping) else parse_pairs(items, what)
+
+
+#: deg/s: measured heaps whose angle still changes faster than this are pointed out
+DRIFT_WARN = 2.0
+
+
+def floor_follows_grains(walls: list[tuple]) -> bool:
+    """Whether the runs, given by their :func:`interactions` (particle-particle, floor, cylinder),
+    vary the grains' static friction with the floor's following it (neither the condition's
+    ``floor_static_friction`` nor ``wall_static_friction`` given): the design then varies the rig's
+    floor too, and on sphere heaps that alone can reverse static friction's effect
+    (docs/physics.md, "Wall friction" and "The paper's own tables")."""
+    return len({pp.static_friction for pp, pf, _ in walls if pf.static_friction == pp.static_friction}) > 1
+
+
+#: the stiffest modulus the paper's design was simulated at (`make default-bbd-stiff`); below it a
+#: cohesive calibration is noted as modulus-dependent
+STIFF_REFERENCE = 5e8
+
+
+def cohesion_modulus_note(walls: list[tuple], shear_modulus: float) -> str:
+    """A note when cohesive grains run softer than :data:`STIFF_REFERENCE`, else "".
+
+    The JKR pull-off force 3 pi g R* does not depend on the modulus, but the work that parts two
+    grains goes as g^(5/3) R*^(4/3) E*^(-2/3), so a reduced modulus makes cohesion act more strongly
+    while a heap forms, and on the paper's design it changes which parameter matters most
+    (docs/physics.md, "Stiffness")."""
+    if not any(pp.surface_energy > 0 for pp, _, _ in walls) or shear_modulus >= STIFF_REFERENCE:
+        return ""
+    ratio = (STIFF_REFERENCE / shear_modulus) ** (2 / 3)
+    return (f"cohesive grains at a shear modulus of {shear_modulus / 1e6:g} MPa: the JKR work that parts two "
+            f"grains goes as G^-2/3 and is here {ratio:.3g}x that at {STIFF_REFERENCE / 1e6:g} MPa, so these heaps and the "
+            "order in which the parameters matter depend on the modulus (on the paper's design surface energy "
+            "comes first at 5 and 50 MPa, rolling friction from 150 MPa; docs/physics.md, 'Stiffness'). A calibration "
+            "holds at the modulus it was simulated at: set the one you mean for the run, heap.shear_modulus in its "
+            "settings.toml (or --shear-modulus on each command; docs/physics.md, 'Which modulus').")
+
+
+@dataclass
+class Plan:
+    """The heaps a simulation will run: their requests, on which preset, and how many are cached."""
+
+    run: Path
+    requests: list[Request]
+    preset: Preset
+    force: bool = False
+
+
+@dataclass
+class SimulateResult:
+    """The rows of RUN/simulate/results.parquet this simulation made or found cached."""
+
+    run: Path
+    rows: pd.DataFrame
+
+    @property
+    def path(self) -> Path:
+        return self.run / RESULTS
+
+    def summary(self) -> pd.DataFrame:
+        rows = self.rows
+        return rows[["run_id", "repeat", *[c for c in PARAMETERS if c in rows.columns], "status", "repose_angle",
+                     "angle_drift_deg_s", "n_particles", "wall_s"]]
+
+    def check(self) -> "SimulateResult":
+        """Raise when no heap formed (the notes say why)."""
+        if (self.rows["status"] != "ok").all():
+            raise CalibError("no run formed a heap; see the messages above")
+        return self
+
+    def notes(self) -> list[str]:
+        """Creeping heaps and heaps that failed, as the command line prints them."""
+        rows, out = self.rows, []
+        creeping = rows[(rows["status"] == "ok") & (rows["angle_drift_deg_s"].abs() > DRIFT_WARN)]
+        if len(creeping):
+            out.append(f"[yellow]note:[/] {len(creeping)} of {len(rows)} heap(s) were still creeping by more than "
+                       f"{DRIFT_WARN:g} deg/s when measured (up to {creeping['angle_drift_deg_s'].abs().max():.1f}): "
+                       "the rolling law cannot hold a static heap, so every angle is taken at the same stage "
+                       "(docs/physics.md, 'Creep')")
+        for _, r in rows[rows["status"] != "ok"].iterrows():
+            out.append(f"[yellow]run {r['run_id']} repeat {r['repeat']}: {r['status']}[/] - {r['message']}")
+        return out
+
+
+def _engine(engine: str, mpi: int, shape: str) -> tuple[str, ...]:
+    """The grain shapes, after checking that the engine can run them."""
+    if engine not in ("builtin", "lammps"):
+        raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
+    if mpi > 1 and engine != "lammps":
+        raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
+    from ..engines.clumps import SPHERES, parse_shapes
+
+    shapes = parse_shapes(shape)
+    if shapes != SPHERES and engine != "lammps":
+        raise CalibError("--shape needs --engine lammps: the built-in kernel has spheres only")
+    if shapes != SPHERES and mpi > 1:
+        raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
+    if engine == "lammps":
+        from ..engines.lammps import open_lammps
+
+        open_lammps().close()  # fail now, with the extra named, not after the first run
+    return shapes
+
+
+def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[int, dict]], str, str]:
+    """(run id, parameters) of every design row (the fixed values for what it lacks), or of one point;
+    with absent effects pinned at their neutral values once the run has a model file."""
+    points: list[tuple[int, dict]] = []
+    dname = ""
+    if design is not None:
+        df = art.read_table(design, what="design")
+        cols = [c for c in df.columns if c in PARAMETERS]
+        if not cols:
+            raise CalibError(f"design {design} has no parameter columns ({', '.join(PARAMETERS)})")
+        dname = Path(design).parent.name
+        ids = df["run_id"].to_numpy() if "run_id" in df.columns else np.arange(1, len(df) + 1)
+        for rid, (_, row) in zip(ids, df.iterrows()):
+            points.append((int(rid), {**fixed, **parse_params({c: row[c] for c in cols})}))
+    else:
+        points.append((0, fixed))
+    from ..model import load_model
+
+    model = load_model(run)
+    if model.revision >= 1:  # a model file exists: absent effects are pinned at their neutral values
+        for _, p in points:
+            model.check(p)
+        return [(rid, model.pin(p)) for rid, p in points], dname, model.hash
+    return points, dname, ""
+
+
+def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = None, repeats: int = 1, seed: int = 0,
+                    preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
+                    conditions: Optional[Path] = None, engine: str = "builtin", mpi: int = 1, shape: str = "sphere",
+                    force: bool = False, say: Optional[Say] = None) -> Plan:
+    """Check everything and build the requests (nothing runs yet): every row of ``design`` (else one
+    point) with ``params`` for what it lacks, under the preset's rig changed by ``condition`` or every
+    condition of the ``conditions`` table, ``repeats`` seeds each. Says how many are cached, and notes
+    a floor that follows the grains and cohesive grains at a reduced modulus. ``force`` forgets the
+    cached heaps."""
+    say = say or plain
+    run = check_run_dir(run)
+    shapes = _engine(engine, mpi, shape)
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
+    pre = heap_preset(preset, shear_modulus)
+    cond = make_condition(pre.condition, pairs(condition, "condition"))
+    points, dname, mhash = _points(run, design, parse_params(pairs(params, "--set")))
+    crossed = [("", cond)]
+    if conditions is not None:
+        conditions = Path(conditions)
+        ctab = art.read_table(conditions, columns=["condition_id"], what="conditions table") \
+            if conditions.suffix.lower() == ".parquet" else pd.read_csv(conditions)
+        if "condition_id" not in ctab.columns:
+            raise CalibError(f"conditions table {conditions} lacks column condition_id")
+        crossed = table_conditions(cond, ctab)
+    requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
+                              preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
+    walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs
+    if force:
+        for req in requests:
+            done = run / RUNS / req.hash / "result.json"
+            if done.is_file():
+                done.unlink()
+    have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
+    copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
+    where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
+             else pre.note)
+    also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
+    say(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
+        + modulus_note(shear_modulus))
+    if floor_follows_grains(walls):
+        say("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
+            "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
+            "change with the grains, and on sphere heaps this choice can reverse static friction's effect "
+            "(docs/physics.md, 'Wall friction'). Give the floor's measured values if you know them.")
+    cohesive = cohesion_modulus_note(walls, pre.numerics.shear_modulus)
+    if cohesive:
+        say(f"[yellow]note:[/] {cohesive}")
+    return Plan(run, requests, pre, force)
+
+
+def run_simulation(plan: Plan, workers: int = 1, dask: Optional[str] = None, on_done: Optional[Callable] = None,
+                   on_progress: Optional[Callable] = None) -> SimulateResult:
+    """Run a :func:`plan_simulation`'s heaps (cached ones are read) on ``workers`` processes or a Dask
+    cluster; ``on_done(request, row)`` after each heap, ``on_progress(t, t_max, phase)`` within one."""
+    rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
+                        reuse=not plan.force)
+    return SimulateResult(plan.run, rows)
+
+
+def simulate_heap(run: Path, params: Pairs = None, design: Optional[Path] = None, *, workers: int = 1,
+                  dask: Optional[str] = None, say: Optional[Say] = None, **options) -> SimulateResult:
+    """Plan and run a simulation (:func:`plan_simulation` takes the ``options``): writes
+    RUN/simulate/results.parquet and RUN/simulate/runs/<hash>/ per heap. Raises if no heap formed."""
+    result = run_simulation(plan_simulation(run, params, design, say=say, **options), workers, dask)
+    for note in result.notes():
+        (say or plain)(note)
+    return result.check()
