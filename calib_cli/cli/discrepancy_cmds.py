@@ -18,7 +18,7 @@ from ..stages import lab
 from .common import (PRESETS_HELP, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, check_run_dir, console, df_table, handle_errors,
                      say, skipped)
 
-model_app = typer.Typer(help="The model: a named set of physical effects (SPEC 6).", no_args_is_help=True)
+model_app = typer.Typer(help="The model: a named set of physical effects.", no_args_is_help=True)
 RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Parallel simulations.")]
 SetOpt = Annotated[Optional[list[str]], typer.Option("--set", help="Calibrated parameter KEY=VALUE (default: "
