@@ -33,10 +33,9 @@ def _source_hash() -> str:
     return h.hexdigest()[:12]
 
 
-#: hash of the kernel's source: part of every simulation's cache key (unless calib_cli.campaign's
-#: SAME_BITS declares that it computes an earlier source's heaps bit for bit), and the numba
-#: cache folder, because numba's own cache only tracks each function's own file and would keep
-#: stale machine code of a contact law inlined from another module
+#: hash of the kernel's source (dem/ and dem/laws/): names numba's cache folder only, because numba's own
+#: cache tracks each function's own file and would keep stale machine code of a law inlined from another
+#: module. Heaps' cache keys name the laws' versions instead (calib_cli.campaign.PHYSICS)
 SOURCE_HASH = _source_hash()
 
 if "NUMBA_CACHE_DIR" not in os.environ:

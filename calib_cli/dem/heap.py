@@ -21,7 +21,7 @@ from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, repose_angle_coords
 from .laws.capillary import DEFAULTS as LIQUID_DEFAULTS
-from .materials import Interaction, Material
+from .materials import LAW_SWITCHES, Interaction, Material
 from .system import Particles, System, Walls
 
 #: parameters the heap test takes (natural units). wall_* set the floor and the cylinder alike and
@@ -40,7 +40,7 @@ PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_e
                      "surface_tension": 0.0, **LIQUID_DEFAULTS}
 #: law switches (0/1) and a law's fixed settings (the liquid's contact angle, a bridge's volume), not
 #: calibrated values: the walls take the grains' choice
-LAWS = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff", "contact_angle", "liquid_volume")
+LAWS = (*LAW_SWITCHES, "contact_angle", "liquid_volume")
 #: values the walls never take from the grains: no wall sticks (a wet fill glued to the lifting cylinder is
 #: an effect of its own, and would be carried up with it), and a wall holds no liquid bridge
 WALL_ZERO = ("surface_energy", "surface_tension")

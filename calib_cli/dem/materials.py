@@ -15,6 +15,9 @@ from .laws.damping import damping_ratio
 from .laws.normal import jkr_constants
 from .laws.rolling import rolling_spring_constants
 
+#: an interaction's law switches (0/1): which law of a family a run uses (:func:`contact_model`)
+LAW_SWITCHES = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff")
+
 
 @dataclass(frozen=True)
 class Material:
@@ -117,9 +120,8 @@ def contact_model(*its: Interaction) -> ContactModel:
     switches) call for: JKR where any has a surface energy, a liquid bridge where the grains have a
     surface tension, and the rolling law and friction caps the switches name."""
     pp = its[0]
-    switches = ("rolling_own_spin", "friction_net_force", "rolling_spring", "caps_pulloff")
-    if any(getattr(it, k) != getattr(pp, k) for it in its[1:] for k in switches):
-        raise CalibError(f"the walls take the grains' contact laws: {', '.join(switches)} must be the same on every "
+    if any(getattr(it, k) != getattr(pp, k) for it in its[1:] for k in LAW_SWITCHES):
+        raise CalibError(f"the walls take the grains' contact laws: {', '.join(LAW_SWITCHES)} must be the same on every "
                          "interaction")
     return ContactModel(
         normal="jkr" if any(it.surface_energy > 0 for it in its) else "hertz",

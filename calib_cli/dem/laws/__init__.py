@@ -33,6 +33,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
+from ...errors import CalibError
 from . import cap, capillary, damping, normal, rolling, tangential
 
 FAMILIES = ("normal", "cohesion", "damping", "cap", "tangential", "rolling")
@@ -90,8 +91,6 @@ class ContactModel:
         for f in FAMILIES:
             name = getattr(self, f)
             if name not in REGISTRY[f]:
-                from ...errors import CalibError
-
                 raise CalibError(f"unknown {f} law {name!r}; known: {', '.join(REGISTRY[f])}")
 
     @property

@@ -164,6 +164,6 @@ def jkr(delta, Rs, a_old, ht, k, prm, row):
     return normal_law_core(delta, Rs, r13, prm[row, E_S], gamma, prm[row, K13], prm[row, ATT], a_old)
 
 
-def jkr_reach(row: np.ndarray, r_max: float) -> float:
-    """The JKR cutoff gap -delta_c of the largest pair (a grain of radius r_max on a wall: R* = r_max)."""
-    return -jkr_cutoff_overlap(r_max, row[E_S], row[GAMMA])
+def jkr_reach(row: np.ndarray, Rs_max: float) -> float:
+    """The JKR cutoff gap -delta_c of the largest pair (R* = Rs_max; a grain on a wall has R* = its radius)."""
+    return -jkr_cutoff_overlap(Rs_max, row[E_S], row[GAMMA])
