@@ -1,7 +1,7 @@
 """Simulation campaigns: many heap runs, cached, resumable, on a local process pool.
 
 Each run is identified by the hash of everything that determines its result (model,
-parameters, condition, numerics, seed, kernel source). Its artefacts live in
+parameters, condition, numerics, seed, the versions of its laws and kernel). Its artefacts live in
 ``RUN/simulate/runs/<hash>/`` and its ``result.json`` is written last, atomically: a
 run with a result is never recomputed, and Ctrl-C loses nothing that finished. The
 index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run.
@@ -24,9 +24,10 @@ import pandas as pd
 from . import __version__
 from . import artifacts as art
 from .dem import KERNEL_VERSION
-from .dem.laws import REGISTRY
-from .dem.heap import LAWS, HeapCondition, Numerics, condition_dict, run_heap, run_key
+from .dem.laws import REGISTRY, ContactModel
+from .dem.heap import FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, Numerics, condition_dict, heap_model, run_heap, run_key
 from .dem.render import render_side_view
+from .errors import CalibError
 from .engines.clumps import SPHERES
 from .imaging.measure import measure_image
 
@@ -36,26 +37,37 @@ RUNS = Path("simulate") / "runs"
 #: campaign copies instead of recomputing (docs/campaigns.md)
 REUSE_ENV = "CALIB_REUSE"
 
-#: The physics a heap's cache key names: every contact law's name and version (calib_cli.dem.laws) and the
-#: kernel's version (integration, neighbour search, the force loop's assembly), not the bytes of the
-#: source, so that a comment or a refactoring that keeps the arithmetic re-simulates nothing. Changing a
-#: law's arithmetic means raising its version (and KERNEL_VERSION for the rest of the kernel); every
-#: heap's key then changes. The laws at their first versions compute, bit for bit, the heaps of kernel
-#: source 77675d5eca62 (the last one keyed by its bytes), which keeps naming them: tests/test_heap.py
-#: re-simulates committed heaps of it on every test run (the golden heaps) to hold that true.
-PHYSICS = {"kernel": KERNEL_VERSION, **{f"{law.family}={law.name}": law.version
-                                         for family in REGISTRY.values() for law in family.values()}}
+def physics(model: ContactModel | None = None) -> dict[str, object]:
+    """The physics a heap's cache key names: the kernel's version (integration, neighbour search, the
+    force loop's assembly) and the name and version of each contact law the heap composes (``model``;
+    every registered law without one), not the bytes of the source, so that a comment or a refactoring
+    that keeps the arithmetic re-simulates nothing, and raising one law's version re-simulates exactly
+    the heaps that used it."""
+    laws = model.laws if model is not None else [law for family in REGISTRY.values() for law in family.values()]
+    return {"kernel": KERNEL_VERSION, **{f"{law.family}={law.name}": law.version for law in laws}}
+
+
+#: every law's version and the kernel's (docs; a heap's key takes only its own laws': :func:`heap_source`)
+PHYSICS = physics()
 
 
 def cache_source(physics: Mapping[str, object]) -> str:
     """The name of a physics version in cache keys and the results' `source` column: 77675d5eca62
-    while every law and the kernel are at their first version, a hash of the versions after."""
+    while the kernel and the laws named are at their first version (the last kernel source keyed by
+    its bytes, whose heaps they compute bit for bit: the golden heaps of tests/test_heap.py), a hash
+    of the versions after."""
     if str(physics.get("kernel")) == "1" and all(v == 1 for k, v in physics.items() if k != "kernel"):
         return "77675d5eca62"
     return art.hash_obj(dict(physics))[:12]
 
 
-#: the physics version that cache keys and the results index use
+def heap_source(params: Mapping[str, float], condition: HeapCondition | None = None) -> str:
+    """The physics version a heap of these parameters and condition runs (its laws' and the kernel's)."""
+    return cache_source(physics(heap_model(params, condition)))
+
+
+#: the version of the whole table (the kernel, every law): compare and diagnose name it in their settings, so
+#: that any raised version re-runs them (the heaps it leaves unchanged come from the cache)
 CACHE_SOURCE = cache_source(PHYSICS)
 #: the second engines' own source (calib_cli/engines/: the LAMMPS parameter mapping, clumps), in their
 #: heaps' keys beside CACHE_SOURCE: a changed mapping re-simulates instead of serving the old one's heaps
@@ -82,7 +94,7 @@ class Request:
     @property
     def key(self) -> dict:
         k = run_key(self.params, self.condition, self.numerics, self.seed, self.model)
-        k["source"] = CACHE_SOURCE
+        k["source"] = self.source
         if self.engine != "builtin":  # keeps the built-in engine's existing cache keys
             k["engine"] = self.engine
             k["engine_source"] = ENGINE_SOURCE
@@ -91,6 +103,11 @@ class Request:
         if tuple(self.shapes) != SPHERES:
             k["shapes"] = list(self.shapes)
         return k
+
+    @property
+    def source(self) -> str:
+        """The physics version this heap runs (:func:`heap_source`)."""
+        return heap_source(self.params, self.condition)
 
     @property
     def hash(self) -> str:
@@ -172,7 +189,7 @@ def _row(req: Request, res, img) -> dict:
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
         "t_settled": res.t_settled, "t_lift_end": res.t_lift_end, "max_overlap": s.max_overlap,
         "wall_s": res.wall_s, "particle_steps_per_s": s.n * s.n_steps / max(res.wall_s, 1e-9),
-        "kernel": KERNEL_VERSION, "source": CACHE_SOURCE, "version": __version__, "host": host(),
+        "kernel": KERNEL_VERSION, "source": req.source, "version": __version__, "host": host(),
     }
 
 
@@ -218,10 +235,33 @@ def load_results(run_dir: Path) -> pd.DataFrame:
     return art.read_table(path, what="simulation results") if path.is_file() else pd.DataFrame()
 
 
-def current_results(run_dir: Path) -> pd.DataFrame:
-    """The index rows an analysis may use: those of the current kernel source, each run once.
+def current_sources(rows: pd.DataFrame) -> pd.Series:
+    """The physics version each results row's heap would run now (its parameters' and floor's laws);
+    "" where they are no longer valid parameters."""
+    cols = [c for c in (*PARAMETERS, *FLOOR_VARIABLES) if c in rows.columns]
 
-    The index keeps rows of older kernel versions (their artefacts stay in the cache), but they
+    def source(vals) -> str:
+        given = {k: float(v) for k, v in zip(cols, vals) if v is not None}
+        floor = {k: v for k, v in given.items() if k in FLOOR_VARIABLES}
+        try:
+            return heap_source({k: v for k, v in given.items() if k not in floor}, HeapCondition(**floor))
+        except (CalibError, TypeError, ValueError):
+            return ""
+    memo: dict[tuple, str] = {}  # an index holds few distinct parameter sets among many rows
+    out = []
+    for vals in rows[cols].itertuples(index=False, name=None):
+        key = tuple(None if pd.isna(v) else v for v in vals)
+        if key not in memo:
+            memo[key] = source(key)
+        out.append(memo[key])
+    return pd.Series(out, index=rows.index, dtype=object)
+
+
+def current_results(run_dir: Path) -> pd.DataFrame:
+    """The index rows an analysis may use: those of the physics their heaps run now (:func:`heap_source`),
+    each run once.
+
+    The index keeps rows of older kernel or law versions (their artefacts stay in the cache), but they
     are other simulations: averaging them with the current ones as if they were repeats shifted
     a whole calibration (found on a fresh clone whose committed index held older rows).
     """
@@ -229,7 +269,7 @@ def current_results(run_dir: Path) -> pd.DataFrame:
     if df.empty:
         return df
     if "source" in df.columns:
-        df = df[df["source"] == CACHE_SOURCE]
+        df = df[df["source"] == current_sources(df)]
     if "run_hash" not in df.columns:  # not an index written by calib: nothing to de-duplicate by
         return df.reset_index(drop=True)
     keys = [k for k in ("run_hash", "design", "run_id", "repeat", "condition_id") if k in df.columns]
@@ -278,7 +318,7 @@ def reusable(run_hash: str) -> Path | None:
     (asked only for runs the campaign's own directory lacks, so naming it there is harmless).
 
     The hash covers everything that determines the run (model, parameters, condition, numerics,
-    seed, kernel source), so that run is the one this campaign would compute, bit for bit."""
+    seed, the versions of its laws and kernel), so that run is the one this campaign would compute, bit for bit."""
     for other in filter(None, os.environ.get(REUSE_ENV, "").split(os.pathsep)):
         src = Path(other) / RUNS / run_hash
         if (src / "result.json").is_file():

@@ -519,6 +519,25 @@ def test_cache_keys_name_law_versions_not_source_bytes():
     assert bumped != "77675d5eca62" and bumped != campaign.cache_source({**campaign.PHYSICS, "kernel": "2"})
 
 
+def test_raising_one_laws_version_renames_exactly_the_heaps_that_use_it(monkeypatch):
+    """JKR at version 2: a cohesive heap (JKR) gets a new key and its old results row stops counting as
+    current; a non-cohesive one (Hertz) keeps its key and row; the whole table's version moves too."""
+    import dataclasses
+
+    from calib_cli import campaign
+    from calib_cli.dem.laws import REGISTRY
+
+    wet, dry = ({"static_friction": 0.4, "surface_energy": e} for e in (0.5, 0.0))
+    reqs = [Request(p, TINY, TINY_NUM, 1) for p in (wet, dry)]
+    before = [r.hash for r in reqs]
+    rows = pd.DataFrame([{**p, "source": r.source} for p, r in zip((wet, dry), reqs)])
+    monkeypatch.setitem(REGISTRY["normal"], "jkr", dataclasses.replace(REGISTRY["normal"]["jkr"], version=2))
+    after = [Request(p, TINY, TINY_NUM, 1).hash for p in (wet, dry)]
+    assert after[0] != before[0] and after[1] == before[1]
+    assert list(rows["source"] == campaign.current_sources(rows)) == [False, True]
+    assert campaign.cache_source(campaign.physics()) != campaign.CACHE_SOURCE
+
+
 def test_the_benchmarks_paper_designs_are_the_papers_tables(monkeypatch):
     """`benchmarks/rolling_law.py --design pb|ascent|bbd` runs the paper's Tables 3, 5 and 7 at
     their own values (surface energy times --g-factor). The main effects from the paper's own

@@ -20,8 +20,9 @@ from ..errors import CalibError
 from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, repose_angle_coords
+from .laws import ContactModel
 from .laws.capillary import DEFAULTS as LIQUID_DEFAULTS
-from .materials import LAW_SWITCHES, Interaction, Material
+from .materials import LAW_SWITCHES, Interaction, Material, contact_model
 from .system import Particles, System, Walls
 
 #: parameters the heap test takes (natural units). wall_* set the floor and the cylinder alike and
@@ -153,6 +154,12 @@ def interactions(params: Mapping[str, float], condition: HeapCondition | None = 
     pf.validate("particle-floor parameters")
     pc.validate("particle-cylinder parameters")
     return pp, pf, pc
+
+
+def heap_model(params: Mapping[str, float], condition: HeapCondition | None = None) -> ContactModel:
+    """The composition of contact laws a heap test of these parameters runs (its floor and its cylinder
+    are walls, which take the grains' laws): what its cache key names (calib_cli.campaign)."""
+    return contact_model(*interactions(params, condition))
 
 
 def fill_cylinder(cond: HeapCondition, packing: float, rng: np.random.Generator) -> Particles:

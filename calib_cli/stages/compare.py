@@ -22,7 +22,7 @@ from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model  # noqa: E402
 from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, modulus_settings,  # noqa: E402
                         parse_params, table_conditions)
-from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, warn_other_modulus  # noqa: E402
+from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage, warn_other_modulus  # noqa: E402
 from .simulate import Pairs, pairs  # noqa: E402
 
 
@@ -135,7 +135,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     conds = measured_conditions(run)
     warn_other_modulus(run, shear_modulus, "the comparison's", say)
     # the kernel's source too: the heaps would change with it, though nothing in the run dir does
-    st = art.Stage(run, "compare", f"rev{model.revision}",
+    st = stage(run, "compare", f"rev{model.revision}",
                    inputs={"conditions": run / "measure" / "conditions.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})

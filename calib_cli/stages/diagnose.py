@@ -17,7 +17,7 @@ from ..discrepancy.stats import at_bounds, confounded, difference_se, score_effe
 from ..errors import CalibError
 from ..model import EFFECTS, Model
 from ..requests import COND_VARS, heap_setup, modulus_settings
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, warn_other_modulus
+from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, warn_other_modulus
 from .compare import measured_conditions, model_and_theta, simulate_at
 from .simulate import Pairs
 
@@ -179,7 +179,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = measured_conditions(run)
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
-    st = art.Stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
+    st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
     if st.up_to_date() and not force:

@@ -19,7 +19,8 @@ from ..doe import pb as pb_mod
 from ..errors import CalibError
 from ..settings import factor_space
 from ..space import ParameterSpace
-from .common import (Result, Say, check_run_dir, plain, resolve_settings, simulated_responses, space_from_design)
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, simulated_responses, space_from_design,
+                     stage)
 
 Settings = Optional[Path]
 Overrides = Optional[list[str]]
@@ -106,7 +107,7 @@ def pb_design(run: Path, settings: Settings = None, setting: Overrides = None, f
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
     space = factor_space(cfg, cfg["pb"]["factors"])
-    st = art.Stage(run, "pb", "design", settings={"space": space.to_dicts(), "runs": cfg["pb"]["runs"]})
+    st = stage(run, "pb", "design", settings={"space": space.to_dicts(), "runs": cfg["pb"]["runs"]})
     if st.up_to_date() and not force:
         return DesignResult(st, True)
     df, _ = pb_mod.design(space, int(cfg["pb"]["runs"]))
@@ -124,7 +125,7 @@ def pb_analyze(run: Path, responses: Optional[Path] = None, settings: Settings =
     design_path = run / "pb" / "design.parquet"
     data, inputs = load_responses(run, responses, design_path, names, response)
     space = space_from_design(design_path) or ParameterSpace.from_data(data, names, factor_space(cfg, names))
-    st = art.Stage(run, "pb", "analyze", inputs=inputs,
+    st = stage(run, "pb", "analyze", inputs=inputs,
                    settings={"space": space.to_dicts(), "alpha": cfg["pb"]["alpha"], "response": response})
     if st.up_to_date() and not force:
         return PBResult(st, True)
@@ -209,7 +210,7 @@ def ascent_design(run: Path, settings: Settings = None, setting: Overrides = Non
          if r["factor"] in sig])
     others = [f for f in eff["factor"] if f not in sig]
     fixed = _fixed_values(cfg, "ascent", others)
-    st = art.Stage(run, "ascent", "design",
+    st = stage(run, "ascent", "design",
                    inputs={"effects": run / "pb" / "effects.parquet", "fit": run / "pb" / "fit.parquet", **tin},
                    settings={"method": a["method"], "steps": a["steps"], "target": target, "fixed": fixed})
     if st.up_to_date() and not force:
@@ -248,7 +249,7 @@ def ascent_analyze(run: Path, responses: Optional[Path] = None, target: Optional
         data = simulated_responses(run, design_path, factors, response, allow_failed=True)
         inputs = {"design": design_path, "results": art.Rows(run / "simulate" / "results.parquet", data)}
     inputs |= tin
-    st = art.Stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
+    st = stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
     if st.up_to_date() and not force:
         return AscentResult(st, True)
     res = ascent_mod.analyze(data, factors, response, tgt)
@@ -289,7 +290,7 @@ def bbd_design(run: Path, settings: Settings = None, setting: Overrides = None, 
     space = ParameterSpace.of(space[n].with_range(*ranges[n]) if n in ranges else space[n] for n in names)
     others = [n for n in cfg["pb"]["factors"] if n not in names]
     fixed = _fixed_values(cfg, "bbd", others)
-    st = art.Stage(run, "bbd", "design", inputs=inputs,
+    st = stage(run, "bbd", "design", inputs=inputs,
                    settings={"space": space.to_dicts(), "center_points": b["center_points"], "fixed": fixed})
     if st.up_to_date() and not force:
         return DesignResult(st, True)
@@ -314,7 +315,7 @@ def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings 
     data, inputs = load_responses(run, responses, design_path, names, response)
     if space is None:
         space = ParameterSpace.from_data(data, names, factor_space(cfg, names))
-    st = art.Stage(run, "bbd", "analyze", inputs=inputs, settings={"space": space.to_dicts(), "response": response})
+    st = stage(run, "bbd", "analyze", inputs=inputs, settings={"space": space.to_dicts(), "response": response})
     if st.up_to_date() and not force:
         return BBDResult(st, True)
     rsm = bbd_mod.QuadraticRSM().fit(data, space, response)

@@ -24,7 +24,7 @@ from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, make
                         modulus_settings, table_conditions)
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
-from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, warn_other_modulus  # noqa: E402
+from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage, warn_other_modulus  # noqa: E402
 from .simulate import Pairs, pairs  # noqa: E402
 from .surrogate import MODELS_DIR, load_models  # noqa: E402
 
@@ -245,7 +245,7 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
         inputs["conditions"] = cond_path  # the targets, or the rig of the validation runs
     condition_items = sorted(condition or []) if not isinstance(condition, dict) else \
         sorted(f"{k}={v}" for k, v in condition.items())
-    st = art.Stage(run, "invert", "solve", inputs=inputs,
+    st = stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
                              "preset": preset,
                              **modulus_settings(shear_modulus),

@@ -16,7 +16,7 @@ from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError
 from ..imaging.measure import measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
-from .common import Result, Say, check_run_dir, plain
+from .common import Result, Say, check_run_dir, plain, stage
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
@@ -149,7 +149,7 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         table = None
     if conditions is not None:
         inputs["conditions"] = conditions
-    st = art.Stage(run, "measure", "angles", inputs=inputs, settings={"band": list(band)})
+    st = stage(run, "measure", "angles", inputs=inputs, settings={"band": list(band)})
     if st.up_to_date() and not force:
         return MeasureResult(st, True)
     cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}

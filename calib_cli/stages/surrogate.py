@@ -20,7 +20,7 @@ from ..errors import CalibError  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design  # noqa: E402
+from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage  # noqa: E402
 
 MODELS_DIR = Path("surrogate") / "models"
 
@@ -134,7 +134,7 @@ def fit_surrogate(run: Path, responses: Optional[Path] = None, from_simulations:
     cfg = resolve_settings(run, settings, setting)
     sc = cfg["surrogate"]
     data, names, inputs = _training_data(run, responses, cfg, from_simulations, say)
-    st = art.Stage(run, "surrogate", "fit", inputs=inputs, settings={"surrogate": sc, "inputs": names})
+    st = stage(run, "surrogate", "fit", inputs=inputs, settings={"surrogate": sc, "inputs": names})
     if st.up_to_date() and not force:
         return FitResult(st, True)
     X, y = data[names].to_numpy(float), data[cfg["response"]].to_numpy(float)
