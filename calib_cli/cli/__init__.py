@@ -12,6 +12,7 @@ from .. import artifacts as art
 from ..stages.run_dir import init_run
 from .common import (ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
                      handle_errors)
+from .diff_cmd import diff_runs_cmd
 from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
@@ -39,6 +40,7 @@ app.command("compare")(handle_errors(compare))
 app.command("diagnose")(handle_errors(diagnose))
 app.command("synth-lab")(handle_errors(synth_lab))
 app.command("run")(handle_errors(run_pipeline))
+app.command("diff-runs")(handle_errors(diff_runs_cmd))
 
 
 def _version(value: bool):

@@ -118,7 +118,7 @@ def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None =
     formats = formats or {}
     t = Table(title=title, title_justify="left", header_style="bold")
     for c in df.columns:
-        t.add_column(str(c), justify="left" if df[c].dtype == object else "right")
+        t.add_column(str(c), justify="right" if pd.api.types.is_numeric_dtype(df[c]) else "left")
     for _, r in df.iterrows():
         t.add_row(*[escape(formats.get(c, fmt)(r[c])) for c in df.columns])
     return t

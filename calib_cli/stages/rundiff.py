@@ -1,0 +1,166 @@
+"""Two run directories side by side: a fresh calibration's headline numbers against a reference run's
+(`make calibrate` compares its new run with the committed sample run), and why they differ where they do.
+
+The numbers compared are what a user reads off a calibration: the measured target, the screening's
+significant factors, the ascent's bracket, the BBD's fit, the chosen surrogate, the calibrated
+parameters, their validation and the comparison per condition. Where they differ, the simulation
+index says why: other requests (other settings or code), or the same requests with other bits
+(another machine's floating point), or the same heaps and another analysis.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..campaign import load_results
+
+@dataclass
+class RunDiff:
+    """The headline numbers of ``run`` and ``reference`` side by side (``table``: quantity, this run,
+    reference, same) and why they differ (``reasons``); ``same`` when every number agrees to ``rtol``."""
+
+    run: Path
+    reference: Path
+    table: pd.DataFrame
+    reasons: list[str] = field(default_factory=list)
+
+    @property
+    def same(self) -> bool:
+        return bool((self.table["same"] == "yes").all()) if len(self.table) else False
+
+    def summary(self) -> pd.DataFrame:
+        return self.table
+
+
+def _read(run: Path, table: str) -> pd.DataFrame | None:
+    path = run / table
+    return pd.read_parquet(path) if path.is_file() else None
+
+
+def _measured(run: Path) -> dict[str, tuple]:
+    df = _read(run, "measure/conditions.parquet")
+    return {} if df is None else {f"measured angle, {r.condition_id} [deg]": (r.mean, r.sd)
+                                  for r in df.itertuples()}
+
+
+def _screening(run: Path) -> dict[str, tuple]:
+    df = _read(run, "pb/effects.parquet")
+    if df is None:
+        return {}
+    return {"screening: significant factors": (", ".join(df.loc[df["significant"], "factor"]) or "none",),
+            **{f"screening effect, {r.factor} [deg]": (r.effect,) for r in df.itertuples()}}
+
+
+def _bracket(run: Path) -> dict[str, tuple]:
+    df = _read(run, "ascent/bracket.parquet")
+    return {} if df is None else {f"ascent bracket, {r.factor}": (r.low, r.high) for r in df.itertuples()}
+
+
+def _fits(run: Path) -> dict[str, tuple]:
+    out = {}
+    bbd = _read(run, "bbd/fit.parquet")
+    if bbd is not None:
+        out["BBD surface R2, R2 predicted"] = (bbd["r2"].iloc[0], bbd["r2_pred"].iloc[0])
+    m = _read(run, "surrogate/metrics.parquet")
+    try:
+        best = json.loads((run / "surrogate" / "best.json").read_text())["best"]
+    except (OSError, ValueError, KeyError):
+        best = None
+    if m is not None and best is not None:
+        loo = m[(m["model"] == best) & (m["split"] == "loo")]["r2"]
+        out["surrogate chosen, its leave-one-out R2"] = (best, float(loo.iloc[0]) if len(loo) else np.nan)
+    return out
+
+
+def _calibrated(run: Path) -> dict[str, tuple]:
+    df = _read(run, "invert/solution.parquet")
+    if df is None:
+        return {}
+    r = df.iloc[0]
+    skip = {"fitness", "target", "model", "predicted_angle"}
+    out = {f"calibrated {c}": (r[c],) for c in df.columns if c not in skip and pd.api.types.is_number(r[c])}
+    if "predicted_angle" in df.columns:
+        out["surrogate's angle at it [deg]"] = (r["predicted_angle"],)
+    v = _read(run, "invert/validation.parquet")
+    if v is not None and len(v):
+        last = v[v["round"] == v["round"].max()]["repose_angle"]
+        out["validation heaps, last round: mean, sd [deg]"] = (last.mean(), last.std())
+    return out
+
+
+def _compared(run: Path) -> dict[str, tuple]:
+    df = _read(run, "compare/residuals.parquet")
+    return {} if df is None else {f"compare, {r.condition_id}: simulated [deg], z": (r.simulated, r.z)
+                                  for r in df.itertuples()}
+
+
+#: the headline numbers of a run, in the order a calibration makes them
+HEADLINES = (_measured, _screening, _bracket, _fits, _calibrated, _compared)
+
+
+def _text(vals: tuple | None) -> str:
+    if vals is None:
+        return "-"
+    return ", ".join(f"{v:.4g}" if isinstance(v, (float, np.floating)) else str(v) for v in vals)
+
+
+def _same(a: tuple | None, b: tuple | None, rtol: float) -> bool:
+    if a is None or b is None or len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if isinstance(x, str) or isinstance(y, str):
+            if x != y:
+                return False
+        elif not np.isclose(float(x), float(y), rtol=rtol, atol=1e-12, equal_nan=True):
+            return False
+    return True
+
+
+def _headline_rows(run: Path, reference: Path, rtol: float) -> list[dict]:
+    rows = []
+    for headline in HEADLINES:
+        new, ref = headline(run), headline(reference)
+        for key in dict.fromkeys([*ref, *new]):
+            a, b = new.get(key), ref.get(key)
+            rows.append({"quantity": key, "this run": _text(a), "reference": _text(b),
+                         "same": "yes" if _same(a, b, rtol) else "NO"})
+    return rows
+
+
+def _heap_reasons(run: Path, reference: Path) -> list[str]:
+    """Why the simulated heaps differ, from the two simulation indexes."""
+    new, ref = load_results(run), load_results(reference)
+    if new.empty or ref.empty:
+        return []
+    ref_by_hash = ref.drop_duplicates("run_hash").set_index("run_hash")
+    shared = new[new["run_hash"].isin(ref_by_hash.index)].drop_duplicates("run_hash")
+    other = len(set(new["run_hash"])) - len(shared)
+    out = []
+    if other:
+        out.append(f"{other} of this run's {new['run_hash'].nunique()} heaps are other requests than the reference's "
+                   "(other settings, data or physics versions): their angles are new draws")
+    if len(shared):
+        a = shared.set_index("run_hash")["repose_angle"]
+        b = ref_by_hash.loc[a.index, "repose_angle"]
+        differ = int((~np.isclose(a, b, rtol=0, atol=0, equal_nan=True)).sum())
+        hosts = sorted(set(shared["host"].dropna()) | set(ref_by_hash.loc[a.index, "host"].dropna()))
+        out.append(f"{len(shared) - differ} of {len(shared)} shared heaps came out bit for bit as in the reference"
+                   + (f"; {differ} did not (hosts: {', '.join(hosts)})" if differ else ""))
+    return out
+
+
+def diff_runs(run: Path, reference: Path, rtol: float = 1e-6) -> RunDiff:
+    """The headline numbers of ``run`` against ``reference``'s and, where they differ, why."""
+    run, reference = Path(run), Path(reference)
+    table = pd.DataFrame(_headline_rows(run, reference, rtol),
+                         columns=["quantity", "this run", "reference", "same"])
+    reasons = _heap_reasons(run, reference)
+    if len(table) and not (table["same"] == "yes").all() and not any("did not" in r or "other requests" in r for r in reasons):
+        reasons.append("the heaps are the reference's, so the analysis differs: the analysis code or its "
+                       "settings changed since the reference was made")
+    return RunDiff(run, reference, table, reasons)
