@@ -6,6 +6,7 @@ import os
 import sys
 
 import typer
+from typer.core import TyperGroup
 
 from .. import __version__
 from .. import artifacts as art
@@ -20,27 +21,76 @@ from .run_cmd import run_pipeline
 from .simulate_cmd import simulate_heap
 from .surrogate_cmds import fit_surrogate, invert, predict
 
+#: the order `calib --help` lists the commands in: the order a calibration uses them
+WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "pb", "ascent", "bbd", "simulate-heap", "fit-surrogate",
+            "predict", "invert", "model", "compare", "diagnose", "report", "diff-runs"]
+
+
+class _InWorkflowOrder(TyperGroup):
+    def list_commands(self, ctx):
+        return sorted(super().list_commands(ctx), key=lambda c: WORKFLOW.index(c) if c in WORKFLOW else len(WORKFLOW))
+
+
 app = typer.Typer(
+    cls=_InWorkflowOrder,
     name="calib",
     help="Calibrate DEM contact parameters of wet granular material from heap (angle-of-repose) tests.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-app.add_typer(pb_app, name="pb")
-app.add_typer(ascent_app, name="ascent")
-app.add_typer(bbd_app, name="bbd")
-app.command("measure-angle")(handle_errors(measure_angle))
-app.command("simulate-heap")(handle_errors(simulate_heap))
-app.command("fit-surrogate")(handle_errors(fit_surrogate))
-app.command("predict")(handle_errors(predict))
-app.command("invert")(handle_errors(invert))
-app.add_typer(model_app, name="model")
-app.command("compare")(handle_errors(compare))
-app.command("diagnose")(handle_errors(diagnose))
-app.command("synth-lab")(handle_errors(synth_lab))
-app.command("run")(handle_errors(run_pipeline))
-app.command("diff-runs")(handle_errors(diff_runs_cmd))
+# the commands in the order a calibration uses them, grouped as the help lists them
+SETUP, MEASURE, DESIGN, SIMULATE, SURROGATE, LOOP, REPORT = (
+    "Set up", "Measure", "Design and analyse", "Simulate", "Surrogate and inversion", "Compare and diagnose",
+    "Report")
+
+
+def _add(name: str, fn, panel: str, short: str) -> None:
+    app.command(name, rich_help_panel=panel, short_help=short)(handle_errors(fn))
+
+
+def _init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
+    """Create a run directory with its settings: RUN/settings.toml, a copy of --settings (else the
+    built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
+    for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
+    replaced only with --force; -s without --settings adds to it."""
+    r = init_run(run, settings, setting, force)
+    if r.wrote:
+        console.print(f"[green]✓[/] wrote {r.path}")
+    else:
+        console.print(f"[green]✓[/] {r.summary()}")
+
+
+def _report(run: RunOpt):
+    """Write RUN/report.html: every stage's summary tables and plots on one page, for sharing."""
+    from ..report import build_report
+
+    run = check_run_dir(run)
+    page = build_report(run).encode()
+    target = run / "report.html"
+    if target.is_file() and target.read_bytes() == page:
+        console.print(f"[green]✓[/] {target} is up to date")
+        return
+    art.atomic_write_bytes(target, page)
+    console.print(f"[green]✓[/] wrote {target}")
+
+
+_add("init", _init, SETUP, "Create a run directory with its settings.")
+_add("run", run_pipeline, SETUP, "Run a whole chain from a pipeline file, redoing only what changed.")
+_add("measure-angle", measure_angle, MEASURE, "Repose angle per photograph and per condition.")
+_add("synth-lab", synth_lab, MEASURE, "Synthetic photographs of heaps with known parameters and a hidden effect.")
+app.add_typer(pb_app, name="pb", rich_help_panel=DESIGN)
+app.add_typer(ascent_app, name="ascent", rich_help_panel=DESIGN)
+app.add_typer(bbd_app, name="bbd", rich_help_panel=DESIGN)
+_add("simulate-heap", simulate_heap, SIMULATE, "Simulate heap tests (a design, or one point) on the built-in DEM.")
+_add("fit-surrogate", fit_surrogate, SURROGATE, "Fit RSM, BP and PSO-BP surrogates and compare them held out.")
+_add("predict", predict, SURROGATE, "Evaluate the saved surrogates at a point.")
+_add("invert", invert, SURROGATE, "GA inversion to the target angle, validated (and corrected) by simulation.")
+app.add_typer(model_app, name="model", rich_help_panel=LOOP)
+_add("compare", compare, LOOP, "The calibrated model against the measurements, per condition.")
+_add("diagnose", diagnose, LOOP, "Rank the effects missing from the model, with the evidence.")
+_add("report", _report, REPORT, "Write RUN/report.html: the answer first, then every stage.")
+_add("diff-runs", diff_runs_cmd, REPORT, "A run's headline numbers beside a reference run's.")
 
 
 def _version(value: bool):
@@ -53,36 +103,6 @@ def _version(value: bool):
 def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                        help="Print the version and exit.")):
     pass
-
-
-@app.command("init")
-@handle_errors
-def init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
-    """Create a run directory with its settings: RUN/settings.toml, a copy of --settings (else the
-    built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
-    for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
-    replaced only with --force; -s without --settings adds to it."""
-    r = init_run(run, settings, setting, force)
-    if r.wrote:
-        console.print(f"[green]✓[/] wrote {r.path}")
-    else:
-        console.print(f"[green]✓[/] {r.summary()}")
-
-
-@app.command("report")
-@handle_errors
-def report(run: RunOpt):
-    """Write RUN/report.html: every stage's summary tables and plots on one page, for sharing."""
-    from ..report import build_report
-
-    run = check_run_dir(run)
-    page = build_report(run).encode()
-    target = run / "report.html"
-    if target.is_file() and target.read_bytes() == page:
-        console.print(f"[green]✓[/] {target} is up to date")
-        return
-    art.atomic_write_bytes(target, page)
-    console.print(f"[green]✓[/] wrote {target}")
 
 
 def main() -> None:

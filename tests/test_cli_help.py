@@ -1,0 +1,64 @@
+"""Every command's --help as a user sees it: no text eaten as markup, no reference to files users do
+not have, commands in workflow order, lines within 100 columns."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from calib_cli.cli import app
+
+WIDTH = 100
+
+
+def _commands(group, prefix=()):
+    for name, cmd in group.commands.items():
+        path = (*prefix, name)
+        yield path, cmd
+        if hasattr(cmd, "commands"):
+            yield from _commands(cmd, path)
+
+
+ROOT = typer.main.get_command(app)
+COMMANDS = list(_commands(ROOT))
+
+
+def _help(path) -> str:
+    r = CliRunner().invoke(app, [*path, "--help"], env={"COLUMNS": str(WIDTH), "TERM": "dumb"})
+    assert r.exit_code == 0, r.output
+    return r.output
+
+
+def _flat(text: str) -> str:
+    """The words of a rendered help page, without box drawing and line wrapping."""
+    return re.sub(r"\s+", " ", re.sub(r"[│╭╮╰╯─]", " ", text))
+
+
+@pytest.mark.parametrize("path", [p for p, _ in COMMANDS], ids=lambda p: " ".join(p))
+def test_help_shows_every_bracketed_word_and_cites_no_spec(path):
+    cmd = dict(COMMANDS)[path]
+    out = _help(path)
+    assert "SPEC" not in out
+    texts = [cmd.help or ""] + [getattr(p, "help", None) or "" for p in cmd.params]
+    flat = _flat(out).replace(" ", "")
+    for token in re.findall(r"(?<!\\)\[[^\]\[]+\]", " ".join(texts)):
+        if token.startswith("[/") or re.fullmatch(r"\[(bold|dim|green|red|yellow|cyan|italic)[^\]]*\]", token):
+            continue  # styling meant as markup
+        assert token.replace(" ", "") in flat, f"`calib {' '.join(path)} --help` lost {token!r}"
+    assert max(len(line) for line in out.splitlines()) <= WIDTH
+
+
+def test_commands_are_listed_in_workflow_order():
+    out = _help(())
+    order = ["init", "measure-angle", "pb", "ascent", "bbd", "simulate-heap", "fit-surrogate", "invert",
+             "compare", "diagnose", "report"]
+    where = [re.search(rf"│ {re.escape(c)}\s", out).start() for c in order]
+    assert where == sorted(where), out
+
+
+def test_version():
+    r = CliRunner().invoke(app, ["--version"])
+    assert r.exit_code == 0 and r.output.startswith("calib ")
