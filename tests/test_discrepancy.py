@@ -548,7 +548,7 @@ def test_report_shows_the_discrepancy_loop(tmp_path):
     r = runner.invoke(app, ["report", "--run", str(run)])
     assert r.exit_code == 0, r.output
     page = (run / "report.html").read_text()
-    assert "Model against the measurements" in page and 'src="compare/history.png"' in page
+    assert "Discrepancy loop" in page and 'src="compare/history.png"' in page
     assert "ranking.parquet (model revision 0)" in page and "residuals.parquet (model revision 1)" in page
     assert "unresolved" in page and "significant" in page
     assert "Heaps in this run directory" not in page  # no simulate/ copied: nothing to say

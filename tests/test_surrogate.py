@@ -149,7 +149,7 @@ def test_cli_fit_predict_invert(tmp_path):
     r = runner.invoke(app, ["report", "--run", str(run)])
     assert r.exit_code == 0
     page = (run / "report.html").read_text()
-    assert "Box-Behnken" in page and "Inversion" in page and 'src="bbd/surface_' in page
+    assert "Box-Behnken" in page and "GA inversion" in page and 'src="bbd/surface_' in page
     r = runner.invoke(app, ["report", "--run", str(tmp_path / "empty")])
     assert r.exit_code == 2 and "no stage output" in r.output
 

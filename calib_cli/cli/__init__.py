@@ -62,7 +62,9 @@ def _init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None,
 
 
 def _report(run: RunOpt):
-    """Write RUN/report.html: every stage's summary tables and plots on one page, for sharing."""
+    """Write RUN/report.html, the answer first: what was calibrated against what and whether it fits,
+    the parameters, the fit per condition, the error history, the missing effects and a photograph
+    per condition; then the paper's stages and the raw tables (docs/getting-started.md)."""
     from ..report import build_report
 
     run = check_run_dir(run)

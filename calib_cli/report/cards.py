@@ -1,0 +1,114 @@
+"""The first screen's cards, each readable on its own and each saying what to run when its stage is missing."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from .chart import fit_chart, legend
+from .html import RunFiles, badge, deg, esc, note, num, rows_table
+from .summary import PINNED, Fit, solution_params
+
+
+def card(title: str, body: str, cls: str = "") -> str:
+    return f"<div class='card {cls}'><h3>{title}</h3>{body}</div>"
+
+
+def _missing(cmd: str, what: str) -> str:
+    return note(f"Not run yet: <code>{esc(cmd)}</code> {what}.")
+
+
+def params_card(f: RunFiles) -> str:
+    """The solution with each parameter's near-optimal range; fixed values; how it was validated."""
+    params = solution_params(f)
+    if not params:
+        return card("Calibrated parameters", _missing("calib invert", "finds them from the surrogate"))
+    rng = f.table("invert/ranges.parquet")
+    rng = rng.set_index("parameter") if rng is not None else pd.DataFrame()
+    rows, outside = [], []
+    for p, v in params.items():
+        if p in rng.index:
+            lo, hi, w = rng.loc[p, ["low", "high", "width_fraction"]]
+            out = not (lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi))
+            outside += [p] if out else []
+            state = badge("pinned", "pass") if w <= PINNED else badge("loose", "warn")
+            rows.append([esc(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
+                         f"{w:.0%}".replace("%", " %"), state])
+        else:
+            rows.append([esc(p), f"<b>{num(v)}</b>", "", "", ""])
+    body = rows_table(["parameter", "value", "near-optimal", "spread", ""], rows, "compact")
+    tol = f.prov("invert/solution_set.parquet").get("tolerance")
+    body += note(f"Near-optimal: surrogate within {num(tol, 3) if tol else 'the tolerance'}&deg; of the best fit; "
+                 f"spread as a share of the search range, pinned at &le; {PINNED:.0%}.".replace("%", " %"), "prov")
+    if outside:
+        body += note(f"* {esc(', '.join(outside))}: the solution lies outside the surrogate's near-optimal range, "
+                     "moved there by the refinement by simulation.", "prov")
+    return card("Calibrated parameters", body + _fixed_and_validation(f, params))
+
+
+def _fixed_and_validation(f: RunFiles, params: dict) -> str:
+    """Parameters the current model holds at fixed values, and the validation heaps' summary."""
+    out = ""
+    hist = f.table("compare/history.parquet")
+    if hist is not None and len(hist):
+        last = hist.iloc[-1]
+        fixed = {c[6:]: last[c] for c in hist.columns if c.startswith("param_") and c[6:] not in params
+                 and pd.notna(last[c])}
+        if fixed:
+            out += note("Held fixed: " + ", ".join(f"{esc(k)} = {num(v)}" for k, v in fixed.items()), "prov")
+    val = f.table("invert/validation.parquet")
+    if val is not None and len(val):
+        rounds = int(val["round"].max()) + 1 if "round" in val.columns else 1
+        chosen = f.prov("invert/solution.parquet").get("refine_round", 0)
+        acc = f.prov("invert/refinement.parquet").get("accepted") if f.path("invert/refinement.parquet") else None
+        out += note(f"Validated by {len(val)} simulated heaps over {rounds} round{'s' * (rounds != 1)}; "
+                    f"the solution is round {esc(chosen)}'s"
+                    + ("" if acc is None else (" (accepted)" if acc else " (closest; no round met the targets)"))
+                    + ".", "prov")
+    return out
+
+
+def fit_card(f: RunFiles, fit: Fit) -> str:
+    if fit.rows.empty:
+        return card("Fit per condition", _missing("calib measure-angle", "measures the heaps"))
+    sim = {"compare": "simulated", "validation": "simulated", "surrogate": "surrogate"}.get(fit.kind, "simulated")
+    body = fit_chart(fit.rows) + legend(sim)
+    rule = " Pass: |measured &minus; simulated| &le; 2 combined standard uncertainties." \
+        if fit.kind in ("compare", "validation") else ""
+    said = f"Simulated: {fit.label}.{rule}" if fit.kind != "measured" else \
+        "Measured only: no heap simulated at a calibrated point yet."
+    return card("Fit per condition", body + note(said, "prov"))
+
+
+def history_card(f: RunFiles) -> str:
+    """RMSE per model revision, each row naming the effects that revision added."""
+    hist = f.table("compare/history.parquet")
+    if hist is None or hist.empty:
+        return card("Error across model revisions", _missing("calib compare", "measures the calibrated model's "
+                                                               "error per condition"))
+    rows, before = [], None
+    for r in hist.itertuples(index=False):
+        eff = str(r.effects).split(",")
+        shown = ", ".join(eff) if before is None else "+ " + ", ".join(e for e in eff if e not in before) \
+            if set(eff) - set(before) else "(same effects)"
+        before = eff
+        failing = badge(f"{int(r.n_fail)} of {int(r.n_conditions)} fail", "fail" if r.n_fail else "pass")
+        rows.append([str(int(r.revision)), esc(shown), deg(r.rmse), num(r.chi2_dof, 3), failing])
+    return card("Error across model revisions",
+                rows_table(["rev.", "effects", "RMSE", "&chi;&sup2;/dof", ""], rows, "compact"))
+
+
+def ranking_card(f: RunFiles) -> str:
+    rank = f.table("diagnose/ranking.parquet")
+    if rank is None or rank.empty:
+        return card("Missing effects, ranked", _missing("calib diagnose", "ranks candidate missing effects "
+                                                         "from compare's residuals"))
+    rev = f.prov("diagnose/ranking.parquet").get("model_revision", "?")
+    kinds = {"significant": "fail", "unresolved": "warn", "not significant": "pass"}
+    rows = []
+    for r in rank.itertuples(index=False):
+        v = getattr(r, "verdict", "")
+        rows.append([esc(r.effect), badge(v, kinds.get(v, "info")) if v else "", num(r.p_value, 2),
+                     f"{100 * r.explained_fraction:.0f} %"])
+    return card("Missing effects, ranked", rows_table(["effect", "verdict", "p", "would explain"], rows, "compact")
+                + note(f"Judged on model revision {esc(rev)}'s residuals; the evidence is under "
+                       "<a href='#discrepancy'>Discrepancy loop</a>.", "prov"))

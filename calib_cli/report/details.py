@@ -1,0 +1,95 @@
+"""The measurement, the discrepancy loop, the heaps, and every raw table collapsed at the end."""
+
+from __future__ import annotations
+
+import html
+
+import pandas as pd
+
+from .html import RunFiles, esc, img, note, table
+from .stages import _cols, figures, not_run, section
+
+#: stage folders in run order: their Parquet tables are listed raw at the end
+RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "compare", "diagnose", "simulate"]
+
+
+def measurement(f: RunFiles) -> str:
+    cond = f.table("measure/conditions.parquet")
+    if cond is None:
+        return section("measurement", "Measured repose angle", "2.1, Table 1", not_run("calib measure-angle"))
+    body = table(_cols(cond, ["condition_id", "n", "mean", "median", "sd", "ci95_low", "ci95_high",
+                              "particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm",
+                              "lift_speed_mm_s", "floor"]), digits=4)
+    ang = f.table("measure/angles.parquet")
+    if ang is not None and "status" in ang.columns and (ang["status"] != "ok").any():
+        bad = ang[ang["status"] != "ok"]
+        body += note(f"{len(bad)} image(s) gave no angle: " + esc(", ".join(
+            f"{i} ({s})" for i, s in zip(bad.get("image", bad.index), bad["status"]))))
+    shots = f.pngs("measure/overlays")
+    if shots:
+        body += (f"<details><summary>All {len(shots)} photographs with their fitted flanks</summary>"
+                 f"<div class=gallery>{''.join(img(f.run, p) for p in shots)}</div></details>")
+    return section("measurement", "Measured repose angle", "2.1, Table 1", body)
+
+
+def discrepancy(f: RunFiles) -> str:
+    """compare's residual and history plots, diagnose's ranking with its evidence, and its trends."""
+    if not f.has_dir("compare") and not f.has_dir("diagnose"):
+        return section("discrepancy", "Discrepancy loop", None,
+                       not_run("calib compare; calib diagnose; calib model add EFFECT"))
+    body = figures(f, "compare") if f.has_dir("compare") else not_run("calib compare")
+    rank = f.table("diagnose/ranking.parquet")
+    if rank is None:
+        body += not_run("calib diagnose")
+    else:
+        rev = f.prov("diagnose/ranking.parquet").get("model_revision", "?")
+        body += note(f"Candidate missing effects, judged on model revision {esc(rev)}'s residuals:")
+        body += table(_cols(rank, ["effect", "verdict", "p_value", "explained_fraction", "evidence"]), digits=3)
+        tr = f.table("diagnose/trends.parquet")
+        if tr is not None:
+            body += note("The residual against each condition variable:") + table(tr, digits=3)
+    return section("discrepancy", "Discrepancy loop: model against the measurements", None, body)
+
+
+def heap_setups(f: RunFiles) -> list[str]:
+    """One line per group of the run's heaps (design, validation, compare, ...): how many, and
+    at which preset, shear modulus and contact laws - what its calibrated parameters hold at."""
+    rows = f.table("simulate/results.parquet")
+    if rows is None or rows.empty:
+        return []
+    from ..campaign import heap_setups as setups
+
+    label = rows["design"].fillna("").replace("", "single runs") if "design" in rows.columns \
+        else pd.Series("all", index=rows.index)
+    items = []
+    for name, grp in rows.groupby(label, sort=False):
+        engines = sorted(set(grp["engine"].dropna()) - {"builtin"}) if "engine" in grp.columns else []
+        items.append(f"<li>{html.escape(str(name))}: {len(grp)} heap(s), {html.escape('; '.join(setups(grp)))}"
+                     + (f" (engine {html.escape(', '.join(engines))})" if engines else "") + "</li>")
+    return ["<p>Heaps in this run directory, by what they were simulated for: a calibration holds at the "
+            "preset and shear modulus its heaps had (docs/physics.md, 'Which modulus').</p><ul>", *items, "</ul>"]
+
+
+def simulations(f: RunFiles) -> str:
+    lines = heap_setups(f)
+    body = "\n".join(lines) if lines else note("No heap simulated in this run directory: the responses were "
+                                               "given as tables (<code>--responses</code>).")
+    return section("simulations", "Simulations", "2.2", body)
+
+
+def raw_tables(f: RunFiles) -> str:
+    """Every Parquet table of the run, each collapsed, wide ones scrolling inside their box."""
+    parts = []
+    for stage in RAW_STAGES:
+        for p in sorted((f.run / stage).glob("*.parquet")) if f.has_dir(stage) else []:
+            rel = p.relative_to(f.run).as_posix()
+            df, prov = f.table(rel), f.prov(rel)
+            # diagnose judges the revision compare held then; compare may since hold a later one
+            rev = f" (model revision {prov['model_revision']})" if "model_revision" in prov else ""
+            parts.append(f"<details class=raw><summary>{esc(stage)}/{esc(p.name)}{esc(rev)} "
+                         f"<span class=prov>{len(df)} &times; {len(df.columns)}</span></summary>"
+                         f"<p class=prov>{esc(prov.get('command', ''))}</p>{table(df)}</details>")
+    body = "".join(parts) or note("No table in this run directory.")
+    return section("raw", "Raw tables", False, note(
+        "Every table is a Parquet artefact in the run directory; its provenance (command, inputs, settings "
+        "hash) is in its schema metadata. The first 40 rows of each are shown.", "prov") + body)

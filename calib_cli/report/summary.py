@@ -1,0 +1,170 @@
+"""The report's first screen: what was calibrated against what, the verdict, the parameters, the fit
+per condition, the error history, the missing-effect ranking and a photo against a simulated heap."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import pandas as pd
+
+from .html import RunFiles, badge, deg, esc, num, words
+
+#: solution.parquet columns that are not parameters
+NOT_PARAMS = {"predicted_angle", "fitness", "model", "target"}
+#: a parameter is pinned when its near-optimal values span at most this share of its search range
+#: (the inversion's identifiability threshold)
+PINNED = 0.2
+FIT_COLS = ["condition_id", "measured", "measured_sd", "simulated", "simulated_sd", "fails"]
+
+
+@dataclass
+class Fit:
+    """Measured against simulated per condition; kind: compare, validation, surrogate, measured or none;
+    label: where the simulated values come from (HTML)."""
+    rows: pd.DataFrame
+    kind: str
+    label: str
+
+
+def solution_params(f: RunFiles) -> dict[str, float]:
+    sol = f.table("invert/solution.parquet")
+    if sol is None or sol.empty:
+        return {}
+    row = sol.iloc[0]
+    return {k: float(row[k]) for k in sol.columns if k not in NOT_PARAMS}
+
+
+def _validation_fit(f: RunFiles, cond: pd.DataFrame) -> Optional[Fit]:
+    """The validation heaps of the chosen refinement round against the measured conditions."""
+    from ..discrepancy.stats import residual_table
+
+    val = f.table("invert/validation.parquet")
+    if val is None or val.empty or "condition_id" not in val.columns:
+        return None
+    chosen = int(f.prov("invert/solution.parquet").get("refine_round", 0) or 0)
+    v = val[(val["round"] == chosen) & (val["status"] == "ok")] if "round" in val.columns else val
+    sim = v.groupby("condition_id")["repose_angle"].agg(sim="mean", sim_sd="std", sim_n="count").reset_index()
+    m = cond[["condition_id", "mean", "sd", "n"]].merge(sim, on="condition_id")
+    if m.empty:
+        return None
+    res = residual_table(m["mean"], m["sd"], m["n"], m["sim"], m["sim_sd"], m["sim_n"])
+    rows = pd.DataFrame({"condition_id": m["condition_id"], "measured": m["mean"], "measured_sd": m["sd"],
+                         "simulated": m["sim"], "simulated_sd": m["sim_sd"], "fails": res["fails"].to_numpy()})
+    return Fit(rows, "validation", f"validation heaps at the solution (refinement round {chosen})")
+
+
+def fit_rows(f: RunFiles) -> Fit:
+    """compare's residuals, else the validation heaps, else the surrogate's prediction, else the measurement."""
+    res = f.table("compare/residuals.parquet")
+    if res is not None and len(res):
+        rev = f.prov("compare/residuals.parquet").get("model_revision", "?")
+        return Fit(res[FIT_COLS].copy(), "compare", f"<code>calib compare</code> heaps, model revision {esc(rev)}")
+    cond = f.table("measure/conditions.parquet")
+    fit = _validation_fit(f, cond) if cond is not None else None
+    if fit is not None:
+        return fit
+    pc = f.table("invert/predicted_conditions.parquet")
+    if pc is not None and len(pc):
+        same = cond is not None and len(cond) == len(pc)
+        rows = pd.DataFrame({
+            "condition_id": cond["condition_id"].to_numpy() if same else [f"target {i + 1}" for i in range(len(pc))],
+            "measured": pc["target"].to_numpy(float), "measured_sd": cond["sd"].to_numpy(float) if same else np.nan,
+            "simulated": pc["predicted_angle"].to_numpy(float), "simulated_sd": np.nan, "fails": None})
+        return Fit(rows, "surrogate", "surrogate prediction at the solution (no heap simulated there)")
+    if cond is not None and len(cond):
+        rows = pd.DataFrame({"condition_id": cond["condition_id"], "measured": cond["mean"],
+                             "measured_sd": cond["sd"], "simulated": np.nan, "simulated_sd": np.nan, "fails": None})
+        return Fit(rows, "measured", "not calibrated yet")
+    return Fit(pd.DataFrame(columns=FIT_COLS), "none", "nothing measured")
+
+
+def _rmse(rows: pd.DataFrame) -> float:
+    r = (rows["measured"] - rows["simulated"]).to_numpy(float)
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan")
+
+
+def _against(f: RunFiles) -> str:
+    """What the calibration was fitted to: the measured heaps and conditions, or a target angle."""
+    prov = f.prov("invert/solution.parquet")
+    cond = f.table("measure/conditions.parquet")
+    if cond is not None and len(cond) and "conditions" in str(prov.get("target_source", "conditions")):
+        heaps = int(cond["n"].sum())
+        how = "photographed" if f.pngs("measure/overlays") else "measured"
+        return (f"the repose angles of {heaps} {how} heap{'s' * (heaps != 1)} under {len(cond)} "
+                f"condition{'s' * (len(cond) != 1)}")
+    sol = f.table("invert/solution.parquet")
+    return f"a target angle of {deg(sol['target'].iloc[0])}" if sol is not None else "nothing yet"
+
+
+def _diagnosis_clause(f: RunFiles) -> str:
+    """What diagnose concluded, and whether a later model revision took it up."""
+    rank = f.table("diagnose/ranking.parquet")
+    if rank is None or rank.empty:
+        return ""
+    drev = f.prov("diagnose/ranking.parquet").get("model_revision", "?")
+    sig = list(rank.loc[rank["verdict"] == "significant", "effect"]) if "verdict" in rank.columns else \
+        list(rank.loc[rank["p_value"] < 0.05 / len(rank), "effect"])
+    if not sig:
+        return f" The diagnosis of model revision {esc(drev)} found no significant missing effect."
+    hist = f.table("compare/history.parquet")
+    text = f" The diagnosis of model revision {esc(drev)} ranked {words(sig)} significant"
+    if hist is not None and len(hist) and int(hist["revision"].iloc[-1]) > int(drev if str(drev).isdigit() else -1):
+        last = hist.iloc[-1]
+        added = [e for e in sig if e in str(last["effects"]).split(",")]
+        was = hist.loc[hist["revision"] == int(drev), "rmse"]
+        if added:
+            text += (f"; revision {int(last['revision'])} adds {words(added)}"
+                     + (f" (RMSE {deg(was.iloc[0])} &rarr; {deg(last['rmse'])})" if len(was) else ""))
+    return text + "."
+
+
+def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
+    """(badge kind, one sentence) on how well the calibrated model reproduces the measurements."""
+    n = len(fit.rows)
+    cs = f"condition{'s' * (n != 1)}"
+    if fit.kind in ("compare", "validation"):
+        nf = int(fit.rows["fails"].fillna(False).astype(bool).sum())
+        hist = f.table("compare/history.parquet")
+        if fit.kind == "compare" and hist is not None and len(hist):
+            last = hist.iloc[-1]
+            who, one, stats = f"Model revision {int(last['revision'])}", True, \
+                f"RMSE {deg(last['rmse'])}, &chi;&sup2;/dof {num(last['chi2_dof'], 3)}"
+        else:
+            who, one, stats = "The validation heaps at the solution", False, f"RMSE {deg(_rmse(fit.rows))}"
+        which = "the measured condition" if n == 1 else f"all {n} {cs}"
+        if nf == 0:
+            return "pass", f"{who} reproduce{'s' * one} {which} within two combined standard uncertainties ({stats})."
+        missed = "the measured condition" if n == 1 else f"{nf} of {n} {cs}"
+        return "fail", f"{who} miss{'es' * one} {missed} by more than two combined standard uncertainties ({stats})."
+    if fit.kind == "surrogate":
+        return "info", (f"Not checked by simulation: at the solution the surrogate predicts the measured "
+                        f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}, but no heap was simulated there "
+                        "(<code>calib invert --validate N</code>, <code>calib compare</code>).")
+    return "info", "Not calibrated yet: no inversion in this run directory."
+
+
+def _loose_clause(f: RunFiles) -> str:
+    rng = f.table("invert/ranges.parquet")
+    if rng is None or rng.empty:
+        return ""
+    loose = list(rng.loc[rng["width_fraction"] > PINNED, "parameter"])
+    if not loose:
+        return " Every parameter is pinned by the data."
+    return (f" Not pinned by the data: {words(loose)} (near-optimal values span more than "
+            f"{PINNED:.0%} of the search range).").replace("%", " %")
+
+
+def headline(f: RunFiles, fit: Fit) -> str:
+    params = solution_params(f)
+    if not params:
+        ran = [s for s in ("measure", "pb", "ascent", "bbd", "surrogate") if f.has_dir(s)]
+        return (f"<p class=lead>{badge('not calibrated', 'info')} <b>No calibration in this run directory yet</b> "
+                f"(<code>calib invert</code> has not run); stages here: {esc(', '.join(ran) or 'none')}.</p>")
+    what = f"Calibrated {words(params)}"
+    kind, sentence = verdict(f, fit)
+    label = {"pass": "fits", "fail": "misfit", "info": "unchecked"}[kind]
+    return (f"<p class=lead><b>{what}</b> against {_against(f)}.</p>"
+            f"<p class=lead>{badge(label, kind)} {sentence}{_diagnosis_clause(f)}{_loose_clause(f)}</p>")

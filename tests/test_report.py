@@ -1,0 +1,128 @@
+"""`calib report` leads with the answer: the first screen (headline, parameters, fit, error history,
+ranking, photographs) comes before the paper's stages and the raw tables; every committed kind of
+run renders, whatever stages it lacks; wide tables scroll inside their box; raw tables are collapsed."""
+
+import re
+import shutil
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+
+from calib_cli import artifacts as art
+from calib_cli.report import SECTIONS, build_report
+
+RUNS = Path(__file__).resolve().parents[1] / "sample_runs"
+VOID = {"img", "meta", "br", "hr", "input", "link", "source", "wbr"}
+
+
+class Tree(HTMLParser):
+    """Records, for every table and every details element, the tags and classes enclosing it."""
+
+    def __init__(self):
+        super().__init__()
+        self.stack: list[tuple[str, str, str]] = []  # (tag, class, id)
+        self.tables: list[list[tuple[str, str, str]]] = []
+        self.scripts = 0
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "table":
+            self.tables.append(list(self.stack))
+        self.scripts += tag == "script"
+        if tag not in VOID:
+            self.stack.append((tag, a.get("class") or "", a.get("id") or ""))
+
+    def handle_endtag(self, tag):
+        for i in range(len(self.stack) - 1, -1, -1):
+            if self.stack[i][0] == tag:
+                del self.stack[i:]
+                return
+
+
+def parse(page: str) -> Tree:
+    t = Tree()
+    t.feed(page)
+    return t
+
+
+def summary_of(page: str) -> str:
+    return page[page.index("<section id=summary>"):page.index("<section id=screening>")]
+
+
+@pytest.mark.parametrize("name", ["paper", "smoke", "calibration", "hidden-effect", "hidden-wall"])
+def test_every_committed_run_renders_its_sections_in_order(name):
+    page = build_report(RUNS / name)
+    ids = ["summary"] + [a for a, _ in SECTIONS]
+    pos = [page.find(f"<section id={i}>") for i in ids]
+    assert -1 not in pos and pos == sorted(pos), dict(zip(ids, pos))
+    assert pos[0] < page.find("<details")  # nothing collapsed before the answer
+    tree = parse(page)
+    assert tree.scripts == 0  # readable without JavaScript
+    # every table sits in a horizontally scrolling box, and every raw table is collapsed
+    assert tree.tables and all(any("scroll" in c.split() for _, c, _ in anc) for anc in tree.tables)
+    raw = [anc for anc in tree.tables if any(i == "raw" for _, _, i in anc)]
+    assert raw and all(any(t == "details" for t, _, _ in anc) for anc in raw)
+    # images are linked by their path inside the run directory, and each exists
+    for src in re.findall(r'<img src="([^"]+)"', page):
+        assert (RUNS / name / src).is_file(), src
+
+
+def test_first_screen_of_a_run_with_diagnose():
+    """hidden-effect: calibrated with cohesion after diagnose ranked it; no side view is committed."""
+    top = summary_of(build_report(RUNS / "hidden-effect"))
+    assert "Calibrated static friction, rolling friction and surface energy" in top
+    assert "60 photographed heaps under 6 conditions" in top
+    assert "Model revision 1 reproduces all 6 conditions" in top and "badge pass" in top
+    assert "ranked cohesion significant; revision 1 adds cohesion" in top
+    # parameters with their near-optimal ranges and identifiability
+    assert "0.3679" in top and "pinned" in top and "loose" in top and "Held fixed: restitution = 0.3" in top
+    # fit per condition: one chart row per condition, all passing, from compare's residuals
+    sol = art.read_table(RUNS / "hidden-effect" / "compare" / "residuals.parquet")
+    chart = top[top.index("<svg"):top.index("</svg>")]
+    assert all(c in chart for c in sol["condition_id"]) and chart.count(">pass<") == len(sol)
+    # error history and ranking with verdicts
+    assert "+ cohesion" in top and "3 of 6 fail" in top and "0 of 6 fail" in top
+    assert "significant" in top and "unresolved" in top and "not significant" in top
+    # one photograph per condition, and an honest word about the missing simulated side views
+    assert top.count('src="measure/overlays/') == len(sol)
+    assert "No simulated side view is kept in this run directory for any condition" in top
+
+
+def test_first_screen_degrades_on_the_paper_and_smoke_runs():
+    paper = summary_of(build_report(RUNS / "paper"))
+    assert "Not checked by simulation" in paper and "surrogate prediction at the solution" in paper
+    assert "Not run yet: <code>calib compare</code>" in paper and "Not run yet: <code>calib diagnose</code>" in paper
+    assert "No photographs in this run directory" in paper
+    smoke = summary_of(build_report(RUNS / "smoke"))
+    assert "reproduces the measured condition" in smoke and "Not run yet: <code>calib diagnose</code>" in smoke
+    # smoke keeps one compare heap's folder: its side view stands beside the photograph
+    assert 'src="simulate/runs/example/side.png"' in smoke and "No simulated side view" not in smoke
+
+
+def test_side_view_of_a_kept_compare_heap_and_validation_fallback(tmp_path):
+    """A compare heap whose folder is kept shows beside its condition's photograph; without compare,
+    the fit is the validation heaps of the chosen refinement round."""
+    src, run = RUNS / "hidden-effect", tmp_path / "run"
+    for stage in ("measure", "invert", "simulate"):
+        shutil.copytree(src / stage, run / stage)
+    rows = art.read_table(run / "simulate" / "results.parquet")
+    last = rows[(rows["design"] == "compare") & (rows["condition_id"] == "d4-5_D40_H50")].iloc[-1]
+    side = run / "simulate" / "runs" / last["run_hash"] / "side.png"
+    side.parent.mkdir(parents=True)
+    shutil.copy(RUNS / "smoke" / "simulate" / "runs" / "example" / "side.png", side)
+    top = summary_of(build_report(run))
+    assert f'src="simulate/runs/{last["run_hash"]}/side.png"' in top
+    assert "for 5 of 6 conditions" in top
+    assert "validation heaps at the solution (refinement round 2)" in top
+    assert re.search(r"The validation heaps at the solution (reproduce|miss) ", top)
+    assert "Not run yet: <code>calib compare</code>" in top
+
+
+def test_a_run_with_only_a_measurement(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(RUNS / "hidden-effect" / "measure", run / "measure")
+    page = build_report(run)
+    assert "No calibration in this run directory yet" in summary_of(page)
+    assert "Not run yet: <code>calib invert</code>" in page
+    assert page.count("Not run in this run directory") >= 4  # pb, ascent, bbd, surrogate, invert
