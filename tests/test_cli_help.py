@@ -62,3 +62,13 @@ def test_commands_are_listed_in_workflow_order():
 def test_version():
     r = CliRunner().invoke(app, ["--version"])
     assert r.exit_code == 0 and r.output.startswith("calib ")
+
+
+def test_user_docs_cite_no_spec():
+    """Users have docs/, not the product specification: no page may send them to it."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    cited = [p.name for p in pages if re.search(r"\bSPEC\b", p.read_text())]
+    assert not cited, f"pages citing SPEC: {cited}"
