@@ -53,80 +53,50 @@ def _replicate_groups(X: np.ndarray, decimals: int = 9) -> np.ndarray:
     return np.array([uniq[k] for k in keys])
 
 
-def fit_linear(
-    y: np.ndarray,
-    X: np.ndarray,
-    terms: Sequence[str],
-    points: np.ndarray | None = None,
-    lack_of_fit: bool = False,
-) -> LinearFit:
-    """Fit ``y = X b`` (X without intercept column; an intercept is added).
-
-    ``points`` are the design points (coded factors) used to find replicates for
-    the pure-error / lack-of-fit split; ``lack_of_fit`` adds those rows.
-    """
-    y = np.asarray(y, dtype=float)
-    X = np.asarray(X, dtype=float)
-    n, k = X.shape
-    p = k + 1
+def _check_design(y: np.ndarray, A: np.ndarray) -> None:
+    """Refuse what OLS cannot answer: too few runs, non-finite values, no variation, aliased terms."""
+    n, p = A.shape
     if n <= p:
         raise CalibError(f"{n} runs cannot fit a model with {p} parameters (need more runs than parameters)")
-    if not np.all(np.isfinite(y)) or not np.all(np.isfinite(X)):
+    if not np.all(np.isfinite(y)) or not np.all(np.isfinite(A)):
         raise CalibError("responses or factors contain NaN or infinite values")
     if np.ptp(y) == 0:  # no variation: every F and R2 would divide by zero
         raise CalibError(f"all {n} responses equal {y[0]:g}: no effect can be estimated from them")
-    A = np.column_stack([np.ones(n), X])
     if np.linalg.matrix_rank(A) < p:
         raise CalibError("the design cannot separate the model terms (singular design matrix)")
-    import statsmodels.api as sm  # here, not at the top: start-up of the commands that fit nothing
 
-    res = sm.OLS(y, A).fit()
-    names = ["Intercept", *terms]
-    coef = pd.Series(res.params, index=names)
-    se = pd.Series(res.bse, index=names)
-    mse = float(res.mse_resid)
-    df_res = int(round(res.df_resid))
-    ss_res = float(res.ssr)
-    ss_tot = float(np.sum((y - y.mean()) ** 2))
-    ss_model = ss_tot - ss_res
 
-    def row(src, ss, df, denom=mse, denom_df=df_res):
-        ms = ss / df if df else np.nan
-        F = ms / denom if denom > 0 and df else np.nan
-        pv = float(stats.f.sf(F, df, denom_df)) if np.isfinite(F) else np.nan
-        return [src, ss, df, ms, F, pv]
+def _anova_row(src, ss, df, denom, denom_df) -> list:
+    ms = ss / df if df else np.nan
+    F = ms / denom if denom > 0 and df else np.nan
+    pv = float(stats.f.sf(F, df, denom_df)) if np.isfinite(F) else np.nan
+    return [src, ss, df, ms, F, pv]
 
-    rows = [row("Model", ss_model, k)]
-    tv = np.asarray(res.tvalues)[1:]
-    for name, t in zip(terms, tv):
-        rows.append(row(name, float(t**2 * mse), 1))
-    rows.append([ "Residual", ss_res, df_res, mse, np.nan, np.nan])
-    lof = {"lack_of_fit_F": np.nan, "lack_of_fit_p": np.nan}
-    if lack_of_fit:
-        pts = X if points is None else np.asarray(points, dtype=float)
-        g = _replicate_groups(pts)
-        ss_pe = float(sum(np.sum((y[g == i] - y[g == i].mean()) ** 2) for i in np.unique(g)))
-        df_pe = int(n - len(np.unique(g)))
-        df_lof = df_res - df_pe
-        if df_pe < 1 or df_lof < 1:
-            raise CalibError("lack of fit needs replicated points and more distinct points than parameters")
-        ms_pe = ss_pe / df_pe
-        lof_row = row("Lack of fit", ss_res - ss_pe, df_lof, ms_pe, df_pe)
-        rows.append(lof_row)
-        rows.append(["Pure error", ss_pe, df_pe, ms_pe, np.nan, np.nan])
-        lof = {"lack_of_fit_F": lof_row[4], "lack_of_fit_p": lof_row[5]}
-    rows.append(["Cor total", ss_tot, n - 1, np.nan, np.nan, np.nan])
-    anova = pd.DataFrame(rows, columns=ANOVA_COLUMNS)
-    anova["df"] = anova["df"].astype(int)
 
+def _lack_of_fit_rows(y: np.ndarray, pts: np.ndarray, ss_res: float, df_res: int) -> list[list]:
+    """Lack of fit against pure error from replicated points (Montgomery, Design and Analysis of
+    Experiments, 6.7): SS_res = SS_lof + SS_pe."""
+    g = _replicate_groups(pts)
+    ss_pe = float(sum(np.sum((y[g == i] - y[g == i].mean()) ** 2) for i in np.unique(g)))
+    df_pe = int(len(y) - len(np.unique(g)))
+    df_lof = df_res - df_pe
+    if df_pe < 1 or df_lof < 1:
+        raise CalibError("lack of fit needs replicated points and more distinct points than parameters")
+    ms_pe = ss_pe / df_pe
+    return [_anova_row("Lack of fit", ss_res - ss_pe, df_lof, ms_pe, df_pe), ["Pure error", ss_pe, df_pe, ms_pe, np.nan, np.nan]]
+
+
+def _fit_stats(res, y: np.ndarray, p: int, mse: float, ss_tot: float, anova: pd.DataFrame, lof: dict) -> dict:
+    """Design-Expert's fit statistics: R2 (adjusted, predicted from PRESS), adequate precision, CV."""
+    n = len(y)
     fitted = np.asarray(res.fittedvalues)
     h = np.asarray(res.get_influence().hat_matrix_diag)
     if np.any(h >= 1 - 1e-12):
         press = np.nan  # a run that determines its own prediction: PRESS undefined
     else:
         press = float(np.sum((res.resid / (1 - h)) ** 2))
-    stats_ = {
-        "n": n, "p": p, "df_resid": df_res,
+    return {
+        "n": n, "p": p, "df_resid": int(round(res.df_resid)),
         "r2": float(res.rsquared), "r2_adj": float(res.rsquared_adj),
         "r2_pred": 1 - press / ss_tot if np.isfinite(press) else np.nan,
         "press": press,
@@ -137,4 +107,45 @@ def fit_linear(
         "model_F": float(anova.loc[0, "F"]), "model_p": float(anova.loc[0, "p_value"]),
         **lof,
     }
-    return LinearFit(list(terms), coef, se, anova, stats_, fitted, np.asarray(res.resid), res)
+
+
+def fit_linear(
+    y: np.ndarray,
+    X: np.ndarray,
+    terms: Sequence[str],
+    points: np.ndarray | None = None,
+    lack_of_fit: bool = False,
+) -> LinearFit:
+    """Fit ``y = X b`` (X without intercept column; an intercept is added) with its ANOVA.
+
+    ``points`` are the design points (coded factors) used to find replicates for
+    the pure-error / lack-of-fit split; ``lack_of_fit`` adds those rows.
+    """
+    y = np.asarray(y, dtype=float)
+    X = np.asarray(X, dtype=float)
+    n, k = X.shape
+    A = np.column_stack([np.ones(n), X])
+    _check_design(y, A)
+    import statsmodels.api as sm  # here, not at the top: start-up of the commands that fit nothing
+
+    res = sm.OLS(y, A).fit()
+    names = ["Intercept", *terms]
+    mse = float(res.mse_resid)
+    df_res = int(round(res.df_resid))
+    ss_res = float(res.ssr)
+    ss_tot = float(np.sum((y - y.mean()) ** 2))
+    rows = [_anova_row("Model", ss_tot - ss_res, k, mse, df_res)]
+    for name, t in zip(terms, np.asarray(res.tvalues)[1:]):
+        rows.append(_anova_row(name, float(t**2 * mse), 1, mse, df_res))
+    rows.append(["Residual", ss_res, df_res, mse, np.nan, np.nan])
+    lof = {"lack_of_fit_F": np.nan, "lack_of_fit_p": np.nan}
+    if lack_of_fit:
+        extra = _lack_of_fit_rows(y, X if points is None else np.asarray(points, dtype=float), ss_res, df_res)
+        rows += extra
+        lof = {"lack_of_fit_F": extra[0][4], "lack_of_fit_p": extra[0][5]}
+    rows.append(["Cor total", ss_tot, n - 1, np.nan, np.nan, np.nan])
+    anova = pd.DataFrame(rows, columns=ANOVA_COLUMNS)
+    anova["df"] = anova["df"].astype(int)
+    stats_ = _fit_stats(res, y, k + 1, mse, ss_tot, anova, lof)
+    return LinearFit(list(terms), pd.Series(res.params, index=names), pd.Series(res.bse, index=names), anova,
+                     stats_, np.asarray(res.fittedvalues), np.asarray(res.resid), res)
