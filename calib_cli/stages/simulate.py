@@ -154,6 +154,23 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
     return points, dname, ""
 
 
+def read_conditions_table(path: Path) -> pd.DataFrame:
+    """A conditions table (CSV or Parquet with a condition_id column); a missing or unreadable file
+    is the user's error, not a traceback."""
+    if not path.is_file():
+        raise CalibError(f"conditions table not found: {path}")
+    if path.suffix.lower() == ".parquet":
+        return art.read_table(path, columns=["condition_id"], what="conditions table")
+    try:
+        ctab = pd.read_csv(path, comment="#")
+    except Exception as e:  # pandas raises several types for a file that is not CSV
+        raise CalibError(f"conditions table {path} could not be read as CSV ({type(e).__name__})") from None
+    ctab.columns = [str(c).strip() for c in ctab.columns]
+    if "condition_id" not in ctab.columns:
+        raise CalibError(f"conditions table {path} lacks column condition_id")
+    return ctab
+
+
 def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = None, repeats: int = 1, seed: int = 0,
                     preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
                     conditions: Optional[Path] = None, engine: str = "builtin", mpi: int = 1, shape: str = "sphere",
@@ -173,11 +190,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     crossed = [("", cond)]
     if conditions is not None:
         conditions = Path(conditions)
-        ctab = art.read_table(conditions, columns=["condition_id"], what="conditions table") \
-            if conditions.suffix.lower() == ".parquet" else pd.read_csv(conditions)
-        if "condition_id" not in ctab.columns:
-            raise CalibError(f"conditions table {conditions} lacks column condition_id")
-        crossed = table_conditions(cond, ctab)
+        crossed = table_conditions(cond, read_conditions_table(conditions))
     requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
                               preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
     walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs

@@ -1,0 +1,48 @@
+"""Issue #34, hardening: user errors are one line and exit 2, settings are checked by type, the
+model refuses values it would drop, diagnose refuses stale residuals, --force keeps the cache until
+each heap is replaced, one writer per run directory, and stage commits are all-or-nothing."""
+
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from calib_cli import artifacts as art
+from calib_cli.cli import app
+from calib_cli.errors import CalibError
+
+runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_line_error(r, *needles):
+    """A user error: exit 2 and one line naming each needle."""
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    assert isinstance(r.exception, SystemExit), r.exception
+    text = " ".join(r.output.split())
+    for n in needles:
+        assert n in text, (n, r.output)
+
+
+# ------------------------------------------------------------------ row 7: Python version
+def test_python_version_is_required_where_tomllib_is(monkeypatch):
+    """tomllib is 3.11's: pyproject says so, and an older Python gets a sentence, not a traceback."""
+    assert 'requires-python = ">=3.11"' in (ROOT / "pyproject.toml").read_text()
+    src = (ROOT / "calib_cli" / "__init__.py").read_text()
+    monkeypatch.setattr(sys, "version_info", (3, 10, 12))
+    with pytest.raises(ImportError, match="Python 3.11 or newer"):
+        exec(compile(src, "calib_cli/__init__.py", "exec"), {"__name__": "calib_cli"})
+
+
+# ------------------------------------------------------------------ row 1: a missing conditions table
+def test_missing_conditions_table_is_a_user_error(tmp_path):
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "run"), "--preset", "smoke",
+                            "--conditions", str(tmp_path / "missing.csv")])
+    one_line_error(r, "missing.csv", "not found")
+    bad = tmp_path / "bad.csv"
+    bad.write_bytes(b"\xff\xfe\x00garbage")
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "run"), "--preset", "smoke",
+                            "--conditions", str(bad)])
+    assert r.exit_code == 2, r.output
