@@ -46,3 +46,45 @@ def test_missing_conditions_table_is_a_user_error(tmp_path):
     r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "run"), "--preset", "smoke",
                             "--conditions", str(bad)])
     assert r.exit_code == 2, r.output
+
+
+# ------------------------------------------------------------------ row 2: settings checked by type
+@pytest.mark.parametrize("item, needles", [
+    ("pb.alpha=abc", ["pb.alpha", "'abc'", "number in (0, 1)"]),
+    ("pb.alpha=1.5", ["pb.alpha", "1.5", "number in (0, 1)"]),
+    ("pb.runs=abc", ["pb.runs", "'abc'", "positive integer"]),
+    ("pb.runs=12.5", ["pb.runs", "12.5", "positive integer"]),
+    ("pb.runs=0", ["pb.runs", "positive integer"]),
+    ("invert.population=ten", ["invert.population", "integer"]),
+    ("surrogate.models='rsm'", ["surrogate.models", "list"]),
+    ("factors.restitution.low='a'", ["factors.restitution.low", "number"]),
+    ("bbd.fixed.restitution=true", ["bbd.fixed.restitution", "number"]),
+    ("factors.x=1", ["factors.x", "table"]),
+])
+def test_settings_are_checked_by_type(item, needles):
+    from calib_cli.settings import load_settings
+
+    with pytest.raises(CalibError) as e:
+        load_settings(overrides=[item])
+    msg = str(e.value)
+    assert "\n" not in msg and all(n in msg for n in needles), msg
+
+
+def test_bad_setting_values_are_refused_at_init_every_command_and_in_the_file(tmp_path):
+    run = tmp_path / "run"
+    r = runner.invoke(app, ["pb", "design", "--run", str(run), "-s", "pb.alpha=abc"])
+    one_line_error(r, "pb.alpha", "'abc'", "number in (0, 1)")
+    r = runner.invoke(app, ["init", "--run", str(run), "-s", "pb.runs=abc"])
+    one_line_error(r, "pb.runs", "'abc'", "positive integer")
+    assert not (run / "settings.toml").exists()
+    r = runner.invoke(app, ["init", "--run", str(run), "-s", "pb.runs=12.5"])
+    one_line_error(r, "pb.runs", "12.5", "positive integer")
+    # a file edited by hand: the same error, naming the file
+    assert runner.invoke(app, ["init", "--run", str(run)]).exit_code == 0
+    (run / "settings.toml").write_text('[pb]\nruns = "abc"\n')
+    r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+    one_line_error(r, "pb.runs", "'abc'", "positive integer", "settings.toml")
+    # good values still pass, integers where numbers are wanted included
+    (run / "settings.toml").write_text('[pb]\nruns = 12\nalpha = 0.1\n')
+    r = runner.invoke(app, ["pb", "design", "--run", str(run), "-s", "target=33"])
+    assert r.exit_code == 0, r.output
