@@ -88,3 +88,20 @@ def test_bad_setting_values_are_refused_at_init_every_command_and_in_the_file(tm
     (run / "settings.toml").write_text('[pb]\nruns = 12\nalpha = 0.1\n')
     r = runner.invoke(app, ["pb", "design", "--run", str(run), "-s", "target=33"])
     assert r.exit_code == 0, r.output
+
+
+# ------------------------------------------------------------------ row 3: compare --set of a parameter the model lacks
+TRUTH = ["--set", "static_friction=0.5", "--set", "rolling_friction=0.2", "--set", "restitution=0.3"]
+
+
+def test_compare_refuses_a_value_for_a_parameter_the_model_does_not_have(tmp_path):
+    from calib_cli.model import Model, save_model
+
+    run = tmp_path / "run"
+    save_model(run, Model(("sliding_friction", "rolling_friction", "restitution")))
+    for cmd in ("compare", "diagnose"):
+        r = runner.invoke(app, [cmd, "--run", str(run), *TRUTH, "--set", "surface_energy=0.5"])
+        one_line_error(r, "surface_energy", "static_friction, rolling_friction, restitution", "model add cohesion")
+    # its neutral value is what the model simulates anyway: no error about it (the next one is the missing lab)
+    r = runner.invoke(app, ["compare", "--run", str(run), *TRUTH, "--set", "surface_energy=0"])
+    one_line_error(r, "measured conditions")
