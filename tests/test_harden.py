@@ -105,3 +105,51 @@ def test_compare_refuses_a_value_for_a_parameter_the_model_does_not_have(tmp_pat
     # its neutral value is what the model simulates anyway: no error about it (the next one is the missing lab)
     r = runner.invoke(app, ["compare", "--run", str(run), *TRUTH, "--set", "surface_energy=0"])
     one_line_error(r, "measured conditions")
+
+
+# ------------------------------------------------------------------ row 4: diagnose on the current revision's residuals
+DEFAULT = ["sliding_friction", "rolling_friction", "restitution"]
+
+
+def _diagnose_run(tmp_path, ids, residual_ids, revision_of_residuals):
+    from calib_cli.model import Model, save_model
+
+    run = tmp_path / "run"
+    art.write_table(run / "measure" / "conditions.parquet",
+                    pd.DataFrame({"condition_id": ids, "mean": 30.0, "sd": 1.0, "n": 3,
+                                  "particle_d_max_mm": [5.0 + k for k in range(len(ids))]}))
+    art.write_table(run / "compare" / "residuals.parquet",
+                    pd.DataFrame({"condition_id": residual_ids, "residual": [float(i) for i in range(len(ids))],
+                                  "uncertainty": 0.5}),
+                    {"stage": "compare.rev1", "model_revision": revision_of_residuals, "model": DEFAULT})
+    save_model(run, Model(tuple(DEFAULT)))
+    return run
+
+
+def test_diagnose_refuses_residuals_of_another_model_revision(tmp_path):
+    run = _diagnose_run(tmp_path, ["A", "B"], ["A", "B"], 1)
+    assert runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)]).exit_code == 0
+    r = runner.invoke(app, ["diagnose", "--run", str(run), *TRUTH, "--set", "surface_energy=0.5"])
+    one_line_error(r, "revision 1", "revision 2", "run `calib compare", "first")
+
+
+def test_diagnose_aligns_residuals_to_conditions_by_condition_id(tmp_path, monkeypatch):
+    from calib_cli.stages import diagnose as dg
+
+    run = _diagnose_run(tmp_path, ["A", "B", "C", "D"], ["D", "B", "A", "C"], 1)
+    seen = {}
+
+    def rank(run, model, theta, res, conds, *rest, **kw):
+        seen["res"], seen["conds"] = res, conds
+        raise CalibError("stop")
+
+    monkeypatch.setattr(dg, "_signatures", lambda *a, **k: (None,) * 5)
+    monkeypatch.setattr(dg, "_rank", rank)
+    with pytest.raises(CalibError, match="stop"):
+        dg.diagnose(run, TRUTH[1::2])
+    assert list(seen["res"]["condition_id"]) == ["A", "B", "C", "D"]
+    assert list(seen["res"]["residual"]) == [2.0, 1.0, 3.0, 0.0]
+    # residuals of other conditions than those measured now are stale too
+    run = _diagnose_run(tmp_path / "other", ["A", "B", "C", "D"], ["A", "B", "C", "E"], 1)
+    with pytest.raises(CalibError, match=r"conditions are A, B, C, D: run `calib compare"):
+        dg.diagnose(run, TRUTH[1::2])
