@@ -153,3 +153,65 @@ def test_diagnose_aligns_residuals_to_conditions_by_condition_id(tmp_path, monke
     run = _diagnose_run(tmp_path / "other", ["A", "B", "C", "D"], ["A", "B", "C", "E"], 1)
     with pytest.raises(CalibError, match=r"conditions are A, B, C, D: run `calib compare"):
         dg.diagnose(run, TRUTH[1::2])
+
+
+# ------------------------------------------------------------------ row 8: all-or-nothing stage commits
+@pytest.mark.parametrize("crash_after", [0, 1, 2, 3])
+def test_a_commit_cut_short_leaves_the_previous_outputs_or_a_rerun_error(tmp_path, monkeypatch, crash_after):
+    """os.replace fails after ``crash_after`` successful calls: each output then reads as the previous
+    run's, or is refused with a message saying to rerun the stage; never the new file under the old lock."""
+    import os
+
+    old = {"a.parquet": pd.DataFrame({"a": [1]}), "b.parquet": pd.DataFrame({"b": [1]})}
+    new = {"a.parquet": pd.DataFrame({"a": [2]}), "b.parquet": pd.DataFrame({"b": [2]})}
+
+    def commit(k, tables):
+        st = art.Stage(tmp_path, "g", "s", settings={"k": k})
+        with st.commit() as out:
+            for rel, df in tables.items():
+                out.table(rel, df)
+        return st
+
+    commit(1, old)
+    real, calls = os.replace, []
+
+    def crashing(src, dst):
+        if len(calls) >= crash_after:
+            raise OSError("power cut")
+        calls.append(dst)
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", crashing)
+    with pytest.raises(OSError, match="power cut"):
+        commit(2, new)
+    monkeypatch.setattr(os, "replace", real)
+    refused = 0
+    for rel, df in old.items():
+        try:
+            pd.testing.assert_frame_equal(art.read_table(tmp_path / "g" / rel), df)
+        except CalibError as e:
+            assert "rerun the stage" in str(e) and "g.s" in str(e) and "\n" not in str(e)
+            refused += 1
+    assert refused == min(max(crash_after - 1, 0), 2)  # the files renamed before the crash
+    assert not art.Stage(tmp_path, "g", "s", settings={"k": 2}).up_to_date()
+    commit(2, new)  # a rerun makes everything readable again
+    for rel, df in new.items():
+        pd.testing.assert_frame_equal(art.read_table(tmp_path / "g" / rel), df)
+    assert art.Stage(tmp_path, "g", "s", settings={"k": 2}).up_to_date()
+
+
+def test_an_output_changed_behind_its_lock_is_refused_and_unlisted_files_are_not_checked(tmp_path):
+    st = art.Stage(tmp_path, "g", "s", settings={})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [1]}))
+    art.write_table(tmp_path / "g" / "a.parquet", pd.DataFrame({"a": [5]}))
+    with pytest.raises(CalibError, match="rerun the stage"):
+        art.read_table(tmp_path / "g" / "a.parquet")
+    art.write_table(tmp_path / "g" / "history.parquet", pd.DataFrame({"a": [5]}))  # no lock lists it
+    assert art.read_table(tmp_path / "g" / "history.parquet")["a"].tolist() == [5]
+
+
+def test_committed_sample_runs_read_through_their_locks():
+    """Several locks may list one file (compare's revisions): it is enough that one records its hash."""
+    for p in sorted((ROOT / "sample_runs").rglob("*.parquet")):
+        art.read_table(p)
