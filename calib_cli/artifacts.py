@@ -306,6 +306,73 @@ def write_vtp(path: Path, points: np.ndarray, point_data: Mapping[str, np.ndarra
     atomic_write_bytes(path, xml.encode())
 
 
+# ---------------------------------------------------------------- one writer per run directory
+RUN_LOCK = ".lock"
+#: the run directories this process holds (resolved path -> [file descriptor, depth]): the lock is
+#: re-entrant, so a stage that calls another (invert --validate simulates) does not lock itself out
+_HELD: dict[Path, list] = {}
+
+
+def _holder(fd: int) -> str:
+    with contextlib.suppress(OSError):
+        text = os.pread(fd, 4096, 0).decode(errors="replace").strip()
+        if text:
+            return text
+    return "a process that has not written its name yet"
+
+
+@contextlib.contextmanager
+def run_lock(run: Path, wait: bool = False):
+    """Hold ``RUN/.lock`` (an OS lock, ``fcntl.flock``: released by the kernel when the holder exits,
+    however it exits) for as long as the block runs. Two commands writing one run directory each
+    rewrote the shared tables (results.parquet) from their own copy and lost the other's rows, so a
+    second writer fails at once with a one-line error naming the holder (``wait``: blocks instead,
+    for the short update of the simulation index). The file holds the holder's pid and command line."""
+    run = Path(run)
+    key = run.resolve()
+    if key in _HELD:
+        _HELD[key][1] += 1
+        try:
+            yield
+        finally:
+            _HELD[key][1] -= 1
+        return
+    created = not run.exists()
+    run.mkdir(parents=True, exist_ok=True)
+    fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        _acquire(fd, run, wait)
+    except BaseException:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
+    _HELD[key] = [fd, 1]
+    try:
+        yield
+    except BaseException:
+        if created and [p.name for p in run.iterdir()] == [RUN_LOCK]:  # nothing written: leave no run dir
+            with contextlib.suppress(OSError):
+                (run / RUN_LOCK).unlink()
+                run.rmdir()
+        raise
+    finally:
+        del _HELD[key]
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+        os.close(fd)  # closing the last descriptor releases the lock
+
+
+def _acquire(fd: int, run: Path, wait: bool) -> None:
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except BlockingIOError:
+        raise CalibError(f"run directory {run} is in use by another calib command ({_holder(fd)}): one command "
+                         "writes a run directory at a time; run this one when it has finished") from None
+
+
 # ---------------------------------------------------------------- stages
 @dataclass
 class Stage:

@@ -4,7 +4,8 @@ Each run is identified by the hash of everything that determines its result (mod
 parameters, condition, numerics, seed, the versions of its laws and kernel). Its artefacts live in
 ``RUN/simulate/runs/<hash>/`` and its ``result.json`` is written last, atomically: a
 run with a result is never recomputed, and Ctrl-C loses nothing that finished. The
-index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run.
+index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run, merged
+with what is on disk under the run lock (:func:`append_index`).
 """
 
 from __future__ import annotations
@@ -313,6 +314,17 @@ def _save_index(run_dir: Path, rows: list[dict]) -> None:
                     {"stage": "simulate", "version": __version__})
 
 
+def append_index(run_dir: Path, rows: list[dict]) -> None:
+    """Add finished runs' rows to RUN/simulate/results.parquet: merged with the index as it is on disk
+    now, under the run lock. Each command used to rewrite it from the copy it read at its start, so
+    two writers (or any row added meanwhile) lost rows."""
+    if not rows:
+        return
+    with art.run_lock(run_dir, wait=True):
+        previous = load_results(run_dir)
+        _save_index(run_dir, (previous.to_dict("records") if len(previous) else []) + list(rows))
+
+
 def reusable(run_hash: str) -> Path | None:
     """The folder of a finished run with this hash in a run directory named in $CALIB_REUSE, if any
     (asked only for runs the campaign's own directory lacks, so naming it there is harmless).
@@ -359,27 +371,30 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     requests = list(requests)
     run_dir = Path(run_dir)
     (run_dir / RUNS).mkdir(parents=True, exist_ok=True)
-    previous = load_results(run_dir)
-    index = previous.to_dict("records") if len(previous) else []
     rows: list[dict | None] = [None] * len(requests)
 
-    def finish(i: int, row: dict) -> None:
+    def label(i: int, row: dict) -> dict:
         req = requests[i]
-        row = {**row, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
-               "condition_id": req.condition_id}
-        rows[i] = row
-        index.append(row)
-        _save_index(run_dir, index)
-        if on_done:
-            on_done(req, row)
+        rows[i] = {**row, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
+                   "condition_id": req.condition_id}
+        return rows[i]
 
-    todo = []
+    def finish(i: int, row: dict) -> None:
+        append_index(run_dir, [label(i, row)])
+        if on_done:
+            on_done(requests[i], rows[i])
+
+    todo, cached = [], []
     for i, req in enumerate(requests):
         done = run_dir / RUNS / req.hash / "result.json"
         if done.is_file() or (reuse and _reuse(req.hash, run_dir)):
-            finish(i, art.read_json(done))
+            cached.append(i)
         else:
             todo.append(i)
+    append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached])
+    for i in cached:  # one write of the index for all of them
+        if on_done:
+            on_done(requests[i], rows[i])
     if dask and todo:
         from distributed import Client, LocalCluster, as_completed
 

@@ -215,3 +215,74 @@ def test_committed_sample_runs_read_through_their_locks():
     """Several locks may list one file (compare's revisions): it is enough that one records its hash."""
     for p in sorted((ROOT / "sample_runs").rglob("*.parquet")):
         art.read_table(p)
+
+
+# ------------------------------------------------------------------ row 6: one writer per run directory
+HOLDER = """
+import sys, time
+from calib_cli import artifacts as art
+with art.run_lock(sys.argv[1]):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_second_writer_of_a_run_directory_fails_naming_the_holder(tmp_path):
+    """Two processes: one holds RUN/.lock; a writing command on the same run fails in one line naming
+    the run directory and the holder's pid and command, writes nothing, and works once it is gone."""
+    import os
+    import subprocess
+
+    run = tmp_path / "run"
+    script = tmp_path / "holder.py"
+    script.write_text(HOLDER)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, str(script), str(run)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+        one_line_error(r, str(run), "in use", f"pid {proc.pid}", "holder.py")
+        r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--preset", "smoke", "--set",
+                                "static_friction=0.3"])
+        one_line_error(r, str(run), f"pid {proc.pid}")
+        r = runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)])
+        one_line_error(r, str(run), f"pid {proc.pid}")
+        assert sorted(p.name for p in run.iterdir()) == [".lock"]
+    finally:
+        proc.kill()
+        proc.wait()
+    r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+    assert r.exit_code == 0, r.output
+
+
+def test_the_run_lock_is_reentrant_and_leaves_no_run_dir_behind_a_failed_command(tmp_path):
+    from calib_cli.stages.doe import pb_design
+
+    run = tmp_path / "run"
+    with art.run_lock(run):
+        pb_design(run)  # a stage inside a stage's lock: the same process, no deadlock
+    assert (run / "pb" / "design.parquet").is_file()
+    with pytest.raises(CalibError):
+        pb_design(tmp_path / "new", setting=["pb.alpha=abc"])
+    assert not (tmp_path / "new").exists()
+
+
+def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypatch):
+    """A row another writer added to results.parquet while a campaign ran survives the campaign's
+    next index update (it used to rewrite the index from the copy it read at its start)."""
+    from calib_cli import campaign
+    from calib_cli.dem.heap import HeapCondition, Numerics
+
+    reqs = [campaign.Request({"static_friction": 0.3}, HeapCondition(), Numerics(), seed=s, run_id=s) for s in (1, 2)]
+
+    def fake_execute(req, run_dir, progress=None, **kw):
+        if req.run_id == 1:  # meanwhile, someone else's heap lands in the index
+            other = pd.DataFrame([{"run_hash": "other", "design": "", "run_id": 99, "repeat": 0,
+                                   "condition_id": "", "status": "ok", "repose_angle": 33.0}])
+            art.write_table(tmp_path / campaign.RESULTS, other)
+        return {"run_hash": req.hash, "status": "ok", "repose_angle": 30.0 + req.run_id}
+
+    monkeypatch.setattr(campaign, "execute", fake_execute)
+    campaign.run_campaign(reqs, tmp_path)
+    index = campaign.load_results(tmp_path)
+    assert sorted(index["run_hash"]) == sorted(["other", reqs[0].hash, reqs[1].hash])

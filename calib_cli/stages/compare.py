@@ -22,7 +22,8 @@ from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model  # noqa: E402
 from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, modulus_settings,  # noqa: E402
                         parse_params, table_conditions)
-from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage, warn_other_modulus  # noqa: E402
+from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
+                     warn_other_modulus, writes_run)
 from .simulate import Pairs, pairs  # noqa: E402
 
 
@@ -140,6 +141,7 @@ class CompareResult(Result):
                                "z", "fails"]]
 
 
+@writes_run
 def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
             shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None) -> CompareResult:
     """Simulate ``repeats`` heaps at every measured condition at the calibrated parameters (``set_``

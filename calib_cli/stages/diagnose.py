@@ -17,7 +17,8 @@ from ..discrepancy.stats import at_bounds, confounded, difference_se, score_effe
 from ..errors import CalibError
 from ..model import EFFECTS, Model
 from ..requests import COND_VARS, heap_setup, modulus_settings
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, warn_other_modulus
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
+                     warn_other_modulus, writes_run)
 from .compare import measured_conditions, model_and_theta, simulate_at
 from .simulate import Pairs
 
@@ -190,6 +191,7 @@ def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) 
     return bar
 
 
+@writes_run
 def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
              shear_modulus: Optional[float] = None, alpha: float = 0.05, force: bool = False,
              say: Optional[Say] = None) -> DiagnoseResult:

@@ -16,7 +16,7 @@ from ..dem.heap import PARAMETERS, Preset, interactions
 from ..errors import CalibError
 from ..requests import (build_requests, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
                         parse_params, table_conditions)
-from .common import Say, check_run_dir, plain, resolve_settings
+from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
 Pairs = Union[Mapping, Iterable[str], None]
 
@@ -221,11 +221,13 @@ def run_simulation(plan: Plan, workers: int = 1, dask: Optional[str] = None, on_
                    on_progress: Optional[Callable] = None) -> SimulateResult:
     """Run a :func:`plan_simulation`'s heaps (cached ones are read) on ``workers`` processes or a Dask
     cluster; ``on_done(request, row)`` after each heap, ``on_progress(t, t_max, phase)`` within one."""
-    rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
-                        reuse=not plan.force)
+    with art.run_lock(check_run_dir(plan.run)):
+        rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
+                            reuse=not plan.force)
     return SimulateResult(plan.run, rows)
 
 
+@writes_run
 def simulate_heap(run: Path, params: Pairs = None, design: Optional[Path] = None, *, workers: int = 1,
                   dask: Optional[str] = None, say: Optional[Say] = None, **options) -> SimulateResult:
     """Plan and run a simulation (:func:`plan_simulation` takes the ``options``): writes
