@@ -11,10 +11,12 @@ with what is on disk under the run lock (:func:`append_index`).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import functools
 import os
 import platform
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping
@@ -194,11 +196,12 @@ def _row(req: Request, res, img) -> dict:
     }
 
 
-def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dict:
-    """Run one request (or load its cached result) and write its artefacts."""
+def execute(req: Request, run_dir: str, progress: Callable | None = None, force: bool = False) -> dict:
+    """Run one request (or load its cached result, unless ``force``) and write its artefacts."""
     out = Path(run_dir) / RUNS / req.hash
+    _restore(out)
     done = out / "result.json"
-    if done.is_file():
+    if done.is_file() and not force:
         return art.read_json(done)
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
@@ -207,11 +210,22 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
                               shapes=tuple(req.shapes))
     else:
         res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{req.hash}.staging-"))
+    try:
+        row = _write_run(tmp, req, res)
+        _swap_in(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return row
+
+
+def _write_run(out: Path, req: Request, res) -> dict:
+    """A finished heap's artefacts into ``out``; returns its results row (result.json, written last)."""
     p = res.system.particles
     state = pd.DataFrame({"x": p.pos[:, 0], "y": p.pos[:, 1], "z": p.pos[:, 2], "radius": p.rad,
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
                           "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
-    out.mkdir(parents=True, exist_ok=True)
     view = render_side_view(p.pos, p.rad)
     row = _row(req, res, measure_image(view.image))
     art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
@@ -220,15 +234,35 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
     art.write_png(out / "side.png", view.image)
     art.write_vtp(out / "particles.vtp", p.pos, {"radius": p.rad, "velocity": p.vel, "angular_velocity": p.omg})
     art.write_json(out / "key.json", req.key)
-    art.write_json(done, row)  # last: marks the run complete
+    art.write_json(out / "result.json", row)  # last: marks the run complete
     return row
 
 
-def _execute_in_worker(req: Request, run_dir: str) -> dict:
+def _swap_in(tmp: Path, out: Path) -> None:
+    """Make the complete run folder ``tmp`` the cached run ``out``. A run being recomputed (--force)
+    stays whole and readable until its replacement is complete: the old folder steps aside to
+    ``.<hash>.old`` only for the two renames (:func:`_restore` puts it back if a crash falls between)."""
+    old = out.with_name(f".{out.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if out.exists():
+        out.rename(old)
+    tmp.rename(out)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _restore(out: Path) -> None:
+    """Put back a cached run a crash left stepped aside between :func:`_swap_in`'s two renames."""
+    old = out.with_name(f".{out.name}.old")
+    if not out.exists() and (old / "result.json").is_file():
+        with contextlib.suppress(OSError):
+            old.rename(out)
+
+
+def _execute_in_worker(req: Request, run_dir: str, force: bool = False) -> dict:
     import numba
 
     numba.set_num_threads(1)  # one heap per core: the pool is the parallelism (results do not depend on it)
-    return execute(req, run_dir)
+    return execute(req, run_dir, force=force)
 
 
 def load_results(run_dir: Path) -> pd.DataFrame:
@@ -357,11 +391,12 @@ def _reuse(run_hash: str, run_dir: Path) -> bool:
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
                  on_progress: Callable | None = None, dask: str | None = None,
-                 reuse: bool = True) -> pd.DataFrame:
+                 reuse: bool = True, force: bool = False) -> pd.DataFrame:
     """Run every request (cached ones are loaded, not recomputed); return their rows.
 
     With ``reuse``, runs that the run directories in $CALIB_REUSE have finished are copied
-    (:func:`reusable`); ``reuse=False`` is for ``--force``, which asks for them to be recomputed.
+    (:func:`reusable`). ``force`` (``--force``) recomputes every request, cached or not, and copies
+    none; each cached run is replaced only once its new result is complete (:func:`_swap_in`).
 
     Executors: in-process (workers = 1), a local process pool (workers > 1), or a Dask cluster
     (``dask`` = a scheduler address, or "local" for a LocalCluster of ``workers`` processes).
@@ -387,7 +422,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     todo, cached = [], []
     for i, req in enumerate(requests):
         done = run_dir / RUNS / req.hash / "result.json"
-        if done.is_file() or (reuse and _reuse(req.hash, run_dir)):
+        if not force and (done.is_file() or (reuse and _reuse(req.hash, run_dir))):
             cached.append(i)
         else:
             todo.append(i)
@@ -402,7 +437,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                                dashboard_address=None) if dask == "local" else None
         client = Client(cluster if cluster is not None else dask)
         try:
-            futs = {client.submit(_execute_in_worker, requests[i], str(run_dir.resolve()), pure=False): i
+            futs = {client.submit(_execute_in_worker, requests[i], str(run_dir.resolve()), force, pure=False): i
                     for i in todo}
             try:
                 for f in as_completed(list(futs)):
@@ -416,13 +451,13 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                 cluster.close()
     elif workers <= 1 or len(todo) <= 1:
         for i in todo:
-            finish(i, execute(requests[i], str(run_dir), on_progress))
+            finish(i, execute(requests[i], str(run_dir), on_progress, force))
     else:
         import multiprocessing
 
         # spawn, not fork: numba's threading layer is not fork-safe once the parent has used it
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir)): i for i in todo}
+            futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir), force): i for i in todo}
             try:
                 for f in cf.as_completed(futs):
                     finish(futs[f], f.result())

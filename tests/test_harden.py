@@ -286,3 +286,50 @@ def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypat
     campaign.run_campaign(reqs, tmp_path)
     index = campaign.load_results(tmp_path)
     assert sorted(index["run_hash"]) == sorted(["other", reqs[0].hash, reqs[1].hash])
+
+
+# ------------------------------------------------------------------ row 5: --force keeps the cache until each run is replaced
+def _fake_heap(angle):
+    """A finished heap as run_heap returns it (what execute writes), without simulating."""
+    import numpy as np
+    from types import SimpleNamespace as NS
+
+    n = 5
+    parts = NS(pos=np.random.default_rng(0).random((n, 3)) * 0.01, rad=np.full(n, 1e-3), vel=np.zeros((n, 3)),
+               omg=np.zeros((n, 3)))
+    a = NS(angle=angle, sd=0.1, height=0.01, base_radius=0.02, profile_r=np.arange(3.0), profile_h=np.arange(3.0))
+    return NS(status="ok", message="", angle=a, angle_drift=0.0, system=NS(particles=parts, n=n, n_steps=10, dt=1e-5,
+              max_overlap=0.0), energy=np.zeros((2, 3)), t_end=1.0, t_settled=0.5, t_lift_end=0.4, wall_s=0.1)
+
+
+def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_complete(tmp_path, monkeypatch):
+    from calib_cli import campaign
+    from calib_cli.stages.simulate import plan_simulation, run_simulation
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(campaign, "run_heap", lambda *a, **k: _fake_heap(30.0))
+    plan = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke")).rows
+    folder = run / campaign.RUNS / plan["run_hash"].iloc[0]
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert art.read_json(folder / "result.json")["repose_angle"] == 30.0
+
+    def interrupted(*a, **k):  # Ctrl-C while the new heap is simulated: the cached one is still whole
+        assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(campaign, "run_heap", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True))
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]  # nothing staged left behind
+
+    def recomputed(*a, **k):
+        assert (folder / "result.json").is_file()
+        return _fake_heap(31.0)
+
+    monkeypatch.setattr(campaign, "run_heap", recomputed)
+    rows = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True)).rows
+    assert rows["repose_angle"].tolist() == [31.0]
+    assert art.read_json(folder / "result.json")["repose_angle"] == 31.0
+    assert campaign.load_results(run)["repose_angle"].tolist() == [31.0]
+    assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]

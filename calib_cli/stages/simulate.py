@@ -178,8 +178,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     """Check everything and build the requests (nothing runs yet): every row of ``design`` (else one
     point) with ``params`` for what it lacks, under the preset's rig changed by ``condition`` or every
     condition of the ``conditions`` table, ``repeats`` seeds each. Says how many are cached, and notes
-    a floor that follows the grains and cohesive grains at a reduced modulus. ``force`` forgets the
-    cached heaps."""
+    a floor that follows the grains and cohesive grains at a reduced modulus. ``force``: recompute the
+    cached heaps (each replaced only when its new result is complete)."""
     say = say or plain
     run = check_run_dir(run)
     shapes = _engine(engine, mpi, shape)
@@ -194,18 +194,14 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
                               preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
     walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs
-    if force:
-        for req in requests:
-            done = run / RUNS / req.hash / "result.json"
-            if done.is_file():
-                done.unlink()
     have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
     copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
-    say(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
-        + modulus_note(shear_modulus))
+    cached = (f"{sum(have)} cached, recomputed with --force (each kept until its new result is complete)"
+              if force else f"{sum(have)} cached{also}")
+    say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus))
     if floor_follows_grains(walls):
         say("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
             "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
@@ -223,7 +219,7 @@ def run_simulation(plan: Plan, workers: int = 1, dask: Optional[str] = None, on_
     cluster; ``on_done(request, row)`` after each heap, ``on_progress(t, t_max, phase)`` within one."""
     with art.run_lock(check_run_dir(plan.run)):
         rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
-                            reuse=not plan.force)
+                            force=plan.force)
     return SimulateResult(plan.run, rows)
 
 
