@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import os
@@ -339,7 +340,13 @@ def run_lock(run: Path, wait: bool = False):
         return
     created = not run.exists()
     run.mkdir(parents=True, exist_ok=True)
-    fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:  # a read-only run directory (a committed sample run): nobody can write it either
+        if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+            raise
+        yield
+        return
     try:
         _acquire(fd, run, wait)
     except BaseException:

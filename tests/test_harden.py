@@ -333,3 +333,21 @@ def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_
     assert art.read_json(folder / "result.json")["repose_angle"] == 31.0
     assert campaign.load_results(run)["repose_angle"].tolist() == [31.0]
     assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]
+
+
+def test_a_read_only_run_directory_needs_no_lock(tmp_path, monkeypatch):
+    """Up-to-date stages of a read-only run directory (a committed sample run) still answer: where
+    the lock file cannot be created nobody can write, so there is nothing to lock against."""
+    import errno
+    import os
+
+    real = os.open
+
+    def read_only(path, *a, **k):
+        if str(path).endswith(art.RUN_LOCK):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with art.run_lock(tmp_path):
+        pass
