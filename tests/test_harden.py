@@ -275,7 +275,7 @@ def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypat
 
     reqs = [campaign.Request({"static_friction": 0.3}, HeapCondition(), Numerics(), seed=s, run_id=s) for s in (1, 2)]
 
-    def fake_execute(req, run_dir, progress=None, **kw):
+    def fake_execute(req, run_dir, progress=None, force=False):
         if req.run_id == 1:  # meanwhile, someone else's heap lands in the index
             other = pd.DataFrame([{"run_hash": "other", "design": "", "run_id": 99, "repeat": 0,
                                    "condition_id": "", "status": "ok", "repose_angle": 33.0}])
