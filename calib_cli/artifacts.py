@@ -5,14 +5,17 @@ Every artefact is a Parquet file whose schema metadata carries its provenance
 hash, fingerprint). Writes are atomic: a stage writes everything into a staging
 folder and only then renames each file into place, and its lock file
 (``<stage>.lock.json``, in the spirit of DVC's ``dvc.lock``: the stage's fingerprint
-and the hash of every output) is written last. A stage whose fingerprint and outputs
-are unchanged is skipped; an error before the commit leaves the run directory as it was.
+and the hash of every output) is published last, by one rename. A stage whose fingerprint and
+outputs are unchanged is skipped; an error before the commit leaves the run directory as it was,
+and readers (:func:`read_table`) refuse an output whose hash no lock records, so a crash between
+the renames cannot hand them a mix of two runs (:meth:`Stage._publish`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import os
@@ -34,6 +37,9 @@ from .errors import CalibError
 
 PROVENANCE_KEY = b"calib.provenance"
 LOCK_SUFFIX = ".lock.json"
+#: ``.<stage>.pending.json``: the lock a commit will publish, written before its first rename and renamed
+#: onto ``<stage>.lock.json`` after the last; while it exists the stage's commit is unfinished
+PENDING_SUFFIX = ".pending.json"
 
 
 # ---------------------------------------------------------------- hashing
@@ -142,10 +148,54 @@ def write_table(path: Path, df: pd.DataFrame, provenance: Mapping | None = None)
         raise
 
 
+def _locks_listing(path: Path) -> tuple[list[tuple[str, str]], list[str]]:
+    """(stage, hash) of each committed lock that lists ``path`` as an output, and the stages whose
+    unfinished commit (a pending lock) lists it; a lock lists its outputs relative to its folder,
+    the file's own or the one above."""
+    committed, pending = [], []
+    for folder in (path.parent, path.parent.parent):
+        rel = path.relative_to(folder).as_posix()
+        for lock in folder.glob(f"*{LOCK_SUFFIX}"):
+            d = _read_lock_file(lock)
+            if rel in d.get("outputs", {}):
+                committed.append((str(d.get("stage", lock.name)), d["outputs"][rel]))
+        for lock in folder.glob(f".*{PENDING_SUFFIX}"):
+            d = _read_lock_file(lock)
+            if rel in d.get("outputs", {}):
+                pending.append(str(d.get("stage", lock.name)))
+    return committed, pending
+
+
+def _read_lock_file(path: Path) -> dict:
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return d if isinstance(d, dict) and isinstance(d.get("outputs", {}), dict) else {}
+
+
+def check_committed(path: Path, what: str = "artefact") -> None:
+    """Refuse a stage output that no committed lock vouches for: a file a lock (or an unfinished
+    commit) lists must have the hash some committed lock records. A commit cut short between its
+    renames leaves files of two runs side by side; this is what keeps a reader from mixing them.
+    Files no lock lists (inputs, the simulation index, tables written by hand) are not checked."""
+    path = Path(path)
+    committed, pending = _locks_listing(path)
+    if not committed and not pending:
+        return
+    if any(h == file_hash(path) for _, h in committed):
+        return
+    stages = sorted({s for s, _ in committed} | set(pending))
+    raise CalibError(f"{what} {path} is not the output its stage's lock records (a write was interrupted, or the "
+                     f"file was changed by hand): rerun the stage that writes it ({', '.join(stages)}), with --force")
+
+
 def read_table(path: Path, columns: Sequence[str] | None = None, what: str = "artefact") -> pd.DataFrame:
+    """A Parquet artefact, checked against its stage's lock (:func:`check_committed`) where one lists it."""
     path = Path(path)
     if not path.is_file():
         raise CalibError(f"{what} not found: {path}")
+    check_committed(path, what)
     try:
         df = pq.read_table(path).to_pandas()
     except Exception as e:  # pyarrow raises several types for corrupt files
@@ -257,6 +307,79 @@ def write_vtp(path: Path, points: np.ndarray, point_data: Mapping[str, np.ndarra
     atomic_write_bytes(path, xml.encode())
 
 
+# ---------------------------------------------------------------- one writer per run directory
+RUN_LOCK = ".lock"
+#: the run directories this process holds (resolved path -> [file descriptor, depth]): the lock is
+#: re-entrant, so a stage that calls another (invert --validate simulates) does not lock itself out
+_HELD: dict[Path, list] = {}
+
+
+def _holder(fd: int) -> str:
+    with contextlib.suppress(OSError):
+        text = os.pread(fd, 4096, 0).decode(errors="replace").strip()
+        if text:
+            return text
+    return "a process that has not written its name yet"
+
+
+@contextlib.contextmanager
+def run_lock(run: Path, wait: bool = False):
+    """Hold ``RUN/.lock`` (an OS lock, ``fcntl.flock``: released by the kernel when the holder exits,
+    however it exits) for as long as the block runs. Two commands writing one run directory each
+    rewrote the shared tables (results.parquet) from their own copy and lost the other's rows, so a
+    second writer fails at once with a one-line error naming the holder (``wait``: blocks instead,
+    for the short update of the simulation index). The file holds the holder's pid and command line."""
+    run = Path(run)
+    key = run.resolve()
+    if key in _HELD:
+        _HELD[key][1] += 1
+        try:
+            yield
+        finally:
+            _HELD[key][1] -= 1
+        return
+    created = not run.exists()
+    run.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:  # a read-only run directory (a committed sample run): nobody can write it either
+        if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+            raise
+        yield
+        return
+    try:
+        _acquire(fd, run, wait)
+    except BaseException:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
+    _HELD[key] = [fd, 1]
+    try:
+        yield
+    except BaseException:
+        if created and [p.name for p in run.iterdir()] == [RUN_LOCK]:  # nothing written: leave no run dir
+            with contextlib.suppress(OSError):
+                (run / RUN_LOCK).unlink()
+                run.rmdir()
+        raise
+    finally:
+        del _HELD[key]
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+        os.close(fd)  # closing the last descriptor releases the lock
+
+
+def _acquire(fd: int, run: Path, wait: bool) -> None:
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except BlockingIOError:
+        raise CalibError(f"run directory {run} is in use by another calib command ({_holder(fd)}): one command "
+                         "writes a run directory at a time; run this one when it has finished") from None
+
+
 # ---------------------------------------------------------------- stages
 @dataclass
 class Stage:
@@ -305,9 +428,13 @@ class Stage:
         except (OSError, ValueError):
             return None
 
+    @property
+    def pending_path(self) -> Path:
+        return self.dir / f".{self.name}{PENDING_SUFFIX}"
+
     def up_to_date(self) -> bool:
         lock = self.read_lock()
-        if not lock or lock.get("fingerprint") != self.fingerprint:
+        if not lock or lock.get("fingerprint") != self.fingerprint or self.pending_path.exists():
             return False
         for rel, h in lock.get("outputs", {}).items():
             p = self.dir / rel
@@ -338,25 +465,32 @@ class Stage:
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)
             raise
-        # commit: rename every output into place, drop stale ones, then the lock
         try:
-            old = (self.read_lock() or {}).get("outputs", {})
-            hashes = {}
-            for rel in writer.written:
-                src, dst = staging / rel, self.dir / rel
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                hashes[rel] = file_hash(src)
-                os.replace(src, dst)
-            for rel in set(old) - set(hashes):
-                with contextlib.suppress(OSError):
-                    (self.dir / rel).unlink()
-            lock = {"stage": f"{self.group}.{self.name}", "fingerprint": self.fingerprint,
-                    "version": __version__, "code": self.code, "command": command_line(),
-                    "inputs": self.input_hashes, "settings_hash": self.settings_hash,
-                    "outputs": hashes}
-            atomic_write_bytes(self.lock_path, json.dumps(lock, indent=2).encode())
+            self._publish(staging, writer.written)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
+
+    def _publish(self, staging: Path, written: list[str]) -> None:
+        """Move the staged outputs into place, all or nothing as readers see it: the new lock goes first
+        to a pending name, the outputs are renamed one by one, and only then is the pending lock renamed
+        onto the stage's lock (atomic). Until that rename the old lock still records the old outputs'
+        hashes, so a crash in between leaves every file either the previous one (its hash matches) or
+        refused by :func:`check_committed` (it matches no committed lock); stale outputs go last."""
+        old = (self.read_lock() or {}).get("outputs", {})
+        hashes = {rel: file_hash(staging / rel) for rel in written}
+        lock = {"stage": f"{self.group}.{self.name}", "fingerprint": self.fingerprint,
+                "version": __version__, "code": self.code, "command": command_line(),
+                "inputs": self.input_hashes, "settings_hash": self.settings_hash,
+                "outputs": hashes}
+        atomic_write_bytes(self.pending_path, json.dumps(lock, indent=2).encode())
+        for rel in written:
+            dst = self.dir / rel
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / rel, dst)
+        os.replace(self.pending_path, self.lock_path)
+        for rel in set(old) - set(hashes):
+            with contextlib.suppress(OSError):
+                (self.dir / rel).unlink()
 
 
 class _StagingWriter:

@@ -4,16 +4,19 @@ Each run is identified by the hash of everything that determines its result (mod
 parameters, condition, numerics, seed, the versions of its laws and kernel). Its artefacts live in
 ``RUN/simulate/runs/<hash>/`` and its ``result.json`` is written last, atomically: a
 run with a result is never recomputed, and Ctrl-C loses nothing that finished. The
-index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run.
+index ``RUN/simulate/results.parquet`` is rewritten (atomically) after every finished run, merged
+with what is on disk under the run lock (:func:`append_index`).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import functools
 import os
 import platform
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping
@@ -193,11 +196,12 @@ def _row(req: Request, res, img) -> dict:
     }
 
 
-def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dict:
-    """Run one request (or load its cached result) and write its artefacts."""
+def execute(req: Request, run_dir: str, progress: Callable | None = None, force: bool = False) -> dict:
+    """Run one request (or load its cached result, unless ``force``) and write its artefacts."""
     out = Path(run_dir) / RUNS / req.hash
+    _restore(out)
     done = out / "result.json"
-    if done.is_file():
+    if done.is_file() and not force:
         return art.read_json(done)
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
@@ -206,11 +210,22 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
                               shapes=tuple(req.shapes))
     else:
         res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{req.hash}.staging-"))
+    try:
+        row = _write_run(tmp, req, res)
+        _swap_in(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return row
+
+
+def _write_run(out: Path, req: Request, res) -> dict:
+    """A finished heap's artefacts into ``out``; returns its results row (result.json, written last)."""
     p = res.system.particles
     state = pd.DataFrame({"x": p.pos[:, 0], "y": p.pos[:, 1], "z": p.pos[:, 2], "radius": p.rad,
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
                           "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
-    out.mkdir(parents=True, exist_ok=True)
     view = render_side_view(p.pos, p.rad)
     row = _row(req, res, measure_image(view.image))
     art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
@@ -219,15 +234,35 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None) -> dic
     art.write_png(out / "side.png", view.image)
     art.write_vtp(out / "particles.vtp", p.pos, {"radius": p.rad, "velocity": p.vel, "angular_velocity": p.omg})
     art.write_json(out / "key.json", req.key)
-    art.write_json(done, row)  # last: marks the run complete
+    art.write_json(out / "result.json", row)  # last: marks the run complete
     return row
 
 
-def _execute_in_worker(req: Request, run_dir: str) -> dict:
+def _swap_in(tmp: Path, out: Path) -> None:
+    """Make the complete run folder ``tmp`` the cached run ``out``. A run being recomputed (--force)
+    stays whole and readable until its replacement is complete: the old folder steps aside to
+    ``.<hash>.old`` only for the two renames (:func:`_restore` puts it back if a crash falls between)."""
+    old = out.with_name(f".{out.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if out.exists():
+        out.rename(old)
+    tmp.rename(out)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _restore(out: Path) -> None:
+    """Put back a cached run a crash left stepped aside between :func:`_swap_in`'s two renames."""
+    old = out.with_name(f".{out.name}.old")
+    if not out.exists() and (old / "result.json").is_file():
+        with contextlib.suppress(OSError):
+            old.rename(out)
+
+
+def _execute_in_worker(req: Request, run_dir: str, force: bool = False) -> dict:
     import numba
 
     numba.set_num_threads(1)  # one heap per core: the pool is the parallelism (results do not depend on it)
-    return execute(req, run_dir)
+    return execute(req, run_dir, force=force)
 
 
 def load_results(run_dir: Path) -> pd.DataFrame:
@@ -313,6 +348,17 @@ def _save_index(run_dir: Path, rows: list[dict]) -> None:
                     {"stage": "simulate", "version": __version__})
 
 
+def append_index(run_dir: Path, rows: list[dict]) -> None:
+    """Add finished runs' rows to RUN/simulate/results.parquet: merged with the index as it is on disk
+    now, under the run lock. Each command used to rewrite it from the copy it read at its start, so
+    two writers (or any row added meanwhile) lost rows."""
+    if not rows:
+        return
+    with art.run_lock(run_dir, wait=True):
+        previous = load_results(run_dir)
+        _save_index(run_dir, (previous.to_dict("records") if len(previous) else []) + list(rows))
+
+
 def reusable(run_hash: str) -> Path | None:
     """The folder of a finished run with this hash in a run directory named in $CALIB_REUSE, if any
     (asked only for runs the campaign's own directory lacks, so naming it there is harmless).
@@ -345,11 +391,12 @@ def _reuse(run_hash: str, run_dir: Path) -> bool:
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
                  on_progress: Callable | None = None, dask: str | None = None,
-                 reuse: bool = True) -> pd.DataFrame:
+                 reuse: bool = True, force: bool = False) -> pd.DataFrame:
     """Run every request (cached ones are loaded, not recomputed); return their rows.
 
     With ``reuse``, runs that the run directories in $CALIB_REUSE have finished are copied
-    (:func:`reusable`); ``reuse=False`` is for ``--force``, which asks for them to be recomputed.
+    (:func:`reusable`). ``force`` (``--force``) recomputes every request, cached or not, and copies
+    none; each cached run is replaced only once its new result is complete (:func:`_swap_in`).
 
     Executors: in-process (workers = 1), a local process pool (workers > 1), or a Dask cluster
     (``dask`` = a scheduler address, or "local" for a LocalCluster of ``workers`` processes).
@@ -359,27 +406,30 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     requests = list(requests)
     run_dir = Path(run_dir)
     (run_dir / RUNS).mkdir(parents=True, exist_ok=True)
-    previous = load_results(run_dir)
-    index = previous.to_dict("records") if len(previous) else []
     rows: list[dict | None] = [None] * len(requests)
 
-    def finish(i: int, row: dict) -> None:
+    def label(i: int, row: dict) -> dict:
         req = requests[i]
-        row = {**row, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
-               "condition_id": req.condition_id}
-        rows[i] = row
-        index.append(row)
-        _save_index(run_dir, index)
-        if on_done:
-            on_done(req, row)
+        rows[i] = {**row, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
+                   "condition_id": req.condition_id}
+        return rows[i]
 
-    todo = []
+    def finish(i: int, row: dict) -> None:
+        append_index(run_dir, [label(i, row)])
+        if on_done:
+            on_done(requests[i], rows[i])
+
+    todo, cached = [], []
     for i, req in enumerate(requests):
         done = run_dir / RUNS / req.hash / "result.json"
-        if done.is_file() or (reuse and _reuse(req.hash, run_dir)):
-            finish(i, art.read_json(done))
+        if not force and (done.is_file() or (reuse and _reuse(req.hash, run_dir))):
+            cached.append(i)
         else:
             todo.append(i)
+    append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached])
+    for i in cached:  # one write of the index for all of them
+        if on_done:
+            on_done(requests[i], rows[i])
     if dask and todo:
         from distributed import Client, LocalCluster, as_completed
 
@@ -387,7 +437,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                                dashboard_address=None) if dask == "local" else None
         client = Client(cluster if cluster is not None else dask)
         try:
-            futs = {client.submit(_execute_in_worker, requests[i], str(run_dir.resolve()), pure=False): i
+            futs = {client.submit(_execute_in_worker, requests[i], str(run_dir.resolve()), force, pure=False): i
                     for i in todo}
             try:
                 for f in as_completed(list(futs)):
@@ -401,13 +451,13 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                 cluster.close()
     elif workers <= 1 or len(todo) <= 1:
         for i in todo:
-            finish(i, execute(requests[i], str(run_dir), on_progress))
+            finish(i, execute(requests[i], str(run_dir), on_progress, force))
     else:
         import multiprocessing
 
         # spawn, not fork: numba's threading layer is not fork-safe once the parent has used it
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir)): i for i in todo}
+            futs = {pool.submit(_execute_in_worker, requests[i], str(run_dir), force): i for i in todo}
             try:
                 for f in cf.as_completed(futs):
                     finish(futs[f], f.result())

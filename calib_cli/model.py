@@ -162,8 +162,9 @@ def load_model(run: Path) -> Model:
 def save_model(run: Path, model: Model) -> Model:
     """Write a new revision (kept in RUN/model/) and make it current."""
     run = Path(run)
-    old = load_model(run)
-    new = Model(model.effects, old.revision + 1, model.note)
-    art.atomic_write_bytes(run / "model" / f"rev-{new.revision:04d}.toml", new.to_toml().encode())
-    art.atomic_write_bytes(run / MODEL_FILE, new.to_toml().encode())
+    with art.run_lock(run):  # a compare running meanwhile would label its residuals with the wrong revision
+        old = load_model(run)
+        new = Model(model.effects, old.revision + 1, model.note)
+        art.atomic_write_bytes(run / "model" / f"rev-{new.revision:04d}.toml", new.to_toml().encode())
+        art.atomic_write_bytes(run / MODEL_FILE, new.to_toml().encode())
     return new

@@ -9,8 +9,10 @@ Unknown keys are an error (a typo must not be silently ignored).
 from __future__ import annotations
 
 import copy
+import fnmatch
 import json
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -92,6 +94,92 @@ DEFAULTS: dict[str, Any] = {
 _OPEN_TABLES = {"factors", "ascent.fixed", "bbd.fixed", "bbd.ranges"}
 
 
+@dataclass(frozen=True)
+class Rule:
+    """What one setting's value must be: its kind, and a range where one is obvious."""
+
+    kind: str  # number | integer | text | texts (a list of text) | pair (a list of two numbers)
+    low: float | None = None
+    high: float | None = None
+    open: bool = False  # the bounds themselves excluded
+    empty: bool = False  # may be left unset (no TOML value; None)
+
+    def accepts(self, v: Any) -> bool:
+        if v is None:
+            return self.empty
+        if self.kind == "text":
+            return isinstance(v, str)
+        if self.kind == "texts":
+            return isinstance(v, list) and all(isinstance(x, str) for x in v)
+        if self.kind == "pair":
+            return isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v)
+        if not (_is_number(v) if self.kind == "number" else isinstance(v, int) and not isinstance(v, bool)):
+            return False
+        lo_ok = self.low is None or (v > self.low if self.open else v >= self.low)
+        return lo_ok and (self.high is None or (v < self.high if self.open else v <= self.high))
+
+    def describe(self) -> str:
+        what = {"number": "a number", "integer": "an integer", "text": "a text (in quotes)",
+                "texts": "a list of texts, e.g. ['a', 'b']", "pair": "a list [low, high] of two numbers"}[self.kind]
+        if self.kind == "integer" and self.low == 1 and self.high is None:
+            what = "a positive integer"
+        elif self.low is not None and self.high is not None:
+            what += f" in {'(' if self.open else '['}{self.low:g}, {self.high:g}{')' if self.open else ']'}"
+        elif self.low is not None:
+            what += f" {'>' if self.open else '>='} {self.low:g}"
+        return what + (" (or left unset)" if self.empty else "")
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+_PROBABILITY, _POSITIVE = Rule("number", 0, 1, open=True), Rule("integer", 1)
+#: the rules a setting's default does not imply (its type is derived from DEFAULTS, :func:`rule`): ranges,
+#: settings whose default is None, and the open tables' entries (``*`` stands for any name)
+RULES: dict[str, Rule] = {
+    "pb.alpha": _PROBABILITY, "bbd.alpha": _PROBABILITY, "pb.runs": _POSITIVE, "ascent.steps": Rule("integer", 3),
+    "ascent.target": Rule("number", empty=True), "bbd.center_points": _POSITIVE,
+    "surrogate.hidden": _POSITIVE, "surrogate.epochs": _POSITIVE, "surrogate.seed": Rule("integer", 0),
+    "invert.generations": _POSITIVE, "invert.population": Rule("integer", 2), "invert.seed": Rule("integer", 0),
+    "invert.crossover": Rule("number", 0, 1), "invert.mutation": Rule("number", 0, 1),
+    "invert.tolerance": Rule("number", 0, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
+    "invert.refine": Rule("integer", 0), "invert.refine_z": Rule("number", 0, open=True),
+    "heap.shear_modulus": Rule("number", empty=True),
+    "factors.*.low": Rule("number"), "factors.*.high": Rule("number"), "factors.*.unit": Rule("text"),
+    "factors.*.label": Rule("text"), "factors.*.symbol": Rule("text"),
+    "ascent.fixed.*": Rule("number"), "bbd.fixed.*": Rule("number"), "bbd.ranges.*": Rule("pair"),
+}
+_KINDS = {bool: None, int: "integer", float: "number", str: "text", list: "texts"}
+
+
+def rule(key: str) -> Rule | None:
+    """The rule of a dotted setting key: :data:`RULES`, else its default's type; None for a table."""
+    for pattern, r in RULES.items():
+        if fnmatch.fnmatchcase(key, pattern) and pattern.count(".") == key.count("."):
+            return r
+    node: Any = DEFAULTS
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return None
+        node = node[part]
+    kind = _KINDS.get(type(node))
+    return Rule(kind) if kind else None
+
+
+def check_types(over: Mapping, where: str = "", path: str = "") -> None:
+    """Every value of a settings source (a TOML file's table, -s overrides) of the kind its setting
+    takes, in one sentence naming the key, the value and the rule; ``where`` names the source."""
+    for k, v in over.items():
+        key = f"{path}.{k}" if path else str(k)
+        if isinstance(v, Mapping):
+            check_types(v, where, key)
+            continue
+        r = rule(key)
+        if r is not None and not r.accepts(v):
+            raise CalibError(f"setting {key} = {v!r}{where} must be {r.describe()}")
+
+
 def _merge(base: dict, over: Mapping, path: str = "") -> dict:
     """Deep-merge ``over`` into ``base``; only open tables accept new keys."""
     out = copy.deepcopy(base)
@@ -159,6 +247,7 @@ def with_overrides(text: str, items: Iterable[str]) -> str:
     except tomllib.TOMLDecodeError as e:
         raise CalibError(f"cannot write -s {' '.join(items)} into the settings: {e} (a key the file sets "
                          "already? edit the file)") from None
+    check_types(data)
     validate(_merge(DEFAULTS, data))
     return out
 
@@ -168,8 +257,12 @@ def load_settings(files: Iterable[Path] = (), overrides: Iterable[str] = ()) -> 
     s = copy.deepcopy(DEFAULTS)
     for f in files:
         if f is not None:
-            s = _merge(s, read_toml(f))
-    s = _merge(s, parse_overrides(overrides))
+            data = read_toml(f)
+            s = _merge(s, data)
+            check_types(data, f" in {f}")
+    over = parse_overrides(overrides)
+    s = _merge(s, over)
+    check_types(over)
     validate(s)
     return s
 
@@ -181,6 +274,8 @@ def factor_space(settings: Mapping, names: Iterable[str] | None = None) -> Param
     for n in names:
         if n not in table:
             raise CalibError(f"factor {n!r} is not in the factor table; known: {', '.join(table)}")
+        if not isinstance(table[n], Mapping):
+            raise CalibError(f"setting factors.{n} = {table[n]!r} must be a table {{low = ..., high = ...}}")
         spec = dict(table[n])
         unknown = set(spec) - {"low", "high", "unit", "label", "symbol"}
         if unknown:
@@ -192,6 +287,9 @@ def factor_space(settings: Mapping, names: Iterable[str] | None = None) -> Param
 
 
 def validate(s: Mapping) -> None:
+    """Resolved settings, checked as a whole: each value's kind (as :func:`check_types`, which
+    load_settings calls per source first, to name a file) and how settings relate."""
+    check_types(s)
     for k, v in DEFAULTS.items():
         if isinstance(v, Mapping) and not isinstance(s[k], Mapping):
             raise CalibError(f"setting {k!r} must be a table, got {s[k]!r}")
@@ -200,32 +298,14 @@ def validate(s: Mapping) -> None:
         for n in s[stage].get("factors", []):
             if n not in s["factors"]:
                 raise CalibError(f"{stage}.factors names unknown factor {n!r}")
-    if not 0 < float(s["pb"]["alpha"]) < 1 or not 0 < float(s["bbd"]["alpha"]) < 1:
-        raise CalibError("alpha must lie in (0, 1)")
+    # kinds and ranges: check_types, per source; what is left relates settings to each other
     if s["ascent"]["method"] not in ("gradient", "diagonal"):
         raise CalibError(f"ascent.method must be 'gradient' or 'diagonal', got {s['ascent']['method']!r}")
-    if int(s["ascent"]["steps"]) < 3:
-        raise CalibError("ascent.steps must be at least 3 (a bracket needs neighbours)")
-    if int(s["bbd"]["center_points"]) < 1:
-        raise CalibError("bbd.center_points must be at least 1")
     for m in s["surrogate"]["models"]:
         if m not in ("rsm", "bp", "pso-bp"):
             raise CalibError(f"surrogate.models: unknown model {m!r} (rsm, bp, pso-bp)")
-    iv = s["invert"]
-    if not (0 <= iv["crossover"] <= 1 and 0 <= iv["mutation"] <= 1):
-        raise CalibError("invert.crossover and invert.mutation must lie in [0, 1]")
-    if int(iv["generations"]) < 1 or int(iv["population"]) < 2 or float(iv["tolerance"]) <= 0:
-        raise CalibError("invert needs generations >= 1, population >= 2 and a positive tolerance")
-    if int(iv["refine"]) < 0 or not float(iv["refine_z"]) > 0:
-        raise CalibError("invert.refine must be >= 0 and invert.refine_z > 0")
-    h = s["heap"]
-    if not isinstance(h["preset"], str):
-        raise CalibError(f"heap.preset must be a preset's name, got {h['preset']!r}")
-    g = h["shear_modulus"]
-    if g is not None and (isinstance(g, bool) or not isinstance(g, (int, float))):
-        raise CalibError(f"heap.shear_modulus must be a number in Pa, got {g!r}")
     for n, rng in s["bbd"]["ranges"].items():
-        if n not in s["factors"] or len(rng) != 2:
+        if n not in s["factors"]:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")
     for key in ("ascent", "bbd"):
         for n in s[key]["fixed"]:

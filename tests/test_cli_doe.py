@@ -215,7 +215,7 @@ def test_console_entry_point_exit_codes(tmp_path):
 
 def test_error_messages_keep_their_brackets(tmp_path):
     r = calib("pb", "design", "--run", tmp_path / "r", "-s", "bbd.ranges.static_friction=[0.5]")
-    assert r.exit_code == 2 and "bbd.ranges.static_friction must be [low, high]" in r.output
+    assert r.exit_code == 2 and "bbd.ranges.static_friction = [0.5] must be a list [low, high]" in r.output
 
 
 def test_ascent_aims_at_the_measured_angle(tmp_path):
@@ -263,7 +263,7 @@ def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     assert r.exit_code == 0 and "already" in r.output and target.read_text() == text
     for args, needle in [(["-s", "heap.shear_modulus=5e8"], "edit the file"),
                          (["--settings", SETTINGS_DIR / "smoke.toml"], "--force"),
-                         (["-s", "heap.shear_modulus=stiff"], "heap.shear_modulus must be a number"),
+                         (["-s", "heap.shear_modulus=stiff"], "heap.shear_modulus = 'stiff' must be a number"),
                          (["-s", "heap.presets=smoke"], "unknown setting")]:
         r = calib("init", "--run", run, *args)
         assert r.exit_code == 2 and needle in " ".join(r.output.split()), (args, r.output)

@@ -73,7 +73,8 @@ def _report(run: RunOpt):
     if target.is_file() and target.read_bytes() == page:
         console.print(f"[green]✓[/] {target} is up to date")
         return
-    art.atomic_write_bytes(target, page)
+    with art.run_lock(run):
+        art.atomic_write_bytes(target, page)
     console.print(f"[green]✓[/] wrote {target}")
 
 

@@ -22,7 +22,9 @@ from ..stages.common import check_run_dir  # noqa: F401 (the commands' import)
 console = Console()
 err_console = Console(stderr=True)
 
-RunOpt = Annotated[Path, typer.Option("--run", help="Run directory (docs/artefacts.md lists what it holds).", show_default=False)]
+RunOpt = Annotated[Path, typer.Option("--run", help="Run directory (docs/artefacts.md lists what it holds). One "
+                                               "command writes it at a time: a second stops with an error naming "
+                                               "the first.", show_default=False)]
 SettingsOpt = Annotated[
     Optional[Path],
     typer.Option("--settings", help="Settings TOML (default: RUN/settings.toml if present, else built-in paper setup)."),

@@ -97,8 +97,9 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
     """Rank the effects missing from the model by how much of the misfit each would explain
     (score test after projecting out what the current parameters absorb), with the evidence.
 
-    Reads RUN/compare/residuals.parquet (run `calib compare` first), the calibrated parameters and
-    RUN/model.toml. Writes RUN/diagnose/ranking.parquet (effect, score, p_value, explained_fraction,
+    Reads RUN/compare/residuals.parquet (run `calib compare` first; residuals of another model
+    revision or of other conditions are refused, and they are matched to the measured conditions
+    by condition_id), the calibrated parameters and RUN/model.toml. Writes RUN/diagnose/ranking.parquet (effect, score, p_value, explained_fraction,
     signature_p, verdict, evidence) and sensitivities.parquet. The verdict is "significant" when the
     test passes (p below alpha over the number of candidates) and the candidate's signature is
     resolved from the heaps' scatter, "unresolved" when the test passes but the signature is not

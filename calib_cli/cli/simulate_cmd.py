@@ -37,7 +37,8 @@ def simulate_heap(
     workers: Annotated[int, typer.Option(min=1, help="Parallel runs on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run on a Dask cluster: a scheduler address "
                     "(tcp://host:8786) or 'local' for a LocalCluster of --workers processes.")] = None,
-    force: Annotated[bool, typer.Option("--force", help="Recompute runs that are already cached.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Recompute runs that are already cached; each "
+                               "stays in the cache until its new result is complete (Ctrl-C keeps it).")] = False,
 ):
     """Simulate the heap test with the built-in DEM kernel.
 

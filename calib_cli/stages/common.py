@@ -10,10 +10,11 @@ without one they are printed as plain text.
 
 from __future__ import annotations
 
+import functools
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Optional, Protocol
+from typing import Callable, Iterable, Optional, Protocol, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -26,6 +27,7 @@ from ..settings import load_settings
 from ..space import ParameterSpace
 
 SETTINGS_FILE = "settings.toml"
+R = TypeVar("R")
 
 #: The version of each stage's code (by its folder in the run directory). Raise a stage's number when a
 #: change moves what it writes: its locks then stop being up to date, so every run directory recomputes
@@ -39,6 +41,20 @@ CODE_VERSIONS = {"measure": 1, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:
     """The :class:`~calib_cli.artifacts.Stage` of a stage function, at its code's version."""
     return art.Stage(run, group, name, code=CODE_VERSIONS[group], **kwargs)
+
+
+def writes_run(fn: Callable[..., R]) -> Callable[..., R]:
+    """A stage function that writes its run directory (its first argument) holds the run's lock
+    (:func:`~calib_cli.artifacts.run_lock`) for its whole call: a second command on the same run
+    directory then fails at once instead of losing rows of the tables both rewrite."""
+
+    @functools.wraps(fn)
+    def locked(*args, **kwargs):
+        run = check_run_dir(args[0] if args else kwargs["run"])
+        with art.run_lock(run):
+            return fn(*args, **kwargs)
+
+    return locked
 
 
 class Say(Protocol):

@@ -22,7 +22,8 @@ from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model  # noqa: E402
 from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, modulus_settings,  # noqa: E402
                         parse_params, table_conditions)
-from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage, warn_other_modulus  # noqa: E402
+from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
+                     warn_other_modulus, writes_run)
 from .simulate import Pairs, pairs  # noqa: E402
 
 
@@ -51,6 +52,7 @@ def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, flo
     # the inversion know nothing else about them)
     fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known or k in LAWS}
     theta = {**fixed, **base, **given}
+    _check_given(model, given)
     if model.revision == 0:
         used = [e.name for e in EFFECTS.values() if e.name not in model.effects and e.parameter in theta
                 and not (e.neutral == e.neutral and theta[e.parameter] == e.neutral)]
@@ -61,6 +63,22 @@ def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, flo
         raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
     # with the contact laws the BBD's heaps had (or --set gives): its surrogate learnt those
     return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
+
+
+def _check_given(model: Model, given: dict[str, float]) -> None:
+    """Refuse a --set value for a parameter the model file's revision does not calibrate: it would be
+    dropped (model.pin) and the comparison run without it. Its neutral value is what the model uses
+    anyway; without a model file (revision 0) the effect joins the model instead."""
+    if model.revision == 0:
+        return
+    owner = {e.parameter: e for e in EFFECTS.values()}
+    dropped = sorted(k for k, v in given.items()
+                     if k not in LAWS and k not in model.parameters and not (k in owner and v == owner[k].neutral))
+    if dropped:
+        adds = sorted({owner[k].name for k in dropped if k in owner})
+        hint = f"; `calib model add {' / '.join(adds)}` to calibrate it" if adds else ""
+        raise CalibError(f"the model (revision {model.revision}) has no parameter {', '.join(dropped)}: its "
+                         f"parameters are {', '.join(model.parameters)}{hint}")
 
 
 def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
@@ -123,6 +141,7 @@ class CompareResult(Result):
                                "z", "fails"]]
 
 
+@writes_run
 def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
             shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None) -> CompareResult:
     """Simulate ``repeats`` heaps at every measured condition at the calibrated parameters (``set_``

@@ -17,7 +17,8 @@ from ..discrepancy.stats import at_bounds, confounded, difference_se, score_effe
 from ..errors import CalibError
 from ..model import EFFECTS, Model
 from ..requests import COND_VARS, heap_setup, modulus_settings
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, warn_other_modulus
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
+                     warn_other_modulus, writes_run)
 from .compare import measured_conditions, model_and_theta, simulate_at
 from .simulate import Pairs
 
@@ -48,6 +49,29 @@ class DiagnoseResult(Result):
         elif not (r["p_value"] < self.bar).any():
             out.append("No missing effect is significant: the misfit is within what the measurement noise explains.")
         return out
+
+
+def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFrame:
+    """compare's residuals, one row per measured condition in ``conds``' order (matched by condition_id,
+    not by row order), refused when another model revision or other conditions made them: the
+    sensitivities simulated now would be set against another model's misfit."""
+    path = run / "compare" / "residuals.parquet"
+    res = art.read_table(path, columns=["condition_id", "residual", "uncertainty"],
+                         what="comparison (run `calib compare` first)")
+    prov = art.read_provenance(path)
+    rev, effects = prov.get("model_revision"), prov.get("model")
+    if rev is not None and (int(rev) != model.revision or (effects is not None and
+                                                           sorted(effects) != sorted(model.effects))):
+        made = f"revision {rev}" + (f" ({', '.join(effects)})" if effects else "")
+        raise CalibError(f"{path} holds the residuals of model {made}, but the model is revision {model.revision} "
+                         f"({', '.join(model.effects)}): run `calib compare --run {run}` first")
+    ids = conds["condition_id"].astype(str).tolist()
+    res = res.assign(condition_id=res["condition_id"].astype(str))
+    have = res["condition_id"].tolist()
+    if sorted(have) != sorted(ids):
+        raise CalibError(f"{path} holds residuals of condition(s) {', '.join(have)}, but the measured conditions are "
+                         f"{', '.join(ids)}: run `calib compare --run {run}` first")
+    return res.set_index("condition_id").loc[ids].reset_index()
 
 
 def _signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, preset: str, repeats: int, workers: int,
@@ -167,6 +191,7 @@ def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) 
     return bar
 
 
+@writes_run
 def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
              shear_modulus: Optional[float] = None, alpha: float = 0.05, force: bool = False,
              say: Optional[Say] = None) -> DiagnoseResult:
@@ -176,8 +201,8 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     run = check_run_dir(run)
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)
-    res = art.read_table(run / "compare" / "residuals.parquet", what="comparison (run `calib compare` first)")
     conds = measured_conditions(run)
+    res = current_residuals(run, model, conds)
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
     st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,

@@ -20,7 +20,7 @@ from ..errors import CalibError
 from ..settings import factor_space
 from ..space import ParameterSpace
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, simulated_responses, space_from_design,
-                     stage)
+                     stage, writes_run)
 
 Settings = Optional[Path]
 Overrides = Optional[list[str]]
@@ -102,6 +102,7 @@ def load_responses(run: Path, responses: Optional[Path], design_path: Path, fact
 
 
 # ------------------------------------------------------------------ pb
+@writes_run
 def pb_design(run: Path, settings: Settings = None, setting: Overrides = None, force: bool = False) -> DesignResult:
     """The 12-run Plackett-Burman design over settings pb.factors: RUN/pb/design.parquet."""
     run = check_run_dir(run)
@@ -116,6 +117,7 @@ def pb_design(run: Path, settings: Settings = None, setting: Overrides = None, f
     return DesignResult(st, False, df, space)
 
 
+@writes_run
 def pb_analyze(run: Path, responses: Optional[Path] = None, settings: Settings = None, setting: Overrides = None,
                force: bool = False) -> PBResult:
     """Main effects and ANOVA of the screening, from the simulated heaps or ``responses``."""
@@ -193,6 +195,7 @@ def _ascent_target(run: Path, cfg: dict, explicit: Optional[float] = None) -> tu
     return float(cfg["target"]), {}
 
 
+@writes_run
 def ascent_design(run: Path, settings: Settings = None, setting: Overrides = None,
                   force: bool = False) -> DesignResult:
     """The steepest-ascent path over the screening's significant factors: RUN/ascent/design.parquet."""
@@ -223,6 +226,7 @@ def ascent_design(run: Path, settings: Settings = None, setting: Overrides = Non
     return DesignResult(st, False, df, space, dict(zip(sig, d.tolist())), a["method"])
 
 
+@writes_run
 def ascent_analyze(run: Path, responses: Optional[Path] = None, target: Optional[float] = None,
                    settings: Settings = None, setting: Overrides = None, force: bool = False,
                    say: Optional[Say] = None) -> AscentResult:
@@ -264,6 +268,7 @@ def ascent_analyze(run: Path, responses: Optional[Path] = None, target: Optional
 
 
 # ------------------------------------------------------------------ bbd
+@writes_run
 def bbd_design(run: Path, settings: Settings = None, setting: Overrides = None, force: bool = False) -> DesignResult:
     """The Box-Behnken design over the significant factors, in the ascent's bracket: RUN/bbd/design.parquet."""
     run = check_run_dir(run)
@@ -300,6 +305,7 @@ def bbd_design(run: Path, settings: Settings = None, setting: Overrides = None, 
     return DesignResult(st, False, df, space)
 
 
+@writes_run
 def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings = None, setting: Overrides = None,
                 force: bool = False) -> BBDResult:
     """The quadratic response surface with ANOVA, lack of fit, R2/adj/pred and adequate precision."""

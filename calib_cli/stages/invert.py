@@ -24,7 +24,8 @@ from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, make
                         modulus_settings, table_conditions)
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
-from .common import Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage, warn_other_modulus  # noqa: E402
+from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
+                     warn_other_modulus, writes_run)
 from .simulate import Pairs, pairs  # noqa: E402
 from .surrogate import MODELS_DIR, load_models  # noqa: E402
 
@@ -219,6 +220,7 @@ def _validate(run: Path, cfg: dict, prob: Problem, start: np.ndarray, validate: 
                       ref.rounds if n_refine else None, bool(ref.accepted), bool(ref.stalled))
 
 
+@writes_run
 def invert(run: Path, target: Optional[float] = None, model: Optional[str] = None, validate: int = 0,
            preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
            workers: int = 1, refine: Optional[int] = None, settings: Optional[Path] = None,

@@ -16,7 +16,7 @@ from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError
 from ..imaging.measure import measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
-from .common import Result, Say, check_run_dir, plain, stage
+from .common import Result, Say, check_run_dir, plain, stage, writes_run
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
@@ -105,6 +105,7 @@ class MeasureResult(Result):
         return out
 
 
+@writes_run
 def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional[Path] = None,
                   angles: Optional[Path] = None, band: tuple[float, float] = (0.15, 0.85), force: bool = False,
                   say: Optional[Say] = None, progress: Optional[Callable[[int, int], None]] = None) -> MeasureResult:

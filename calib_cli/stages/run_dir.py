@@ -9,7 +9,7 @@ from typing import Optional
 from .. import artifacts as art
 from ..errors import CalibError
 from ..settings import load_settings, with_overrides
-from .common import SETTINGS_FILE, check_run_dir
+from .common import SETTINGS_FILE, check_run_dir, writes_run
 
 DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 
@@ -26,6 +26,7 @@ class InitResult:
         return f"wrote {self.path}" if self.wrote else f"{self.path.parent} is initialised ({self.note or self.path})"
 
 
+@writes_run
 def init_run(run: Path, settings: Optional[Path] = None, setting: Optional[list[str]] = None,
              force: bool = False) -> InitResult:
     """Create a run directory with its settings: RUN/settings.toml, a copy of ``settings`` (else the

@@ -16,7 +16,7 @@ from ..dem.heap import PARAMETERS, Preset, interactions
 from ..errors import CalibError
 from ..requests import (build_requests, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
                         parse_params, table_conditions)
-from .common import Say, check_run_dir, plain, resolve_settings
+from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
 Pairs = Union[Mapping, Iterable[str], None]
 
@@ -154,6 +154,23 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
     return points, dname, ""
 
 
+def read_conditions_table(path: Path) -> pd.DataFrame:
+    """A conditions table (CSV or Parquet with a condition_id column); a missing or unreadable file
+    is the user's error, not a traceback."""
+    if not path.is_file():
+        raise CalibError(f"conditions table not found: {path}")
+    if path.suffix.lower() == ".parquet":
+        return art.read_table(path, columns=["condition_id"], what="conditions table")
+    try:
+        ctab = pd.read_csv(path, comment="#")
+    except Exception as e:  # pandas raises several types for a file that is not CSV
+        raise CalibError(f"conditions table {path} could not be read as CSV ({type(e).__name__})") from None
+    ctab.columns = [str(c).strip() for c in ctab.columns]
+    if "condition_id" not in ctab.columns:
+        raise CalibError(f"conditions table {path} lacks column condition_id")
+    return ctab
+
+
 def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = None, repeats: int = 1, seed: int = 0,
                     preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
                     conditions: Optional[Path] = None, engine: str = "builtin", mpi: int = 1, shape: str = "sphere",
@@ -161,8 +178,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     """Check everything and build the requests (nothing runs yet): every row of ``design`` (else one
     point) with ``params`` for what it lacks, under the preset's rig changed by ``condition`` or every
     condition of the ``conditions`` table, ``repeats`` seeds each. Says how many are cached, and notes
-    a floor that follows the grains and cohesive grains at a reduced modulus. ``force`` forgets the
-    cached heaps."""
+    a floor that follows the grains and cohesive grains at a reduced modulus. ``force``: recompute the
+    cached heaps (each replaced only when its new result is complete)."""
     say = say or plain
     run = check_run_dir(run)
     shapes = _engine(engine, mpi, shape)
@@ -173,26 +190,18 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     crossed = [("", cond)]
     if conditions is not None:
         conditions = Path(conditions)
-        ctab = art.read_table(conditions, columns=["condition_id"], what="conditions table") \
-            if conditions.suffix.lower() == ".parquet" else pd.read_csv(conditions)
-        if "condition_id" not in ctab.columns:
-            raise CalibError(f"conditions table {conditions} lacks column condition_id")
-        crossed = table_conditions(cond, ctab)
+        crossed = table_conditions(cond, read_conditions_table(conditions))
     requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
                               preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
     walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs
-    if force:
-        for req in requests:
-            done = run / RUNS / req.hash / "result.json"
-            if done.is_file():
-                done.unlink()
     have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
     copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
              else pre.note)
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
-    say(f"{len(requests)} run(s), {sum(have)} cached{also}; preset [bold]{preset}[/] ({where})"
-        + modulus_note(shear_modulus))
+    cached = (f"{sum(have)} cached, recomputed with --force (each kept until its new result is complete)"
+              if force else f"{sum(have)} cached{also}")
+    say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus))
     if floor_follows_grains(walls):
         say("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
             "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
@@ -208,11 +217,13 @@ def run_simulation(plan: Plan, workers: int = 1, dask: Optional[str] = None, on_
                    on_progress: Optional[Callable] = None) -> SimulateResult:
     """Run a :func:`plan_simulation`'s heaps (cached ones are read) on ``workers`` processes or a Dask
     cluster; ``on_done(request, row)`` after each heap, ``on_progress(t, t_max, phase)`` within one."""
-    rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
-                        reuse=not plan.force)
+    with art.run_lock(check_run_dir(plan.run)):
+        rows = run_campaign(plan.requests, plan.run, workers, on_done=on_done, on_progress=on_progress, dask=dask,
+                            force=plan.force)
     return SimulateResult(plan.run, rows)
 
 
+@writes_run
 def simulate_heap(run: Path, params: Pairs = None, design: Optional[Path] = None, *, workers: int = 1,
                   dask: Optional[str] = None, say: Optional[Say] = None, **options) -> SimulateResult:
     """Plan and run a simulation (:func:`plan_simulation` takes the ``options``): writes

@@ -20,7 +20,7 @@ from ..errors import CalibError  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage  # noqa: E402
+from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, writes_run  # noqa: E402
 
 MODELS_DIR = Path("surrogate") / "models"
 
@@ -122,6 +122,7 @@ class FitResult(Result):
         return self.metrics.pivot(index="model", columns="split", values="r2").reset_index()
 
 
+@writes_run
 def fit_surrogate(run: Path, responses: Optional[Path] = None, from_simulations: Optional[str] = None,
                   settings: Optional[Path] = None, setting: Optional[list[str]] = None, force: bool = False,
                   say: Optional[Say] = None) -> FitResult:

@@ -1,0 +1,353 @@
+"""Issue #34, hardening: user errors are one line and exit 2, settings are checked by type, the
+model refuses values it would drop, diagnose refuses stale residuals, --force keeps the cache until
+each heap is replaced, one writer per run directory, and stage commits are all-or-nothing."""
+
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from calib_cli import artifacts as art
+from calib_cli.cli import app
+from calib_cli.errors import CalibError
+
+runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_line_error(r, *needles):
+    """A user error: exit 2 and one line naming each needle."""
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    assert isinstance(r.exception, SystemExit), r.exception
+    text = " ".join(r.output.split())
+    for n in needles:
+        assert n in text, (n, r.output)
+
+
+# ------------------------------------------------------------------ row 7: Python version
+def test_python_version_is_required_where_tomllib_is(monkeypatch):
+    """tomllib is 3.11's: pyproject says so, and an older Python gets a sentence, not a traceback."""
+    assert 'requires-python = ">=3.11"' in (ROOT / "pyproject.toml").read_text()
+    src = (ROOT / "calib_cli" / "__init__.py").read_text()
+    monkeypatch.setattr(sys, "version_info", (3, 10, 12))
+    with pytest.raises(ImportError, match="Python 3.11 or newer"):
+        exec(compile(src, "calib_cli/__init__.py", "exec"), {"__name__": "calib_cli"})
+
+
+# ------------------------------------------------------------------ row 1: a missing conditions table
+def test_missing_conditions_table_is_a_user_error(tmp_path):
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "run"), "--preset", "smoke",
+                            "--conditions", str(tmp_path / "missing.csv")])
+    one_line_error(r, "missing.csv", "not found")
+    bad = tmp_path / "bad.csv"
+    bad.write_bytes(b"\xff\xfe\x00garbage")
+    r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "run"), "--preset", "smoke",
+                            "--conditions", str(bad)])
+    assert r.exit_code == 2, r.output
+
+
+# ------------------------------------------------------------------ row 2: settings checked by type
+@pytest.mark.parametrize("item, needles", [
+    ("pb.alpha=abc", ["pb.alpha", "'abc'", "number in (0, 1)"]),
+    ("pb.alpha=1.5", ["pb.alpha", "1.5", "number in (0, 1)"]),
+    ("pb.runs=abc", ["pb.runs", "'abc'", "positive integer"]),
+    ("pb.runs=12.5", ["pb.runs", "12.5", "positive integer"]),
+    ("pb.runs=0", ["pb.runs", "positive integer"]),
+    ("invert.population=ten", ["invert.population", "integer"]),
+    ("surrogate.models='rsm'", ["surrogate.models", "list"]),
+    ("factors.restitution.low='a'", ["factors.restitution.low", "number"]),
+    ("bbd.fixed.restitution=true", ["bbd.fixed.restitution", "number"]),
+    ("factors.x=1", ["factors.x", "table"]),
+])
+def test_settings_are_checked_by_type(item, needles):
+    from calib_cli.settings import load_settings
+
+    with pytest.raises(CalibError) as e:
+        load_settings(overrides=[item])
+    msg = str(e.value)
+    assert "\n" not in msg and all(n in msg for n in needles), msg
+
+
+def test_bad_setting_values_are_refused_at_init_every_command_and_in_the_file(tmp_path):
+    run = tmp_path / "run"
+    r = runner.invoke(app, ["pb", "design", "--run", str(run), "-s", "pb.alpha=abc"])
+    one_line_error(r, "pb.alpha", "'abc'", "number in (0, 1)")
+    r = runner.invoke(app, ["init", "--run", str(run), "-s", "pb.runs=abc"])
+    one_line_error(r, "pb.runs", "'abc'", "positive integer")
+    assert not (run / "settings.toml").exists()
+    r = runner.invoke(app, ["init", "--run", str(run), "-s", "pb.runs=12.5"])
+    one_line_error(r, "pb.runs", "12.5", "positive integer")
+    # a file edited by hand: the same error, naming the file
+    assert runner.invoke(app, ["init", "--run", str(run)]).exit_code == 0
+    (run / "settings.toml").write_text('[pb]\nruns = "abc"\n')
+    r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+    one_line_error(r, "pb.runs", "'abc'", "positive integer", "settings.toml")
+    # good values still pass, integers where numbers are wanted included
+    (run / "settings.toml").write_text('[pb]\nruns = 12\nalpha = 0.1\n')
+    r = runner.invoke(app, ["pb", "design", "--run", str(run), "-s", "target=33"])
+    assert r.exit_code == 0, r.output
+
+
+# ------------------------------------------------------------------ row 3: compare --set of a parameter the model lacks
+TRUTH = ["--set", "static_friction=0.5", "--set", "rolling_friction=0.2", "--set", "restitution=0.3"]
+
+
+def test_compare_refuses_a_value_for_a_parameter_the_model_does_not_have(tmp_path):
+    from calib_cli.model import Model, save_model
+
+    run = tmp_path / "run"
+    save_model(run, Model(("sliding_friction", "rolling_friction", "restitution")))
+    for cmd in ("compare", "diagnose"):
+        r = runner.invoke(app, [cmd, "--run", str(run), *TRUTH, "--set", "surface_energy=0.5"])
+        one_line_error(r, "surface_energy", "static_friction, rolling_friction, restitution", "model add cohesion")
+    # its neutral value is what the model simulates anyway: no error about it (the next one is the missing lab)
+    r = runner.invoke(app, ["compare", "--run", str(run), *TRUTH, "--set", "surface_energy=0"])
+    one_line_error(r, "measured conditions")
+
+
+# ------------------------------------------------------------------ row 4: diagnose on the current revision's residuals
+DEFAULT = ["sliding_friction", "rolling_friction", "restitution"]
+
+
+def _diagnose_run(tmp_path, ids, residual_ids, revision_of_residuals):
+    from calib_cli.model import Model, save_model
+
+    run = tmp_path / "run"
+    art.write_table(run / "measure" / "conditions.parquet",
+                    pd.DataFrame({"condition_id": ids, "mean": 30.0, "sd": 1.0, "n": 3,
+                                  "particle_d_max_mm": [5.0 + k for k in range(len(ids))]}))
+    art.write_table(run / "compare" / "residuals.parquet",
+                    pd.DataFrame({"condition_id": residual_ids, "residual": [float(i) for i in range(len(ids))],
+                                  "uncertainty": 0.5}),
+                    {"stage": "compare.rev1", "model_revision": revision_of_residuals, "model": DEFAULT})
+    save_model(run, Model(tuple(DEFAULT)))
+    return run
+
+
+def test_diagnose_refuses_residuals_of_another_model_revision(tmp_path):
+    run = _diagnose_run(tmp_path, ["A", "B"], ["A", "B"], 1)
+    assert runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)]).exit_code == 0
+    r = runner.invoke(app, ["diagnose", "--run", str(run), *TRUTH, "--set", "surface_energy=0.5"])
+    one_line_error(r, "revision 1", "revision 2", "run `calib compare", "first")
+
+
+def test_diagnose_aligns_residuals_to_conditions_by_condition_id(tmp_path, monkeypatch):
+    from calib_cli.stages import diagnose as dg
+
+    run = _diagnose_run(tmp_path, ["A", "B", "C", "D"], ["D", "B", "A", "C"], 1)
+    seen = {}
+
+    def rank(run, model, theta, res, conds, *rest, **kw):
+        seen["res"], seen["conds"] = res, conds
+        raise CalibError("stop")
+
+    monkeypatch.setattr(dg, "_signatures", lambda *a, **k: (None,) * 5)
+    monkeypatch.setattr(dg, "_rank", rank)
+    with pytest.raises(CalibError, match="stop"):
+        dg.diagnose(run, TRUTH[1::2])
+    assert list(seen["res"]["condition_id"]) == ["A", "B", "C", "D"]
+    assert list(seen["res"]["residual"]) == [2.0, 1.0, 3.0, 0.0]
+    # residuals of other conditions than those measured now are stale too
+    run = _diagnose_run(tmp_path / "other", ["A", "B", "C", "D"], ["A", "B", "C", "E"], 1)
+    with pytest.raises(CalibError, match=r"conditions are A, B, C, D: run `calib compare"):
+        dg.diagnose(run, TRUTH[1::2])
+
+
+# ------------------------------------------------------------------ row 8: all-or-nothing stage commits
+@pytest.mark.parametrize("crash_after", [0, 1, 2, 3])
+def test_a_commit_cut_short_leaves_the_previous_outputs_or_a_rerun_error(tmp_path, monkeypatch, crash_after):
+    """os.replace fails after ``crash_after`` successful calls: each output then reads as the previous
+    run's, or is refused with a message saying to rerun the stage; never the new file under the old lock."""
+    import os
+
+    old = {"a.parquet": pd.DataFrame({"a": [1]}), "b.parquet": pd.DataFrame({"b": [1]})}
+    new = {"a.parquet": pd.DataFrame({"a": [2]}), "b.parquet": pd.DataFrame({"b": [2]})}
+
+    def commit(k, tables):
+        st = art.Stage(tmp_path, "g", "s", settings={"k": k})
+        with st.commit() as out:
+            for rel, df in tables.items():
+                out.table(rel, df)
+        return st
+
+    commit(1, old)
+    real, calls = os.replace, []
+
+    def crashing(src, dst):
+        if len(calls) >= crash_after:
+            raise OSError("power cut")
+        calls.append(dst)
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", crashing)
+    with pytest.raises(OSError, match="power cut"):
+        commit(2, new)
+    monkeypatch.setattr(os, "replace", real)
+    refused = 0
+    for rel, df in old.items():
+        try:
+            pd.testing.assert_frame_equal(art.read_table(tmp_path / "g" / rel), df)
+        except CalibError as e:
+            assert "rerun the stage" in str(e) and "g.s" in str(e) and "\n" not in str(e)
+            refused += 1
+    assert refused == min(max(crash_after - 1, 0), 2)  # the files renamed before the crash
+    assert not art.Stage(tmp_path, "g", "s", settings={"k": 2}).up_to_date()
+    commit(2, new)  # a rerun makes everything readable again
+    for rel, df in new.items():
+        pd.testing.assert_frame_equal(art.read_table(tmp_path / "g" / rel), df)
+    assert art.Stage(tmp_path, "g", "s", settings={"k": 2}).up_to_date()
+
+
+def test_an_output_changed_behind_its_lock_is_refused_and_unlisted_files_are_not_checked(tmp_path):
+    st = art.Stage(tmp_path, "g", "s", settings={})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [1]}))
+    art.write_table(tmp_path / "g" / "a.parquet", pd.DataFrame({"a": [5]}))
+    with pytest.raises(CalibError, match="rerun the stage"):
+        art.read_table(tmp_path / "g" / "a.parquet")
+    art.write_table(tmp_path / "g" / "history.parquet", pd.DataFrame({"a": [5]}))  # no lock lists it
+    assert art.read_table(tmp_path / "g" / "history.parquet")["a"].tolist() == [5]
+
+
+def test_committed_sample_runs_read_through_their_locks():
+    """Several locks may list one file (compare's revisions): it is enough that one records its hash."""
+    for p in sorted((ROOT / "sample_runs").rglob("*.parquet")):
+        art.read_table(p)
+
+
+# ------------------------------------------------------------------ row 6: one writer per run directory
+HOLDER = """
+import sys, time
+from calib_cli import artifacts as art
+with art.run_lock(sys.argv[1]):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_second_writer_of_a_run_directory_fails_naming_the_holder(tmp_path):
+    """Two processes: one holds RUN/.lock; a writing command on the same run fails in one line naming
+    the run directory and the holder's pid and command, writes nothing, and works once it is gone."""
+    import os
+    import subprocess
+
+    run = tmp_path / "run"
+    script = tmp_path / "holder.py"
+    script.write_text(HOLDER)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, str(script), str(run)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+        one_line_error(r, str(run), "in use", f"pid {proc.pid}", "holder.py")
+        r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--preset", "smoke", "--set",
+                                "static_friction=0.3"])
+        one_line_error(r, str(run), f"pid {proc.pid}")
+        r = runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)])
+        one_line_error(r, str(run), f"pid {proc.pid}")
+        assert sorted(p.name for p in run.iterdir()) == [".lock"]
+    finally:
+        proc.kill()
+        proc.wait()
+    r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+    assert r.exit_code == 0, r.output
+
+
+def test_the_run_lock_is_reentrant_and_leaves_no_run_dir_behind_a_failed_command(tmp_path):
+    from calib_cli.stages.doe import pb_design
+
+    run = tmp_path / "run"
+    with art.run_lock(run):
+        pb_design(run)  # a stage inside a stage's lock: the same process, no deadlock
+    assert (run / "pb" / "design.parquet").is_file()
+    with pytest.raises(CalibError):
+        pb_design(tmp_path / "new", setting=["pb.alpha=abc"])
+    assert not (tmp_path / "new").exists()
+
+
+def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypatch):
+    """A row another writer added to results.parquet while a campaign ran survives the campaign's
+    next index update (it used to rewrite the index from the copy it read at its start)."""
+    from calib_cli import campaign
+    from calib_cli.dem.heap import HeapCondition, Numerics
+
+    reqs = [campaign.Request({"static_friction": 0.3}, HeapCondition(), Numerics(), seed=s, run_id=s) for s in (1, 2)]
+
+    def fake_execute(req, run_dir, progress=None, force=False):
+        if req.run_id == 1:  # meanwhile, someone else's heap lands in the index
+            other = pd.DataFrame([{"run_hash": "other", "design": "", "run_id": 99, "repeat": 0,
+                                   "condition_id": "", "status": "ok", "repose_angle": 33.0}])
+            art.write_table(tmp_path / campaign.RESULTS, other)
+        return {"run_hash": req.hash, "status": "ok", "repose_angle": 30.0 + req.run_id}
+
+    monkeypatch.setattr(campaign, "execute", fake_execute)
+    campaign.run_campaign(reqs, tmp_path)
+    index = campaign.load_results(tmp_path)
+    assert sorted(index["run_hash"]) == sorted(["other", reqs[0].hash, reqs[1].hash])
+
+
+# ------------------------------------------------------------------ row 5: --force keeps the cache until each run is replaced
+def _fake_heap(angle):
+    """A finished heap as run_heap returns it (what execute writes), without simulating."""
+    import numpy as np
+    from types import SimpleNamespace as NS
+
+    n = 5
+    parts = NS(pos=np.random.default_rng(0).random((n, 3)) * 0.01, rad=np.full(n, 1e-3), vel=np.zeros((n, 3)),
+               omg=np.zeros((n, 3)))
+    a = NS(angle=angle, sd=0.1, height=0.01, base_radius=0.02, profile_r=np.arange(3.0), profile_h=np.arange(3.0))
+    return NS(status="ok", message="", angle=a, angle_drift=0.0, system=NS(particles=parts, n=n, n_steps=10, dt=1e-5,
+              max_overlap=0.0), energy=np.zeros((2, 3)), t_end=1.0, t_settled=0.5, t_lift_end=0.4, wall_s=0.1)
+
+
+def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_complete(tmp_path, monkeypatch):
+    from calib_cli import campaign
+    from calib_cli.stages.simulate import plan_simulation, run_simulation
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(campaign, "run_heap", lambda *a, **k: _fake_heap(30.0))
+    plan = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke")).rows
+    folder = run / campaign.RUNS / plan["run_hash"].iloc[0]
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert art.read_json(folder / "result.json")["repose_angle"] == 30.0
+
+    def interrupted(*a, **k):  # Ctrl-C while the new heap is simulated: the cached one is still whole
+        assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(campaign, "run_heap", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True))
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]  # nothing staged left behind
+
+    def recomputed(*a, **k):
+        assert (folder / "result.json").is_file()
+        return _fake_heap(31.0)
+
+    monkeypatch.setattr(campaign, "run_heap", recomputed)
+    rows = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True)).rows
+    assert rows["repose_angle"].tolist() == [31.0]
+    assert art.read_json(folder / "result.json")["repose_angle"] == 31.0
+    assert campaign.load_results(run)["repose_angle"].tolist() == [31.0]
+    assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]
+
+
+def test_a_read_only_run_directory_needs_no_lock(tmp_path, monkeypatch):
+    """Up-to-date stages of a read-only run directory (a committed sample run) still answer: where
+    the lock file cannot be created nobody can write, so there is nothing to lock against."""
+    import errno
+    import os
+
+    real = os.open
+
+    def read_only(path, *a, **k):
+        if str(path).endswith(art.RUN_LOCK):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with art.run_lock(tmp_path):
+        pass
