@@ -225,3 +225,58 @@ def test_shipped_photographs_pass_the_shape_checks(path):
     r = measure_image(read_image(ROOT / path))
     assert r.status == "ok", r.message
 
+# --- measure-angle's inputs (issue #34, items 1-3) ------------------------------------------------
+
+def _files(root):
+    return {p: p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_two_photos_of_one_name_are_refused_and_the_run_is_untouched(tmp_path):
+    folder, run = tmp_path / "photos", tmp_path / "run"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), synth_heap(32))
+    assert runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(folder)]).exit_code == 0
+    before = _files(run)
+    cv2.imwrite(str(folder / "a.jpg"), synth_heap(34))
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(folder), "--force"])
+    assert r.exit_code == 2 and "a.jpg and a.png" in r.output and "'a'" in r.output, r.output
+    assert _files(run) == before
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "new"), "--images", str(folder)])
+    assert r.exit_code == 2 and not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("rows,needle", [
+    ("image,repose_angle\na,31\nb,-5\nc,400\n", "2 row(s) are not (image b: -5; image c: 400)"),
+    ("image,repose_angle\na,nan\nb,inf\nc,90\nd,0\n",
+     "4 row(s) are not (image a: nan; image b: inf; image c: 90; image d: 0)"),
+    ("image,repose_angle\na,31\nb,\nc,steep\n", "image b: nan; image c: steep"),
+    ("repose_angle\n31\n95\n", "(row 2: 95)"),
+])
+def test_given_angles_must_lie_between_0_and_90_deg(tmp_path, rows, needle):
+    (tmp_path / "a.csv").write_text(rows)
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--angles", str(tmp_path / "a.csv")])
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2 and "(0, 90) degrees" in out and needle in out, r.output
+    assert not (tmp_path / "run" / "measure").exists()
+
+
+def test_conditions_join_the_angles_table_on_its_image_column(tmp_path):
+    (tmp_path / "a.csv").write_text("image,repose_angle\nx,31\ny,33\nz,40\nw,42\n")
+    (tmp_path / "c.csv").write_text("image,condition_id,fill_height_mm\nx,low,50\ny,low,50\nz,high,75\n"
+                                    "w,high,75\n")
+    run = tmp_path / "run"
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--angles", str(tmp_path / "a.csv"),
+                            "--conditions", str(tmp_path / "c.csv")])
+    assert r.exit_code == 0, r.output
+    conds = art.read_table(run / "measure" / "conditions.parquet").set_index("condition_id")
+    assert list(conds.index) == ["high", "low"] and list(conds["n"]) == [2, 2]
+    assert list(conds["mean"]) == [41.0, 32.0] and list(conds["fill_height_mm"]) == [75, 50]
+    (tmp_path / "b.csv").write_text("repose_angle\n31\n33\n")  # nothing to join on
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "r2"), "--angles", str(tmp_path / "b.csv"),
+                            "--conditions", str(tmp_path / "c.csv")])
+    assert r.exit_code == 2 and "no image column" in r.output
+    (tmp_path / "d.csv").write_text("image,repose_angle,condition_id\nx,31,high\n")  # two tables disagree
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "r3"), "--angles", str(tmp_path / "d.csv"),
+                            "--conditions", str(tmp_path / "c.csv")])
+    assert r.exit_code == 2 and "image x" in r.output
+

@@ -19,7 +19,8 @@ def measure_angle(
     conditions: Annotated[Optional[Path], typer.Option(help="CSV: image, condition_id [, condition variables, floor "
                           "and its floor_* values]. Without it all images are one condition.")] = None,
     angles: Annotated[Optional[Path], typer.Option(help="Instead of images: a CSV of angles already measured "
-                      "(image, repose_angle [, condition_id]), e.g. the paper's Table 1.")] = None,
+                      "(image, repose_angle in (0, 90) deg [, condition_id]), e.g. the paper's Table 1; "
+                      "--conditions joins on its image column.")] = None,
     band: Annotated[tuple[float, float], typer.Option(help="Height band of the flank fit (fractions).")] = (0.15, 0.85),
     force: ForceOpt = False,
 ):

@@ -44,6 +44,73 @@ def _read_conditions(path: Path) -> pd.DataFrame:
     return df
 
 
+def _photos(images: Path) -> dict[str, Path]:
+    """The photographs of a folder by file name. Two with one name but their suffix (a.png, a.jpg) are
+    an error: their overlays would collide, and they are one heap photographed twice or two heaps misnamed."""
+    if not images.is_dir():
+        raise CalibError(f"--images {images} is not a folder")
+    files = {p.name: p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
+    if not files:
+        raise CalibError(f"no images (PNG/JPEG/TIFF/BMP) in {images}")
+    stems: dict[str, list[str]] = {}
+    for name in files:
+        stems.setdefault(Path(name).stem.casefold(), []).append(name)
+    twins = [names for names in stems.values() if len(names) > 1]
+    if twins:
+        raise CalibError(f"photos {' and '.join(twins[0])} in {images} share the name {Path(twins[0][0]).stem!r}: "
+                         f"rename or remove one{f' ({len(twins)} such names)' if len(twins) > 1 else ''}")
+    return files
+
+
+def _read_angles(path: Path) -> pd.DataFrame:
+    """An angles CSV: repose_angle (a number in (0, 90) degrees on every row) [, image, condition_id]."""
+    if not path.is_file():
+        raise CalibError(f"angles file not found: {path}")
+    try:
+        raw = pd.read_csv(path, comment="#")
+    except Exception as e:
+        raise CalibError(f"angles file {path} could not be read ({type(e).__name__})") from None
+    if "repose_angle" not in raw.columns:
+        raise CalibError(f"angles file {path} lacks column repose_angle")
+    vals = pd.to_numeric(raw["repose_angle"], errors="coerce")
+    with np.errstate(invalid="ignore"):
+        bad = np.flatnonzero(~(np.isfinite(vals) & (vals > 0) & (vals < 90)))
+    if len(bad):
+        label = (lambda i: f"image {raw['image'].iloc[i]}") if "image" in raw.columns else (lambda i: f"row {i + 1}")
+        shown = (lambda v: v if isinstance(v, str) else f"{v:g}")  # as written: 90, not 90.0
+        where = [f"{label(i)}: {shown(raw['repose_angle'].iloc[i])}" for i in bad[:5]]
+        raise CalibError(f"angles file {path}: repose_angle must be a number in (0, 90) degrees; {len(bad)} "
+                         f"row(s) are not ({'; '.join(where)}{'; ...' if len(bad) > 5 else ''})")
+    return raw.assign(repose_angle=vals.astype(float))
+
+
+def _condition_ids(names: list[str], cmap: dict, no_table: bool) -> list[str]:
+    """Each image's condition: from the conditions table (``unassigned`` if it is not there), or one for all."""
+    return [cmap.get(n, DEFAULT_CONDITION if no_table else "unassigned") for n in names]
+
+
+def _angles_table(path: Path, cmap: dict, cond: pd.DataFrame | None) -> pd.DataFrame:
+    """The angles file as an angles table; a conditions table joins on its image column, as for photos."""
+    raw = _read_angles(path)
+    names = raw["image"].astype(str).tolist() if "image" in raw.columns else [str(i + 1) for i in range(len(raw))]
+    if cond is None:
+        cid = raw["condition_id"].astype(str).tolist() if "condition_id" in raw.columns else DEFAULT_CONDITION
+    elif "image" not in raw.columns:
+        raise CalibError(f"angles file {path} has no image column for the conditions table to join on")
+    else:
+        cid = _condition_ids(names, cmap, False)
+        if "condition_id" in raw.columns:
+            own = raw["condition_id"].astype(str).tolist()
+            clash = [(n, o, c) for n, o, c in zip(names, own, cid) if o != c]
+            if clash:
+                n, o, c = clash[0]
+                raise CalibError(f"image {n} is in condition {o!r} in angles file {path} but in {c!r} by the "
+                                 f"conditions table: give condition_id in one of them")
+    return pd.DataFrame({"image": names, "condition_id": cid, "angle_left": np.nan, "angle_right": np.nan,
+                         "repose_angle": raw["repose_angle"], "fit_rmse_px": np.nan, "status": "ok",
+                         "message": "given"})
+
+
 def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None) -> pd.DataFrame:
     rows = []
     for cid, g in angles.groupby("condition_id", sort=True):
@@ -109,7 +176,8 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
                   angles: Optional[Path] = None, band: tuple[float, float] = (0.15, 0.85), force: bool = False,
                   say: Optional[Say] = None, progress: Optional[Callable[[int, int], None]] = None) -> MeasureResult:
     """Repose angle per photograph in ``images`` (``conditions``: a CSV image, condition_id [, condition
-    variables]) or per row of an ``angles`` CSV, and per condition. Writes RUN/measure/angles.parquet,
+    variables]) or per row of an ``angles`` CSV (the conditions join on its image column), and per condition.
+    Writes RUN/measure/angles.parquet,
     conditions.parquet, profiles.parquet and overlays/; raises if no image could be measured."""
     say = say or plain
     images, conditions, angles = (Path(p) if p is not None else None for p in (images, conditions, angles))
@@ -119,50 +187,24 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     if not 0 <= band[0] < band[1] <= 1:
         raise CalibError(f"--band must satisfy 0 <= low < high <= 1, got {band}")
     cond = _read_conditions(conditions) if conditions is not None else None
+    cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
+    files, table = {}, None
     if angles is not None:
-        if not angles.is_file():
-            raise CalibError(f"angles file not found: {angles}")
-        try:
-            raw = pd.read_csv(angles, comment="#")
-        except Exception as e:
-            raise CalibError(f"angles file {angles} could not be read ({type(e).__name__})") from None
-        if "repose_angle" not in raw.columns:
-            raise CalibError(f"angles file {angles} lacks column repose_angle")
-        vals = pd.to_numeric(raw["repose_angle"], errors="coerce")
-        if not np.all(np.isfinite(vals)):
-            raise CalibError(f"angles file {angles}: repose_angle has missing or non-numeric values")
-        files = {}
-        table = pd.DataFrame({"image": raw["image"].astype(str) if "image" in raw.columns
-                              else [str(i + 1) for i in range(len(raw))],
-                              "condition_id": raw["condition_id"].astype(str) if "condition_id" in raw.columns
-                              else DEFAULT_CONDITION,
-                              "angle_left": np.nan, "angle_right": np.nan, "repose_angle": vals.astype(float),
-                              "fit_rmse_px": np.nan, "status": "ok", "message": "given"})
+        table = _angles_table(angles, cmap, cond)
         inputs = {"angles": angles}
     else:
-        if not images.is_dir():
-            raise CalibError(f"--images {images} is not a folder")
-        files = {p.name: p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
-        if not files:
-            raise CalibError(f"no images (PNG/JPEG/TIFF/BMP) in {images}")
+        files = _photos(images)
         inputs = {f"image:{n}": p for n, p in files.items()}
-        table = None
     if conditions is not None:
         inputs["conditions"] = conditions
     st = stage(run, "measure", "angles", inputs=inputs, settings={"band": list(band)})
     if st.up_to_date() and not force:
         return MeasureResult(st, True)
-    cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
     profiles, overlays = [], {}
     if table is None:
         table, profiles, overlays = _measure_images(files, cmap, cond is None, band, progress)
     if cond is not None:
-        unknown = sorted(set(cond["image"]) - set(table["image"]))
-        if unknown and files:
-            say(f"[yellow]warning:[/] {len(unknown)} image(s) in the conditions table are not in the folder: "
-                f"{', '.join(unknown[:5])}")
-        if (table["condition_id"] == "unassigned").any():
-            say("[yellow]warning:[/] images not in the conditions table are grouped as 'unassigned'")
+        _warn_unmatched(table, cond, say)
     n_ok = int((table["status"] == "ok").sum())
     if n_ok == 0:
         for _, r in table.iterrows():
@@ -178,6 +220,15 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         for name, img in overlays.items():
             out.bytes(f"overlays/{Path(name).stem}.png", art.png_bytes(img))
     return MeasureResult(st, False, table, per_condition)
+
+
+def _warn_unmatched(table: pd.DataFrame, cond: pd.DataFrame, say: Say) -> None:
+    unknown = sorted(set(cond["image"]) - set(table["image"]))
+    if unknown:
+        say(f"[yellow]warning:[/] {len(unknown)} image(s) in the conditions table are not among the images measured: "
+            f"{', '.join(unknown[:5])}")
+    if (table["condition_id"] == "unassigned").any():
+        say("[yellow]warning:[/] images not in the conditions table are grouped as 'unassigned'")
 
 
 def floors_alike(conditions: pd.DataFrame) -> list[str]:
