@@ -16,6 +16,7 @@ from calib_cli.dem.render import render_side_view
 from calib_cli.imaging.measure import ShapeLimits, measure_image, overlay, read_image
 from calib_cli.imaging.stats import describe
 from calib_cli.imaging.synth import SynthOptions, synth_heap
+from calib_cli.stages import measure
 
 ANGLES = [20, 25, 30, 35, 40, 45]
 ROOT = Path(__file__).resolve().parents[1]
@@ -225,7 +226,8 @@ def test_shipped_photographs_pass_the_shape_checks(path):
     r = measure_image(read_image(ROOT / path))
     assert r.status == "ok", r.message
 
-# --- measure-angle's inputs (issue #34, items 1-3) ------------------------------------------------
+
+# --- measure-angle's inputs (issue #34, items 1-3) and the flagged heaps in its statistics -----------
 
 def _files(root):
     return {p: p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
@@ -280,3 +282,45 @@ def test_conditions_join_the_angles_table_on_its_image_column(tmp_path):
                             "--conditions", str(tmp_path / "c.csv")])
     assert r.exit_code == 2 and "image x" in r.output
 
+
+def _mixed_folder(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, a in enumerate([31.0, 33.0, 35.0]):
+        cv2.imwrite(str(folder / f"h{i}.png"), synth_heap(a, seed=i))
+    cv2.imwrite(str(folder / "column.png"), NON_CONES["standing column"][0])
+    cv2.imwrite(str(folder / "lopsided.png"), NON_CONES["flanks at 20 and 50 deg"][0])
+    return folder
+
+
+def test_flagged_heaps_are_left_out_of_the_statistics_unless_kept(tmp_path):
+    folder, run = _mixed_folder(tmp_path), tmp_path / "run"
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(folder)])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert "2 of 5 image(s) left out of the condition statistics: 1 asymmetric, 1 column" in out
+    ang = art.read_table(run / "measure" / "angles.parquet").set_index("image")
+    assert ang.loc["column.png", "status"] == "column" and ang.loc["lopsided.png", "status"] == "asymmetric"
+    conds = art.read_table(run / "measure" / "conditions.parquet")
+    assert conds["n"].iloc[0] == 3 and conds["n_images"].iloc[0] == 5
+    assert conds["mean"].iloc[0] == pytest.approx(33.0, abs=0.3)
+    assert set(art.read_table(run / "measure" / "profiles.parquet")["image"]) == {"h0.png", "h1.png", "h2.png"}
+    # kept: the lopsided heap's mean angle counts; the column has none
+    res = measure.measure_angle(run, images=folder, keep_flagged=True, say=lambda *a, **k: None)
+    assert not res.skipped and res.conditions["n"].iloc[0] == 4 and res.left_out() == {"column": 1}
+    assert res.summary()["left_out"].iloc[0] == "1 column"
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(folder), "--keep-flagged"])
+    assert "nothing to do" in r.output  # the option is in the stage's fingerprint
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--images", str(folder)])
+    assert "nothing to do" not in r.output and art.read_table(run / "measure" / "conditions.parquet")["n"].iloc[0] == 3
+
+
+def test_nothing_but_flagged_heaps_is_an_error_that_names_the_option(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "lopsided.png"), NON_CONES["flanks at 20 and 50 deg"][0])
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--images", str(folder)])
+    assert r.exit_code == 2 and "--keep-flagged" in r.output and "1 asymmetric" in r.output, r.output
+    r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--images", str(folder),
+                            "--keep-flagged"])
+    assert r.exit_code == 0, r.output
