@@ -500,6 +500,8 @@ class _StagingWriter:
         self.written: list[str] = []
 
     def _path(self, rel: str) -> Path:
+        if rel in self.written:  # the second would fail the commit half-way, after the first was moved in
+            raise ValueError(f"stage output {rel} written twice")
         p = self.root / rel
         p.parent.mkdir(parents=True, exist_ok=True)
         self.written.append(rel)

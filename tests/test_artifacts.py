@@ -102,3 +102,14 @@ def test_read_responses_validation(tmp_path):
     # Parquet works too
     art.write_table(q, pd.DataFrame({"a": [1.0, 2.0], "repose_angle": [3.0, np.float64(4)]}))
     assert len(art.read_responses(q, ["a"], "repose_angle")) == 2
+
+
+def test_an_output_written_twice_fails_before_the_commit(tmp_path):
+    """Two outputs of one name (e.g. the overlays of a.png and a.jpg) are refused while staging: the
+    commit would move the first in and fail on the second, leaving new tables without a lock."""
+    st = _stage(tmp_path, {"x": 1})
+    with pytest.raises(ValueError, match="written twice"):
+        with st.commit() as out:
+            out.bytes("o/a.png", b"1")
+            out.bytes("o/a.png", b"2")
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []

@@ -9,6 +9,7 @@ import typer
 from rich.progress import Progress
 
 from ..dem.heap import FLOOR_VARIABLES
+from ..imaging.measure import ShapeLimits
 from ..stages.measure import floors_alike, measure_angle as measure
 from .common import ForceOpt, RunOpt, console, df_table, say, skipped
 
@@ -19,16 +20,26 @@ def measure_angle(
     conditions: Annotated[Optional[Path], typer.Option(help="CSV: image, condition_id [, condition variables, floor "
                           "and its floor_* values]. Without it all images are one condition.")] = None,
     angles: Annotated[Optional[Path], typer.Option(help="Instead of images: a CSV of angles already measured "
-                      "(image, repose_angle [, condition_id]), e.g. the paper's Table 1.")] = None,
+                      "(image, repose_angle in (0, 90) deg [, condition_id]), e.g. the paper's Table 1; "
+                      "--conditions joins on its image column.")] = None,
     band: Annotated[tuple[float, float], typer.Option(help="Height band of the flank fit (fractions).")] = (0.15, 0.85),
+    keep_flagged: Annotated[bool, typer.Option("--keep-flagged", help="Count heaps flagged cut, column, not_cone or "
+                            "asymmetric in the condition statistics, where their flanks could be fitted.")] = False,
+    max_flank_diff: Annotated[float, typer.Option(help="Flanks further apart than this (deg) flag the heap "
+                              "asymmetric.")] = ShapeLimits.max_flank_diff_deg,
+    max_residual: Annotated[float, typer.Option(help="A flank whose line fit leaves a larger RMS residual, in heap "
+                            "heights, flags the heap not_cone.")] = ShapeLimits.max_residual,
     force: ForceOpt = False,
 ):
     """Repose angle per photograph and per condition (paper 2.1, Table 1).
 
     Reads --images (and --conditions), or --angles. Writes RUN/measure/angles.parquet,
     conditions.parquet (n, mean, median, sd, range, cv_percent, se, ci95), profiles.parquet and
-    an annotated overlay PNG per image in RUN/measure/overlays/. Unreadable, blank, heap-less
-    or cut images get a status and a message; the exit code is non-zero only if none could be measured.
+    an annotated overlay PNG per image in RUN/measure/overlays/. Unreadable, blank or heap-less
+    images get a status and a message; so do silhouettes that are no heap's cone: cut by the frame
+    (cut), a standing column (column), a flank not straight (not_cone) or flanks too unlike
+    (asymmetric). Those are left out of the per-condition statistics (unless --keep-flagged), and
+    the output says how many and why. The exit code is non-zero only if no image is left to count.
     """
     bar: list = []
 
@@ -42,7 +53,8 @@ def measure_angle(
             bar[0].stop()
 
     try:
-        res = measure(run, images, conditions, angles, band, force, say=say, progress=progress)
+        res = measure(run, images, conditions, angles, band, force, say=say, progress=progress,
+                      keep_flagged=keep_flagged, max_flank_diff=max_flank_diff, max_residual=max_residual)
     finally:
         if bar and not bar[0].finished:
             bar[0].stop()

@@ -14,7 +14,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError
-from ..imaging.measure import measure_image, overlay, read_image
+from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
 from .common import Result, Say, check_run_dir, plain, stage, writes_run
 
@@ -44,10 +44,86 @@ def _read_conditions(path: Path) -> pd.DataFrame:
     return df
 
 
-def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None) -> pd.DataFrame:
+def _photos(images: Path) -> dict[str, Path]:
+    """The photographs of a folder by file name. Two with one name but their suffix (a.png, a.jpg) are
+    an error: their overlays would collide, and they are one heap photographed twice or two heaps misnamed."""
+    if not images.is_dir():
+        raise CalibError(f"--images {images} is not a folder")
+    files = {p.name: p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
+    if not files:
+        raise CalibError(f"no images (PNG/JPEG/TIFF/BMP) in {images}")
+    stems: dict[str, list[str]] = {}
+    for name in files:
+        stems.setdefault(Path(name).stem.casefold(), []).append(name)
+    twins = [names for names in stems.values() if len(names) > 1]
+    if twins:
+        raise CalibError(f"photos {' and '.join(twins[0])} in {images} share the name {Path(twins[0][0]).stem!r}: "
+                         f"rename or remove one{f' ({len(twins)} such names)' if len(twins) > 1 else ''}")
+    return files
+
+
+def _read_angles(path: Path) -> pd.DataFrame:
+    """An angles CSV: repose_angle (a number in (0, 90) degrees on every row) [, image, condition_id]."""
+    if not path.is_file():
+        raise CalibError(f"angles file not found: {path}")
+    try:
+        raw = pd.read_csv(path, comment="#")
+    except Exception as e:
+        raise CalibError(f"angles file {path} could not be read ({type(e).__name__})") from None
+    if "repose_angle" not in raw.columns:
+        raise CalibError(f"angles file {path} lacks column repose_angle")
+    vals = pd.to_numeric(raw["repose_angle"], errors="coerce")
+    with np.errstate(invalid="ignore"):
+        bad = np.flatnonzero(~(np.isfinite(vals) & (vals > 0) & (vals < 90)))
+    if len(bad):
+        label = (lambda i: f"image {raw['image'].iloc[i]}") if "image" in raw.columns else (lambda i: f"row {i + 1}")
+        shown = (lambda v: v if isinstance(v, str) else f"{v:g}")  # as written: 90, not 90.0
+        where = [f"{label(i)}: {shown(raw['repose_angle'].iloc[i])}" for i in bad[:5]]
+        raise CalibError(f"angles file {path}: repose_angle must be a number in (0, 90) degrees; {len(bad)} "
+                         f"row(s) are not ({'; '.join(where)}{'; ...' if len(bad) > 5 else ''})")
+    return raw.assign(repose_angle=vals.astype(float))
+
+
+def _condition_ids(names: list[str], cmap: dict, no_table: bool) -> list[str]:
+    """Each image's condition: from the conditions table (``unassigned`` if it is not there), or one for all."""
+    return [cmap.get(n, DEFAULT_CONDITION if no_table else "unassigned") for n in names]
+
+
+def _angles_table(path: Path, cmap: dict, cond: pd.DataFrame | None) -> pd.DataFrame:
+    """The angles file as an angles table; a conditions table joins on its image column, as for photos."""
+    raw = _read_angles(path)
+    names = raw["image"].astype(str).tolist() if "image" in raw.columns else [str(i + 1) for i in range(len(raw))]
+    if cond is None:
+        cid = raw["condition_id"].astype(str).tolist() if "condition_id" in raw.columns else DEFAULT_CONDITION
+    elif "image" not in raw.columns:
+        raise CalibError(f"angles file {path} has no image column for the conditions table to join on")
+    else:
+        cid = _condition_ids(names, cmap, False)
+        if "condition_id" in raw.columns:
+            own = raw["condition_id"].astype(str).tolist()
+            clash = [(n, o, c) for n, o, c in zip(names, own, cid) if o != c]
+            if clash:
+                n, o, c = clash[0]
+                raise CalibError(f"image {n} is in condition {o!r} in angles file {path} but in {c!r} by the "
+                                 f"conditions table: give condition_id in one of them")
+    return pd.DataFrame({"image": names, "condition_id": cid, "angle_left": np.nan, "angle_right": np.nan,
+                         "repose_angle": raw["repose_angle"], "fit_rmse_px": np.nan, "status": "ok",
+                         "message": "given"})
+
+
+def used(angles: pd.DataFrame, keep_flagged: bool = False) -> pd.Series:
+    """The rows of an angles table that enter the condition statistics: ``ok``, and with ``keep_flagged``
+    the silhouettes measured but flagged as no heap's cone (imaging.measure.FLAGS)."""
+    ok = angles["status"] == "ok"
+    if keep_flagged:
+        ok |= angles["status"].isin(FLAGS) & np.isfinite(angles["repose_angle"].astype(float))
+    return ok
+
+
+def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None, keep_flagged: bool = False) -> pd.DataFrame:
     rows = []
     for cid, g in angles.groupby("condition_id", sort=True):
-        ok = g[g["status"] == "ok"]["repose_angle"]
+        ok = g[used(g, keep_flagged)]["repose_angle"]
         row = {"condition_id": cid, **describe(ok), "n_images": len(g)}
         if cond is not None:
             first = cond[cond["condition_id"] == cid]
@@ -58,18 +134,19 @@ def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, progress) -> tuple:
-    """One row per image (its angles, status and message), the flank profiles, the overlays."""
+def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, limits: ShapeLimits,
+                    keep_flagged: bool, progress) -> tuple:
+    """One row per image (its angles, status and message), the flank profiles of those that enter the
+    statistics, the overlays."""
     rows, profiles, overlays = [], [], {}
-    for i, (name, path) in enumerate(files.items()):
+    for i, ((name, path), cid) in enumerate(zip(files.items(), _condition_ids(list(files), cmap, no_table))):
         gray = read_image(path)
-        res = measure_image(gray, band=band)
-        cid = cmap.get(name, DEFAULT_CONDITION if no_table else "unassigned")
+        res = measure_image(gray, band=band, limits=limits)
         rows.append({"image": name, "condition_id": cid, "angle_left": res.angle_left,
                      "angle_right": res.angle_right, "repose_angle": res.repose_angle,
                      "fit_rmse_px": res.fit_rmse_px, "base_tilt_deg": res.base_tilt_deg,
                      "height_px": res.height_px, "status": res.status, "message": res.message})
-        if res.status == "ok":
+        if res.status == "ok" or (keep_flagged and res.status in FLAGS and np.isfinite(res.repose_angle)):
             profiles.append(pd.DataFrame({"image": name, "condition_id": cid,
                                           "s_px": res.profile_s, "h_px": res.profile_h}))
         if gray is not None:
@@ -79,38 +156,71 @@ def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, pr
     return pd.DataFrame(rows), profiles, overlays
 
 
+def _left_out(angles: pd.DataFrame, keep_flagged: bool) -> dict[str, int]:
+    """How many images each status leaves out of the condition statistics."""
+    counts = angles[~used(angles, keep_flagged)]["status"].value_counts().sort_index()
+    return {str(k): int(v) for k, v in counts.items()}
+
+
+def _counts(left: dict[str, int]) -> str:
+    return ", ".join(f"{n} {status}" for status, n in left.items())
+
+
 @dataclass
 class MeasureResult(Result):
     """RUN/measure/: ``angles`` (one row per image) and ``conditions`` (n, mean, sd, ... per condition)."""
 
     angles: Optional[pd.DataFrame] = None
     conditions: Optional[pd.DataFrame] = None
+    keep_flagged: bool = False
 
     def __post_init__(self):
         if self.angles is None and (self.dir / "angles.parquet").is_file():
             self.angles = art.read_table(self.dir / "angles.parquet")
             self.conditions = art.read_table(self.dir / "conditions.parquet")
 
+    def left_out(self) -> dict[str, int]:
+        """Images left out of the condition statistics, by status (e.g. {"column": 1, "unreadable": 2})."""
+        return _left_out(self.angles, self.keep_flagged)
+
     def summary(self) -> pd.DataFrame:
-        """Per condition (cf. paper Table 1)."""
-        return self.conditions[["condition_id", *STAT_COLUMNS]]
+        """Per condition (cf. paper Table 1); with a ``left_out`` column (how many and why) where images were."""
+        out = self.conditions[["condition_id", *STAT_COLUMNS]]
+        if self.left_out():
+            by = {cid: _counts(_left_out(g, self.keep_flagged)) for cid, g in self.angles.groupby("condition_id")}
+            out = out.assign(left_out=[by.get(c, "") for c in out["condition_id"]])
+        return out
 
     def notes(self) -> list[str]:
-        """Images with a status or a message, and floors that nothing tells apart."""
+        """Images with a status or a message, and how many were left out of the statistics and why."""
         t, out = self.angles, []
         for _, r in t[t["status"] != "ok"].iterrows():
             out.append(f"[yellow]{r['image']}[/]: {r['status']} - {r['message']}")
         for _, r in t[(t["status"] == "ok") & (t["message"] != "") & (t["message"] != "given")].iterrows():
             out.append(f"[yellow]{r['image']}[/]: {r['message']}")
+        flagged = t["status"].isin(FLAGS) & np.isfinite(t["repose_angle"].astype(float))
+        left, kept = self.left_out(), int((flagged & used(t, self.keep_flagged)).sum())
+        if left:
+            hint = int((flagged & ~used(t, self.keep_flagged)).sum())
+            out.append(f"[yellow]{sum(left.values())} of {len(t)} image(s) left out of the condition statistics[/]: "
+                       f"{_counts(left)}" + (f" (--keep-flagged counts the {hint} flagged one(s) whose flanks were "
+                                             "fitted)" if hint else ""))
+        if kept:
+            out.append(f"[yellow]{kept} image(s) flagged but counted[/] (--keep-flagged)")
         return out
 
 
 @writes_run
 def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional[Path] = None,
                   angles: Optional[Path] = None, band: tuple[float, float] = (0.15, 0.85), force: bool = False,
-                  say: Optional[Say] = None, progress: Optional[Callable[[int, int], None]] = None) -> MeasureResult:
+                  say: Optional[Say] = None, progress: Optional[Callable[[int, int], None]] = None,
+                  keep_flagged: bool = False, max_flank_diff: float = ShapeLimits.max_flank_diff_deg,
+                  max_residual: float = ShapeLimits.max_residual) -> MeasureResult:
     """Repose angle per photograph in ``images`` (``conditions``: a CSV image, condition_id [, condition
-    variables]) or per row of an ``angles`` CSV, and per condition. Writes RUN/measure/angles.parquet,
+    variables]) or per row of an ``angles`` CSV (the conditions join on its image column), and per condition.
+    A photograph whose silhouette is no heap's cone (cut by the frame, a standing column, crooked or
+    asymmetric flanks beyond ``max_residual`` heap heights or ``max_flank_diff`` deg) gets that status and
+    is left out of the statistics unless ``keep_flagged``. Writes RUN/measure/angles.parquet,
     conditions.parquet, profiles.parquet and overlays/; raises if no image could be measured."""
     say = say or plain
     images, conditions, angles = (Path(p) if p is not None else None for p in (images, conditions, angles))
@@ -119,57 +229,30 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         raise CalibError("give either --images FOLDER or --angles FILE")
     if not 0 <= band[0] < band[1] <= 1:
         raise CalibError(f"--band must satisfy 0 <= low < high <= 1, got {band}")
+    if not (max_flank_diff > 0 and max_residual > 0):
+        raise CalibError(f"--max-flank-diff and --max-residual must be positive, got {max_flank_diff}, {max_residual}")
+    limits = ShapeLimits(max_flank_diff_deg=float(max_flank_diff), max_residual=float(max_residual))
     cond = _read_conditions(conditions) if conditions is not None else None
+    cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
+    files, table = {}, None
     if angles is not None:
-        if not angles.is_file():
-            raise CalibError(f"angles file not found: {angles}")
-        try:
-            raw = pd.read_csv(angles, comment="#")
-        except Exception as e:
-            raise CalibError(f"angles file {angles} could not be read ({type(e).__name__})") from None
-        if "repose_angle" not in raw.columns:
-            raise CalibError(f"angles file {angles} lacks column repose_angle")
-        vals = pd.to_numeric(raw["repose_angle"], errors="coerce")
-        if not np.all(np.isfinite(vals)):
-            raise CalibError(f"angles file {angles}: repose_angle has missing or non-numeric values")
-        files = {}
-        table = pd.DataFrame({"image": raw["image"].astype(str) if "image" in raw.columns
-                              else [str(i + 1) for i in range(len(raw))],
-                              "condition_id": raw["condition_id"].astype(str) if "condition_id" in raw.columns
-                              else DEFAULT_CONDITION,
-                              "angle_left": np.nan, "angle_right": np.nan, "repose_angle": vals.astype(float),
-                              "fit_rmse_px": np.nan, "status": "ok", "message": "given"})
+        table = _angles_table(angles, cmap, cond)
         inputs = {"angles": angles}
     else:
-        if not images.is_dir():
-            raise CalibError(f"--images {images} is not a folder")
-        files = {p.name: p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
-        if not files:
-            raise CalibError(f"no images (PNG/JPEG/TIFF/BMP) in {images}")
+        files = _photos(images)
         inputs = {f"image:{n}": p for n, p in files.items()}
-        table = None
     if conditions is not None:
         inputs["conditions"] = conditions
-    st = stage(run, "measure", "angles", inputs=inputs, settings={"band": list(band)})
+    st = stage(run, "measure", "angles", inputs=inputs, settings=_settings(band, limits, keep_flagged))
     if st.up_to_date() and not force:
-        return MeasureResult(st, True)
-    cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
+        return MeasureResult(st, True, keep_flagged=keep_flagged)
     profiles, overlays = [], {}
     if table is None:
-        table, profiles, overlays = _measure_images(files, cmap, cond is None, band, progress)
+        table, profiles, overlays = _measure_images(files, cmap, cond is None, band, limits, keep_flagged, progress)
     if cond is not None:
-        unknown = sorted(set(cond["image"]) - set(table["image"]))
-        if unknown and files:
-            say(f"[yellow]warning:[/] {len(unknown)} image(s) in the conditions table are not in the folder: "
-                f"{', '.join(unknown[:5])}")
-        if (table["condition_id"] == "unassigned").any():
-            say("[yellow]warning:[/] images not in the conditions table are grouped as 'unassigned'")
-    n_ok = int((table["status"] == "ok").sum())
-    if n_ok == 0:
-        for _, r in table.iterrows():
-            say(f"[red]{r['image']}[/]: {r['status']} - {r['message']}")
-        raise CalibError(f"none of the {len(table)} image(s) could be measured")
-    per_condition = _aggregate(table, cond)
+        _warn_unmatched(table, cond, say)
+    _check_usable(table, keep_flagged, say)
+    per_condition = _aggregate(table, cond, keep_flagged)
     prof = pd.concat(profiles, ignore_index=True) if profiles else pd.DataFrame(
         {"image": [], "condition_id": [], "s_px": [], "h_px": []})
     with st.commit() as out:
@@ -178,7 +261,42 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         out.table("profiles.parquet", prof)
         for name, img in overlays.items():
             out.bytes(f"overlays/{Path(name).stem}.png", art.png_bytes(img))
-    return MeasureResult(st, False, table, per_condition)
+    return MeasureResult(st, False, table, per_condition, keep_flagged)
+
+
+def _settings(band, limits: ShapeLimits, keep_flagged: bool) -> dict:
+    """The stage's settings (its lock's fingerprint). The shape checks' defaults are left out: the locks
+    written before the checks existed stay up to date (their photographs pass them, tests/test_imaging.py)."""
+    out, default = {"band": list(band)}, ShapeLimits()
+    if limits.max_flank_diff_deg != default.max_flank_diff_deg:
+        out["max_flank_diff"] = limits.max_flank_diff_deg
+    if limits.max_residual != default.max_residual:
+        out["max_residual"] = limits.max_residual
+    if keep_flagged:
+        out["keep_flagged"] = True
+    return out
+
+
+def _warn_unmatched(table: pd.DataFrame, cond: pd.DataFrame, say: Say) -> None:
+    unknown = sorted(set(cond["image"]) - set(table["image"]))
+    if unknown:
+        say(f"[yellow]warning:[/] {len(unknown)} image(s) in the conditions table are not among the images measured: "
+            f"{', '.join(unknown[:5])}")
+    if (table["condition_id"] == "unassigned").any():
+        say("[yellow]warning:[/] images not in the conditions table are grouped as 'unassigned'")
+
+
+def _check_usable(table: pd.DataFrame, keep_flagged: bool, say: Say) -> None:
+    """Raise (nothing written) when no image enters the statistics, after listing why each did not."""
+    if used(table, keep_flagged).any():
+        return
+    for _, r in table.iterrows():
+        say(f"[red]{r['image']}[/]: {r['status']} - {r['message']}")
+    flagged = int((table["status"].isin(FLAGS) & np.isfinite(table["repose_angle"].astype(float))).sum())
+    if flagged:
+        raise CalibError(f"none of the {len(table)} image(s) is a heap's cone ({_counts(_left_out(table, False))}): "
+                         f"--keep-flagged measures the {flagged} flagged one(s) anyway")
+    raise CalibError(f"none of the {len(table)} image(s) could be measured")
 
 
 def floors_alike(conditions: pd.DataFrame) -> list[str]:
