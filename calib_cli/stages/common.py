@@ -34,7 +34,8 @@ R = TypeVar("R")
 #: it (and the stages after it, whose inputs move). tests/test_stage_versions.py recomputes the paper's
 #: committed chain and fails when a stage's outputs moved at an unchanged version, or when a committed
 #: lock's version is not the code's (regenerate that run: make paper).
-CODE_VERSIONS = {"measure": 1, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
+#: measure 2: heaps that are not cones (a standing column, cut by the frame, ...) are left out of the statistics
+CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
                  "diagnose": 1}
 
 
