@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .. import artifacts as art
 from ..campaign import load_results
 
 @dataclass
@@ -39,7 +40,7 @@ class RunDiff:
 
 def _read(run: Path, table: str) -> pd.DataFrame | None:
     path = run / table
-    return pd.read_parquet(path) if path.is_file() else None
+    return art.read_table(path) if path.is_file() else None  # through its lock: a corrupt table is a CalibError
 
 
 def _measured(run: Path) -> dict[str, tuple]:
