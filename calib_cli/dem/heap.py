@@ -73,6 +73,9 @@ class HeapCondition:
         return {k: float(getattr(self, k)) for k in FLOOR_VARIABLES if not math.isnan(getattr(self, k))}
 
     def validate(self) -> None:
+        infinite = [k for k in CONDITION_VARIABLES[:5] if math.isinf(getattr(self, k))]
+        if infinite:  # every comparison below lets inf through; an infinite rig never finishes filling
+            raise CalibError(f"heap condition {infinite[0]} must be a finite number, got {getattr(self, infinite[0])}")
         if not 0 < self.particle_d_min_mm <= self.particle_d_max_mm:
             raise CalibError(f"particle sizes must satisfy 0 < d_min <= d_max, got {self.particle_d_min_mm}, "
                              f"{self.particle_d_max_mm} mm")

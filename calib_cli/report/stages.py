@@ -3,10 +3,9 @@ discrepancy loop and the heaps, each a short summary with its figures, or a line
 
 from __future__ import annotations
 
-import json
-
 import pandas as pd
 
+from .. import artifacts as art
 from .html import RunFiles, esc, figure, note, num, table
 
 
@@ -87,7 +86,7 @@ def surrogate(f: RunFiles) -> str:
     r2 = met.pivot_table(index="model", columns="split", values="r2", sort=False).reset_index()
     r2.columns.name = None
     best = f.path("surrogate/best.json")
-    pick = json.loads(best.read_text()) if best else {}
+    pick = art.read_json(best) if best else {}  # a corrupt best.json: a CalibError naming it, not a traceback
     body = (note(f"R&sup2; by model and split (train: in-sample, as the paper's Table 9; loo: leave-one-out). "
                  + (f"Used for the inversion: <b>{esc(pick['best'])}</b> ({esc(pick.get('criterion', ''))})."
                     if "best" in pick else ""))

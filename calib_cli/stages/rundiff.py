@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..campaign import load_results
+from ..errors import CalibError
 
 @dataclass
 class RunDiff:
@@ -39,7 +40,13 @@ class RunDiff:
 
 def _read(run: Path, table: str) -> pd.DataFrame | None:
     path = run / table
-    return pd.read_parquet(path) if path.is_file() else None
+    if not path.is_file():
+        return None
+    try:  # as it is on disk (a table edited by hand is compared too); an unreadable one was exit 70
+        return pd.read_parquet(path)
+    except Exception as e:  # pyarrow raises several types for a corrupt file
+        raise CalibError(f"{path} is not a readable Parquet file ({type(e).__name__}): rerun the stage that "
+                         "writes it") from None
 
 
 def _measured(run: Path) -> dict[str, tuple]:

@@ -160,14 +160,17 @@ def read_conditions_table(path: Path) -> pd.DataFrame:
     if not path.is_file():
         raise CalibError(f"conditions table not found: {path}")
     if path.suffix.lower() == ".parquet":
-        return art.read_table(path, columns=["condition_id"], what="conditions table")
-    try:
-        ctab = pd.read_csv(path, comment="#")
-    except Exception as e:  # pandas raises several types for a file that is not CSV
-        raise CalibError(f"conditions table {path} could not be read as CSV ({type(e).__name__})") from None
-    ctab.columns = [str(c).strip() for c in ctab.columns]
-    if "condition_id" not in ctab.columns:
-        raise CalibError(f"conditions table {path} lacks column condition_id")
+        ctab = art.read_table(path, columns=["condition_id"], what="conditions table")
+    else:
+        try:
+            ctab = pd.read_csv(path, comment="#")
+        except Exception as e:  # pandas raises several types for a file that is not CSV
+            raise CalibError(f"conditions table {path} could not be read as CSV ({type(e).__name__})") from None
+        ctab.columns = [str(c).strip() for c in ctab.columns]
+        if "condition_id" not in ctab.columns:
+            raise CalibError(f"conditions table {path} lacks column condition_id")
+    if ctab.empty:  # no condition: no heap, and an empty campaign's summary failed (exit 70)
+        raise CalibError(f"conditions table {path} has no rows")
     return ctab
 
 
@@ -193,6 +196,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
         crossed = table_conditions(cond, read_conditions_table(conditions))
     requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
                               preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
+    if not requests:  # an empty design: nothing to run, and an empty campaign's summary failed (exit 70)
+        raise CalibError(f"design {design} has no rows: nothing to simulate")
     walls = [interactions(req.params, req.condition) for req in requests]  # validate everything before anything runs
     have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
     copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
