@@ -48,10 +48,15 @@ class ImageAngle:
 
 
 def read_image(path: Path) -> np.ndarray | None:
+    """The photograph in grey, or None where it cannot be decoded (empty, corrupt, or larger than
+    OpenCV decodes: its pixel limit raises rather than returning nothing)."""
     data = np.fromfile(str(path), dtype=np.uint8)
     if data.size == 0:
         return None
-    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    try:
+        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    except cv2.error:
+        return None
 
 
 def _flatten(gray: np.ndarray, fg: np.ndarray) -> np.ndarray:

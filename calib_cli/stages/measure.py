@@ -21,6 +21,8 @@ from .common import Result, Say, check_run_dir, plain, stage, writes_run
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
 DEFAULT_CONDITION = "all"
+#: the rig's sizes and speed, which only a positive number describes
+RIG_SIZES = ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s")
 
 
 def _read_conditions(path: Path) -> pd.DataFrame:
@@ -38,9 +40,16 @@ def _read_conditions(path: Path) -> pd.DataFrame:
         raise CalibError(f"conditions file {path} lists image {df['image'][df['image'].duplicated()].iloc[0]!r} twice")
     df["image"] = df["image"].astype(str)
     df["condition_id"] = df["condition_id"].astype(str)
+    pathlike = df["image"][df["image"].map(lambda n: Path(n).name != n or n in ("", ".", ".."))]
+    if len(pathlike):  # a name, not a path: the photographs are the files of --images
+        raise CalibError(f"conditions file {path}: image {pathlike.iloc[0]!r} is a path; give file names of the "
+                         "--images folder")
     for c in CONDITION_VARS[:-1]:
-        if c in df.columns and not np.all(np.isfinite(pd.to_numeric(df[c], errors="coerce"))):
+        v = pd.to_numeric(df[c], errors="coerce") if c in df.columns else None
+        if v is not None and not np.all(np.isfinite(v)):
             raise CalibError(f"conditions file {path}: column {c!r} has missing or non-numeric values")
+        if v is not None and c in RIG_SIZES and not np.all(v > 0):
+            raise CalibError(f"conditions file {path}: column {c!r} must be positive, got {v[v <= 0].iloc[0]:g}")
     return df
 
 
