@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
+import os
+import sys
 from pathlib import Path
 from typing import Annotated, Callable, Optional
 
@@ -19,8 +21,11 @@ from .. import artifacts as art
 from ..errors import CalibError
 from ..stages.common import check_run_dir  # noqa: F401 (the commands' import)
 
-console = Console()
-err_console = Console(stderr=True)
+#: Output to a log or a pipe (make, CI) is 120 columns, not rich's 80, which cut the result tables' headers
+#: to "sta…"; a terminal's own width and $COLUMNS still win.
+_WIDTH = None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 120
+console = Console(width=_WIDTH)
+err_console = Console(stderr=True, width=_WIDTH)
 
 RunOpt = Annotated[Path, typer.Option("--run", help="Run directory (docs/artefacts.md lists what it holds). One "
                                                "command writes it at a time: a second stops with an error naming "

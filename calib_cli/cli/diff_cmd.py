@@ -28,7 +28,8 @@ def diff_runs_cmd(
         if not p.is_dir():
             raise CalibError(f"no run directory {p}")
     d = diff_runs(run, reference, rtol)
-    t = Table(title=f"{run} against {reference}", title_justify="left", header_style="bold", expand=True)
+    t = Table(title=f"{run} against {reference}", title_justify="left", header_style="bold",
+              width=min(console.width, 100))
     t.add_column("quantity", ratio=5)
     t.add_column("this run", ratio=3)
     t.add_column("reference", ratio=3)
