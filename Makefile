@@ -39,9 +39,6 @@ test: setup
 test-all: setup
 	$(PY) -m pytest -q
 
-# the main job on the shipped sample data: the paper's chain on its published tables, then a
-# whole calibration from the sample photographs on simulations at the `default` numerics (~7 min from
-# nothing; ~4 on a fresh clone, whose committed stages are up to date: only the design heaps re-simulate)
 # The main job: the paper's chain and a whole calibration from the sample photographs, computed into a
 # fresh folder runs/<date-time>/ (nothing of it is committed), then set beside the committed sample runs:
 # the same numbers, or why not (docs/getting-started.md)

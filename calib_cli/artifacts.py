@@ -186,8 +186,11 @@ def check_committed(path: Path, what: str = "artefact") -> None:
     if any(h == file_hash(path) for _, h in committed):
         return
     stages = sorted({s for s, _ in committed} | set(pending))
-    raise CalibError(f"{what} {path} is not the output its stage's lock records (a write was interrupted, or the "
-                     f"file was changed by hand): rerun the stage that writes it ({', '.join(stages)}), with --force")
+    if pending:
+        raise CalibError(f"{what} {path} is being written, or its write was interrupted: rerun the stage that "
+                         f"writes it ({', '.join(stages)}) once no other command is writing the run")
+    raise CalibError(f"{what} {path} is not the output its stage's lock records (the file was changed by hand, or "
+                     f"a write was interrupted): rerun the stage that writes it ({', '.join(stages)}) with --force")
 
 
 def read_table(path: Path, columns: Sequence[str] | None = None, what: str = "artefact") -> pd.DataFrame:
@@ -339,26 +342,24 @@ def run_lock(run: Path, wait: bool = False):
             _HELD[key][1] -= 1
         return
     created = not run.exists()
-    run.mkdir(parents=True, exist_ok=True)
     try:
+        run.mkdir(parents=True, exist_ok=True)
         fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as e:  # a read-only run directory (a committed sample run): nobody can write it either
-        if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
-            raise
-        yield
+    except OSError as e:
+        if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS) or not run.is_dir():
+            raise CalibError(f"cannot use {run} as a run directory: {e.strerror or e}") from None
+        yield  # a read-only run directory (a committed sample run): nobody can write it either
         return
-    try:
-        _acquire(fd, run, wait)
-    except BaseException:
-        os.close(fd)
-        raise
+    fd = _acquire(fd, run, wait)  # closes its descriptor when it fails
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
     _HELD[key] = [fd, 1]
     try:
         yield
     except BaseException:
-        if created and [p.name for p in run.iterdir()] == [RUN_LOCK]:  # nothing written: leave no run dir
+        # nothing written: leave no run dir (a process waiting on this lock file finds it unlinked and
+        # opens the new one: _acquire)
+        if created and [p.name for p in run.iterdir()] == [RUN_LOCK]:
             with contextlib.suppress(OSError):
                 (run / RUN_LOCK).unlink()
                 run.rmdir()
@@ -370,14 +371,28 @@ def run_lock(run: Path, wait: bool = False):
         os.close(fd)  # closing the last descriptor releases the lock
 
 
-def _acquire(fd: int, run: Path, wait: bool) -> None:
+def _acquire(fd: int, run: Path, wait: bool) -> int:
+    """Lock ``fd`` (the run's lock file); returns the descriptor that holds the lock. A lock file that
+    was unlinked while this process waited on it (the holder's command failed and removed its new run
+    directory) locks nothing: the lock is taken again on the file now at the path."""
     import fcntl
 
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
-    except BlockingIOError:
-        raise CalibError(f"run directory {run} is in use by another calib command ({_holder(fd)}): one command "
-                         "writes a run directory at a time; run this one when it has finished") from None
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise CalibError(f"run directory {run} is in use by another calib command ({holder}): one command "
+                             "writes a run directory at a time; run this one when it has finished") from None
+        try:
+            if os.fstat(fd).st_ino == os.stat(run / RUN_LOCK).st_ino:
+                return fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+        run.mkdir(parents=True, exist_ok=True)
+        fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
 
 
 # ---------------------------------------------------------------- stages

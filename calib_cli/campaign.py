@@ -421,13 +421,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
         if on_done:
             on_done(requests[i], rows[i])
 
-    todo, cached = [], []
-    for i, req in enumerate(requests):
-        done = run_dir / RUNS / req.hash / "result.json"
-        if not force and (done.is_file() or (reuse and _reuse(req.hash, run_dir))):
-            cached.append(i)
-        else:
-            todo.append(i)
+    todo, cached, twins = _plan(requests, run_dir, force, reuse)
     append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached])
     for i in cached:  # one write of the index for all of them
         if on_done:
@@ -467,4 +461,22 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                 for f in futs:
                     f.cancel()
                 raise
+    for i in twins:  # computed once, above, under its first request's labels
+        finish(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
     return pd.DataFrame([r for r in rows if r is not None])
+
+
+def _plan(requests: list[Request], run_dir: Path, force: bool, reuse: bool) -> tuple[list, list, list]:
+    """Which requests to compute, which are cached, and which repeat an earlier request's hash (a design
+    that lists one point twice): those are computed once, not by two workers into one folder."""
+    todo, cached, twins, first = [], [], [], set()
+    for i, req in enumerate(requests):
+        done = run_dir / RUNS / req.hash / "result.json"
+        if not force and (done.is_file() or (reuse and _reuse(req.hash, run_dir))):
+            cached.append(i)
+        elif req.hash in first:
+            twins.append(i)
+        else:
+            first.add(req.hash)
+            todo.append(i)
+    return todo, cached, twins

@@ -604,3 +604,15 @@ def test_cohesive_grains_below_the_stiff_reference_modulus_are_pointed_out():
     assert cohesion_modulus_note(walls(0.5), STIFF_REFERENCE) == ""
     assert cohesion_modulus_note(walls(0.0), 5e6) == ""
     assert cohesion_modulus_note(walls(0.0) + walls(0.5), 5e6) != ""  # a design that reaches cohesion
+
+
+def test_a_design_listing_one_point_twice_computes_it_once(tmp_path):
+    """Two requests with one hash (a design that repeats a row) in one parallel campaign: one folder,
+    computed once, and a results row under each request's labels (two workers renaming one folder was
+    an internal error)."""
+    req = Request({"static_friction": 0.45}, TINY, TINY_NUM, derive_seed(0, 1, 0), "tiny", "pb", 1)
+    twin = Request({"static_friction": 0.45}, TINY, TINY_NUM, derive_seed(0, 1, 0), "tiny", "pb", 2)
+    assert req.hash == twin.hash
+    rows = run_campaign([req, twin], tmp_path, workers=2)
+    assert sorted(rows["run_id"]) == [1, 2] and rows["run_hash"].nunique() == 1
+    assert [p.name for p in (tmp_path / "simulate" / "runs").iterdir() if not p.name.startswith(".")] == [req.hash]

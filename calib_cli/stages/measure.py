@@ -274,8 +274,8 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
 
 
 def _settings(band, limits: ShapeLimits, keep_flagged: bool) -> dict:
-    """The stage's settings (its lock's fingerprint). The shape checks' defaults are left out: the locks
-    written before the checks existed stay up to date (their photographs pass them, tests/test_imaging.py)."""
+    """The stage's settings (its lock's fingerprint). The shape checks' defaults are left out, so that their
+    settings do not move every lock; the checks themselves moved the stage's code version (stages.common)."""
     out, default = {"band": list(band)}, ShapeLimits()
     if limits.max_flank_diff_deg != default.max_flank_diff_deg:
         out["max_flank_diff"] = limits.max_flank_diff_deg
