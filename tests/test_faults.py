@@ -619,11 +619,16 @@ def test_a_killed_campaign_resumes_with_every_row_once(tmp_path, hooks, workers,
 
 
 def test_ctrl_c_stops_a_campaign_with_exit_130_and_it_resumes(tmp_path, hooks):
-    run = tmp_path / "run"
-    args = [*CAMPAIGN, "--run", str(run)]
-    # once the first heap is in the index: the command is past its start-up and has heaps left to do
-    rc, _, hit = calib(args, {**hooks, "CALIB_FAULTS_FAKE_HEAP": "3.0"}, sig=signal.SIGINT,
-                       until=lambda: (run / campaign.RESULTS).is_file())
+    # once a heap is in the index: past start-up, with heaps left to do. A loaded machine can still deliver
+    # the signal only as the command ends (exit 0, nothing interrupted): that is a miss of the test's
+    # timing, not a failure of Ctrl-C, so it tries again in a fresh run directory (at most three times)
+    for attempt in range(3):
+        run = tmp_path / f"run{attempt}"
+        args = [*CAMPAIGN, "--run", str(run)]
+        rc, _, hit = calib(args, {**hooks, "CALIB_FAULTS_FAKE_HEAP": "3.0"}, sig=signal.SIGINT,
+                           until=lambda: (run / campaign.RESULTS).is_file())
+        if rc != 0:
+            break
     assert hit and rc == 130, rc
     COUNTS["sigint"] += 1
     check_run(run, settled=True)
