@@ -516,8 +516,11 @@ def calib(args: list[str], env: dict, delay: float | None = None, sig=signal.SIG
     seconds (with ``until``, once ``until()`` is true instead). Returns (exit status, seconds, whether the
     signal reached a running command)."""
     t0 = time.monotonic()
+    # SIGINT at its default in the child: an ignored SIGINT is inherited across exec (something earlier in a
+    # full test session leaves pytest ignoring it), and Python then installs no KeyboardInterrupt handler
     p = subprocess.Popen([sys.executable, "-m", "calib_cli", *args], env=env, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, start_new_session=True)
+                         stderr=subprocess.PIPE, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     hit = False
     if until is not None:
         while p.poll() is None and not until() and time.monotonic() - t0 < 300:
@@ -619,9 +622,9 @@ def test_a_killed_campaign_resumes_with_every_row_once(tmp_path, hooks, workers,
 
 
 def test_ctrl_c_stops_a_campaign_with_exit_130_and_it_resumes(tmp_path, hooks):
-    # once a heap is in the index: past start-up, with heaps left to do. A loaded machine can still deliver
-    # the signal only as the command ends (exit 0, nothing interrupted): that is a miss of the test's
-    # timing, not a failure of Ctrl-C, so it tries again in a fresh run directory (at most three times)
+    # once a heap is in the index: past start-up, with heaps left to do. Should a loaded machine deliver the
+    # signal only as the command ends (exit 0, nothing interrupted), that is a miss of the test's timing,
+    # not a failure of Ctrl-C: it tries again in a fresh run directory (at most three times)
     for attempt in range(3):
         run = tmp_path / f"run{attempt}"
         args = [*CAMPAIGN, "--run", str(run)]
