@@ -9,13 +9,11 @@ from typing import Optional
 import numpy as np
 import pandas as pd
 
+from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters
 from .html import RunFiles, badge, deg, esc, num, words
 
-#: solution.parquet columns that are not parameters
-NOT_PARAMS = {"predicted_angle", "fitness", "model", "target"}
 #: a parameter is pinned when its near-optimal values span at most this share of its search range
-#: (the inversion's identifiability threshold)
-PINNED = 0.2
+PINNED = IDENTIFIABLE_FRACTION
 FIT_COLS = ["condition_id", "measured", "measured_sd", "simulated", "simulated_sd", "fails"]
 
 
@@ -33,7 +31,7 @@ def solution_params(f: RunFiles) -> dict[str, float]:
     if sol is None or sol.empty:
         return {}
     row = sol.iloc[0]
-    return {k: float(row[k]) for k in sol.columns if k not in NOT_PARAMS}
+    return {k: float(row[k]) for k in solution_parameters(sol)}
 
 
 def _validation_fit(f: RunFiles, cond: pd.DataFrame) -> Optional[Fit]:

@@ -22,6 +22,7 @@ from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa
 from ..errors import CalibError  # noqa: E402
 from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, make_condition,  # noqa: E402
                         modulus_settings, table_conditions)
+from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
@@ -95,7 +96,7 @@ class InvertResult(Result):
         v = self.validation
         if v is None or v.refinement is None:
             return None
-        params = list(self.solution.columns[:list(self.solution.columns).index("predicted_angle")])
+        params = solution_parameters(self.solution)
         cols = ["round", *params, *(["condition_id"] if len(v.conditions) > 1 else []), "mean", "z", "predicted",
                 "bias"]
         return v.refinement[cols].rename(columns={"mean": "simulated"})
@@ -289,9 +290,10 @@ def _warnings(r: InvertResult, prob: Problem, best_x: np.ndarray) -> list[str]:
     """An unidentifiable solution, and parameters at the edge of the surrogate's box."""
     out = []
     if not r.identifiable:
-        wide = r.ranges.loc[r.ranges["width_fraction"] > 0.2, "parameter"].tolist()
+        wide = r.ranges.loc[r.ranges["width_fraction"] > IDENTIFIABLE_FRACTION, "parameter"].tolist()
         out.append(f"[yellow]warning:[/] not identifiable from the data given: {', '.join(wide)} can vary over "
-                   "more than 20 % of its range with the predicted angle within tolerance. One angle cannot pin "
+                   f"more than {IDENTIFIABLE_FRACTION * 100:.0f} % of its range with the predicted angle within "
+                   "tolerance. One angle cannot pin "
                    "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
     # the search box is the design's: a solution on its edge may want a value beyond it
     box, at = dict(zip(prob.params, zip(prob.lows, prob.highs))), dict(zip(prob.params, best_x.tolist()))

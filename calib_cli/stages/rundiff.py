@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..campaign import load_results
+from ..surrogate.inversion import solution_parameters
 from ..errors import CalibError
 
 @dataclass
@@ -89,8 +90,7 @@ def _calibrated(run: Path) -> dict[str, tuple]:
     if df is None:
         return {}
     r = df.iloc[0]
-    skip = {"fitness", "target", "model", "predicted_angle"}
-    out = {f"calibrated {c}": (r[c],) for c in df.columns if c not in skip and pd.api.types.is_number(r[c])}
+    out = {f"calibrated {c}": (r[c],) for c in solution_parameters(df)}
     if "predicted_angle" in df.columns:
         out["surrogate's angle at it [deg]"] = (r["predicted_angle"],)
     v = _read(run, "invert/validation.parquet")

@@ -19,6 +19,17 @@ from scipy.stats import qmc
 
 from .ga import GAResult, ga_minimize
 
+#: a parameter is pinned by the data when its near-optimal values span at most this share of its search
+#: range; the solution is identifiable when every parameter is
+IDENTIFIABLE_FRACTION = 0.2
+#: the columns of RUN/invert/solution.parquet after the parameters (calib_cli.stages.invert writes them)
+SOLUTION_EXTRAS = ("predicted_angle", "fitness", "model", "target")
+
+
+def solution_parameters(solution: pd.DataFrame) -> list[str]:
+    """The parameter columns of a solution table."""
+    return [c for c in solution.columns if c not in SOLUTION_EXTRAS]
+
 
 @dataclass
 class Inversion:
@@ -32,7 +43,7 @@ class Inversion:
 
 def invert(predict: Callable[[np.ndarray], np.ndarray], names: Sequence[str], lows, highs, targets,
            generations=50, population=10, crossover=0.4, mutation=0.2, seed=0, tolerance=0.25, samples=20000,
-           restarts=10, identifiable_fraction: float = 0.2) -> Inversion:
+           restarts=10, identifiable_fraction: float = IDENTIFIABLE_FRACTION) -> Inversion:
     """``predict((n, k)) -> (n, c)`` angles for c conditions; ``targets`` has length c."""
     t = np.atleast_1d(np.asarray(targets, float))
     lo, hi = np.asarray(lows, float), np.asarray(highs, float)
