@@ -9,7 +9,6 @@ every simulation's cache key, so a model change never reuses runs of another mod
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,49 +17,9 @@ import tomli_w
 
 from . import artifacts as art
 from .dem.heap import LAWS
+from .dem.laws import law_effects
+from .effects import Effect
 from .errors import CalibError
-
-
-@dataclass(frozen=True)
-class Effect:
-    name: str
-    parameter: str
-    low: float
-    high: float
-    neutral: float  # the value at which the effect is off
-    step: float  # the step away from neutral that diagnose simulates
-    description: str
-    signature: str  # how its misfit shows across conditions (diagnose's words)
-    #: an absent effect's parameter is written into every simulation at its neutral value; an effect
-    #: added after heaps were cached leaves it out instead (the heap's own default is the same "off"),
-    #: so that the cache keys of the heaps made before it stay what they were
-    pinned_when_absent: bool = True
-
-    @property
-    def two_sided(self) -> bool:
-        """No neutral value (NaN: a wall's value defaults to the grains' own), so the effect can act
-        either way from where the model stands."""
-        return math.isnan(self.neutral)
-
-    def probe(self, theta: dict[str, float]) -> tuple[float, float]:
-        """The two values of the parameter whose simulations give diagnose's sensitivity
-        g = (angle(b) - angle(a)) / (b - a).
-
-        With a neutral value: a forward step from it, (neutral, neutral + step); the model's own
-        simulations stand at a. Without one (two-sided): a central difference over the same span
-        around the value the model implies (the grains' own: wall_static_friction starts at
-        theta's static_friction), clipped to the bounds. A forward step from a calibrated 0.30 to
-        0.50 lands where friction no longer matters and misses a slipperier wall."""
-        start = self.start(theta)
-        if not self.two_sided:
-            return start, start + self.step
-        return max(start - self.step / 2, self.low), min(start + self.step / 2, self.high)
-
-    def start(self, theta: dict[str, float]) -> float:
-        """The value the model implies while the effect is absent: neutral, or the grains' own."""
-        if not self.two_sided:
-            return self.neutral
-        return float(theta.get(self.parameter.replace("wall_", ""), 0.5))
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
@@ -80,13 +39,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("wall_rolling", "wall_rolling_friction", 0.0, 0.5, float("nan"), 0.1,
            "rolling resistance on the floor distinct from the grains'",
            "the toe of the heap: the residual changes with the floor material and heap size"),
-    Effect("capillary", "surface_tension", 0.0, 0.15, 0.0, 0.07,
-           "capillary liquid bridges between wet grains (Willett et al. 2000): the liquid's surface tension, "
-           "with the bridge volume and contact angle as set",
-           "steeper heaps, most for small grains (a bridge pulls with 2 pi R gamma, a grain weighs ~R^3); on 4-6 mm "
-           "grains water bridges raised every heap by about the same amount whatever its size, where JKR cohesion "
-           "grew with the fill; unlike JKR the pull does not fall with the contact stiffness and reaches across a gap",
-           pinned_when_absent=False),
+    *law_effects(),  # the effects contact laws bring (calib_cli.dem.laws), after the built-in ones
 ]}
 #: wall_* effects are neutral when they equal the particles' own value (NaN marks "tied")
 

@@ -9,7 +9,8 @@ from scipy.integrate import quad
 
 from calib_cli.dem.forces import evaluate_contact
 from calib_cli.dem.laws import FAMILIES, REGISTRY, ContactModel
-from calib_cli.dem.laws.columns import BRIDGE, HIST
+from calib_cli.dem.laws.capillary import BRIDGE
+from calib_cli.dem.laws.columns import HIST
 from calib_cli.dem.materials import Interaction, Material, contact_model, param_row
 from calib_cli.dem.system import Particles, System, Walls
 from calib_cli.errors import CalibError
@@ -117,3 +118,28 @@ def test_walls_hold_no_bridge_and_dry_grains_no_liquid():
         Interaction(surface_tension=-0.1).validate()
     with pytest.raises(CalibError, match="contact_angle"):
         Interaction(contact_angle=95.0).validate()
+
+
+def test_a_law_declares_its_own_parameters_in_its_module_alone():
+    """Adding a law is its module plus one registry entry: the interaction, the heap test's parameters,
+    the walls' rule, validation and diagnose's candidates take its values from its declaration, so no
+    other module of the package names them."""
+    import pathlib
+
+    import calib_cli
+    from calib_cli.dem.heap import LAWS, PARAMETERS, PARTICLE_DEFAULTS, WALL_ZERO
+    from calib_cli.dem.laws import REGISTRY
+    from calib_cli.model import EFFECTS
+
+    package = pathlib.Path(calib_cli.__file__).parent
+    for law in (law for family in REGISTRY.values() for law in family.values() if law.params):
+        home = pathlib.Path(__import__(law.fn.py_func.__module__, fromlist=["_"]).__file__)
+        for p in law.params:
+            assert p.name in PARAMETERS and PARTICLE_DEFAULTS[p.name] == p.default
+            assert getattr(Interaction(), p.name) == p.default
+            assert (p.name in LAWS) == p.setting and (p.name in WALL_ZERO) == p.wall_zero
+            named = [f for f in package.rglob("*.py") if f != home and p.name in f.read_text()]
+            assert not named, f"{p.name} of law {law.name} is named outside {home.name}: {named}"
+        if law.effect is not None:
+            assert EFFECTS[law.effect.name] is law.effect
+    assert EFFECTS["capillary"].parameter == "surface_tension"

@@ -20,8 +20,7 @@ from ..errors import CalibError
 from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, repose_angle_coords
-from .laws import ContactModel
-from .laws.capillary import DEFAULTS as LIQUID_DEFAULTS
+from .laws import ContactModel, law_params
 from .materials import LAW_SWITCHES, Interaction, Material, contact_model
 from .system import Particles, System, Walls
 
@@ -32,19 +31,20 @@ WALL_VALUES = ("static_friction", "rolling_friction", "surface_energy", "restitu
 PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin",
               "friction_net_force", "rolling_spring", "caps_pulloff",
               *(f"{w}_{k}" for w in ("wall", "cylinder") for k in WALL_VALUES),
-              "surface_tension", "contact_angle", "liquid_volume")
+              *(p.name for p in law_params()))
 #: the floor material's values against the grains (e.g. from an inclined-plane test on the rig's
 #: plate): heap-test variables, so conditions on different floors differ; unset (NaN): wall_*
 FLOOR_VARIABLES = tuple(f"floor_{k}" for k in WALL_VALUES)
 PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
                      "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0, "caps_pulloff": 0.0,
-                     "surface_tension": 0.0, **LIQUID_DEFAULTS}
-#: law switches (0/1) and a law's fixed settings (the liquid's contact angle, a bridge's volume), not
-#: calibrated values: the walls take the grains' choice
-LAWS = (*LAW_SWITCHES, "contact_angle", "liquid_volume")
+                     **{p.name: p.default for p in law_params()}}
+#: law switches (0/1) and a law's fixed settings (e.g. the liquid's contact angle, a bridge's volume),
+#: not calibrated values: the walls take the grains' choice
+LAWS = (*LAW_SWITCHES, *(p.name for p in law_params() if p.setting))
 #: values the walls never take from the grains: no wall sticks (a wet fill glued to the lifting cylinder is
-#: an effect of its own, and would be carried up with it), and a wall holds no liquid bridge
-WALL_ZERO = ("surface_energy", "surface_tension")
+#: an effect of its own, and would be carried up with it), and a law may say so of its own (a wall holds
+#: no liquid bridge)
+WALL_ZERO = ("surface_energy", *(p.name for p in law_params() if p.wall_zero))
 
 
 #: the numeric heap-test variables (columns of a conditions table); `floor` is a name, the floor

@@ -4,13 +4,14 @@ laws read (:mod:`.laws.columns`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field, make_dataclass
 
 import numpy as np
 
 from ..errors import CalibError
-from .laws import ContactModel, capillary
-from .laws.columns import NCOL
+from . import laws
+from .laws import REGISTRY, ContactModel, law_params
+from .laws import columns
 from .laws.damping import damping_ratio
 from .laws.normal import jkr_constants
 from .laws.rolling import rolling_spring_constants
@@ -42,8 +43,8 @@ class Material:
 
 
 @dataclass(frozen=True)
-class Interaction:
-    """Contact parameters between two materials (EDEM's 'interaction' table)."""
+class _BuiltIn:
+    """The built-in laws' values; a law's own follow (:class:`Interaction`)."""
 
     static_friction: float = 0.5
     rolling_friction: float = 0.0
@@ -61,11 +62,6 @@ class Interaction:
     #: 0: the caps above; 1: both caps (sliding and rolling) on |F_el + 2 F_c|, F_c = 3 pi g R* the
     #: JKR pull-off force (Thornton 1991, Marshall 2009; LAMMPS's jkr): the same as 0 without cohesion
     caps_pulloff: float = 0.0
-    #: a capillary liquid bridge (:mod:`.laws.capillary`): the liquid's surface tension (N/m; 0: none,
-    #: water 0.072), contact angle (deg) and a bridge's volume over a grain's
-    surface_tension: float = 0.0
-    contact_angle: float = capillary.DEFAULTS["contact_angle"]
-    liquid_volume: float = capillary.DEFAULTS["liquid_volume"]
 
     def validate(self, what: str = "interaction") -> None:
         checks = [
@@ -81,17 +77,23 @@ class Interaction:
             (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1"),
             (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
              "each other (two friction caps)"),
-            (0 <= self.surface_tension <= 1, "surface_tension must lie in [0, 1] N/m (water: 0.072)"),
-            (0 <= self.contact_angle < 90, "contact_angle must lie in [0, 90) deg"),
-            (0 < self.liquid_volume <= 0.5, "liquid_volume (a bridge's volume over a grain's) must lie in (0, 0.5]"),
+            *((p.check(getattr(self, p.name)) is None, p.check(getattr(self, p.name))) for p in law_params()),
         ]
         for ok, msg in checks:
             if not ok:
                 raise CalibError(f"{what}: {msg} (got {self})")
-        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy,
-                  self.surface_tension, self.contact_angle, self.liquid_volume):
+        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy):
             if not np.isfinite(v):
                 raise CalibError(f"{what}: parameters must be finite (got {self})")
+
+
+#: Contact parameters between two materials (EDEM's 'interaction' table): the built-in laws' values,
+#: then each law's own (:func:`calib_cli.dem.laws.law_params`: a new law adds its fields here)
+Interaction = make_dataclass(
+    "Interaction", [(p.name, float, field(default=p.default)) for p in law_params()], bases=(_BuiltIn,),
+    frozen=True, namespace={"__doc__": "Contact parameters between two materials (EDEM's 'interaction' table): "
+                                       "the built-in laws' values, then each law's own."})
+Interaction.__module__ = __name__
 
 
 def effective_moduli(m1: Material, m2: Material) -> tuple[float, float]:
@@ -108,23 +110,23 @@ def param_row(m1: Material, m2: Material, it: Interaction, m_typ: float = 0.0) -
     Es, Gs = effective_moduli(m1, m2)
     k13, att = jkr_constants(Es, it.surface_energy)
     kr, gr = rolling_spring_constants(Gs, m_typ) if it.rolling_spring else (0.0, 0.0)
-    row = np.array([Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
-                    it.surface_energy, k13, att, math.sqrt(4.0 * Gs / Es), kr, gr,
-                    *capillary.constants(it.surface_tension, it.contact_angle, it.liquid_volume)], dtype=np.float64)
-    assert len(row) == NCOL
+    row = np.zeros(columns.NCOL)
+    row[:11] = [Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
+                it.surface_energy, k13, att, math.sqrt(4.0 * Gs / Es), kr, gr]
+    values = asdict(it)
+    for law in (law for family in REGISTRY.values() for law in family.values() if law.columns):
+        row[list(law.columns)] = law.constants(**{p.name: values[p.name] for p in law.params})
     return row
 
 
 def contact_model(*its: Interaction) -> ContactModel:
-    """The laws a run's interactions (particle-particle first; the walls take the grains' law
-    switches) call for: JKR where any has a surface energy, a liquid bridge where the grains have a
-    surface tension, and the rolling law and friction caps the switches name."""
+    """The laws a run's interactions (particle-particle first) compose (each law's ``selected`` rule,
+    :func:`calib_cli.dem.laws.compose`: JKR where any has a surface energy, a liquid bridge where the
+    grains carry a liquid, the rolling law and friction caps the switches name). The walls take the
+    grains' law switches and settings."""
     pp = its[0]
-    if any(getattr(it, k) != getattr(pp, k) for it in its[1:] for k in LAW_SWITCHES):
-        raise CalibError(f"the walls take the grains' contact laws: {', '.join(LAW_SWITCHES)} must be the same on every "
+    shared = (*LAW_SWITCHES, *(p.name for p in law_params() if p.setting))
+    if any(getattr(it, k) != getattr(pp, k) for it in its[1:] for k in shared):
+        raise CalibError(f"the walls take the grains' contact laws: {', '.join(shared)} must be the same on every "
                          "interaction")
-    return ContactModel(
-        normal="jkr" if any(it.surface_energy > 0 for it in its) else "hertz",
-        cohesion="capillary" if pp.surface_tension > 0 else "none",
-        cap="pulloff" if pp.caps_pulloff else "net" if pp.friction_net_force else "repulsive",
-        rolling="sds" if pp.rolling_spring else "cdt_own" if pp.rolling_own_spin else "cdt_relative")
+    return laws.compose(*its)

@@ -19,9 +19,14 @@ the composition; its :attr:`~ContactModel.spec` string is a compile-time constan
 The family dispatchers below (``normal(spec, ...)`` and so on) resolve the name while numba types
 the caller and inline the law.
 
-Adding a law: write it in its family's module with that signature, add one :class:`Law` entry to
-:data:`REGISTRY` (with a version: a heap's cache key names each law and its version, so changing
-a law's arithmetic means raising its version), test it, document it (docs/physics.md).
+Adding a law: write it in a module with its family's signature, and add one :class:`Law` entry to
+:data:`REGISTRY` (with a version: a heap's cache key names each law and its version, so changing a
+law's arithmetic means raising its version); test it, document it (docs/physics.md). A law with
+values of its own declares them in its module (:class:`~.params.Param`: the interaction, the heap
+test's parameters, the walls' rule and the validation take them from there), takes its columns with
+:func:`.columns.allocate`, computes them in ``constants``, says when a run composes it
+(``selected``), and may bring a diagnose candidate (an :class:`~calib_cli.effects.Effect`): the
+entry names them. :mod:`.capillary` is the example.
 """
 
 from __future__ import annotations
@@ -33,8 +38,10 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
+from ...effects import Effect
 from ...errors import CalibError
 from . import cap, capillary, damping, normal, rolling, tangential
+from .params import Param
 
 FAMILIES = ("normal", "cohesion", "damping", "cap", "tangential", "rolling")
 
@@ -48,6 +55,16 @@ class Law:
     reference: str
     #: the gap beyond contact over which it acts, of an interaction row and the largest pair's R*
     reach: Callable[[np.ndarray, float], float] | None = None
+    #: whether a run of these interactions (particle-particle, then the walls) composes this law; the
+    #: first law of its family that says so wins, the family's first law is the default
+    selected: Callable[..., bool] | None = None
+    #: the interaction values only this law reads, its parameter-row columns and their values
+    #: (``constants(**values) -> tuple``, one per column)
+    params: tuple[Param, ...] = ()
+    columns: tuple[int, ...] = ()
+    constants: Callable[..., tuple] | None = None
+    #: the effect diagnose can add to a model to test for this law (None: not a candidate)
+    effect: Effect | None = None
 
 
 REGISTRY: dict[str, dict[str, Law]] = {f: {} for f in FAMILIES}
@@ -60,20 +77,45 @@ def register(law: Law) -> Law:
 
 for _law in [
     Law("normal", "hertz", normal.hertz, 1, "Hertz 1882; paper Eq. 6"),
-    Law("normal", "jkr", normal.jkr, 1, "Johnson, Kendall & Roberts 1971; paper Eqs. 2-3", normal.jkr_reach),
+    Law("normal", "jkr", normal.jkr, 1, "Johnson, Kendall & Roberts 1971; paper Eqs. 2-3", normal.jkr_reach,
+        selected=lambda *its: any(it.surface_energy > 0 for it in its)),
     Law("cohesion", "none", capillary.none, 1, "-"),
     Law("cohesion", "capillary", capillary.capillary, 1,
-        "Willett et al. 2000 (force), Lian, Thornton & Adams 1993 (rupture)", capillary.capillary_reach),
+        "Willett et al. 2000 (force), Lian, Thornton & Adams 1993 (rupture)", capillary.capillary_reach,
+        selected=capillary.selected, params=capillary.PARAMS, constants=capillary.constants,
+        columns=(capillary.BRIDGE_F, capillary.BRIDGE_RUPTURE, capillary.BRIDGE_GAP), effect=capillary.EFFECT),
     Law("damping", "edem", damping.edem, 1, "Tsuji et al. 1992; EDEM Hertz-Mindlin"),
     Law("cap", "repulsive", cap.repulsive, 1, "the built-in default"),
-    Law("cap", "net", cap.net, 1, "EDEM's JKR help, literally"),
-    Law("cap", "pulloff", cap.pulloff, 1, "Thornton 1991; LAMMPS jkr"),
+    Law("cap", "net", cap.net, 1, "EDEM's JKR help, literally", selected=lambda pp, *w: pp.friction_net_force > 0),
+    Law("cap", "pulloff", cap.pulloff, 1, "Thornton 1991; LAMMPS jkr", selected=lambda pp, *w: pp.caps_pulloff > 0),
     Law("tangential", "mindlin", tangential.mindlin, 1, "Mindlin & Deresiewicz 1953; EDEM Hertz-Mindlin"),
     Law("rolling", "cdt_relative", rolling.cdt_relative, 1, "Ai et al. 2011 type A; EDEM 'RVD'"),
-    Law("rolling", "cdt_own", rolling.cdt_own, 1, "Ai et al. 2011 type A on own spin; EDEM 'Standard'"),
-    Law("rolling", "sds", rolling.sds, 1, "Ai et al. 2011 type C; LAMMPS rolling sds"),
+    Law("rolling", "cdt_own", rolling.cdt_own, 1, "Ai et al. 2011 type A on own spin; EDEM 'Standard'",
+        selected=lambda pp, *w: pp.rolling_own_spin > 0),
+    Law("rolling", "sds", rolling.sds, 1, "Ai et al. 2011 type C; LAMMPS rolling sds",
+        selected=lambda pp, *w: pp.rolling_spring > 0),
 ]:
     register(_law)
+
+
+def law_params() -> tuple[Param, ...]:
+    """Every law's own parameters, in registry order (the interaction's fields after the built-in ones)."""
+    return tuple(p for family in REGISTRY.values() for law in family.values() for p in law.params)
+
+
+def law_effects() -> list[Effect]:
+    """The diagnose candidates the laws bring, in registry order."""
+    return [law.effect for family in REGISTRY.values() for law in family.values() if law.effect is not None]
+
+
+def compose(*interactions) -> "ContactModel":
+    """The laws a run of these interactions (particle-particle first, then the walls) composes: per
+    family the first law whose ``selected`` says so, else the family's first (its default)."""
+    chosen = {}
+    for family, laws in REGISTRY.items():
+        picked = [law.name for law in laws.values() if law.selected is not None and law.selected(*interactions)]
+        chosen[family] = picked[0] if picked else next(iter(laws))
+    return ContactModel(**chosen)
 
 
 @dataclass(frozen=True)
