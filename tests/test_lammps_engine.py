@@ -188,3 +188,20 @@ def test_pulloff_caps_are_lammps_jkr_caps(w0):
     if w0 > 1.0:
         net, lam = _spin_histories(pos, [R, 1.5e-3], w0, False, 150, gamma=0.5, caps=0.0)
         assert np.abs(net - lam).max() > 0.01 * w0
+
+
+@pytest.mark.parametrize("model, words", [
+    ({"cohesion": "capillary"}, "the cohesion law 'capillary' is built-in only"),
+    ({"rolling": "cdt_own"}, "own spin"),
+    ({"cap": "net"}, "caps_pulloff = 1"),
+])
+def test_lammps_refuses_a_law_it_has_no_counterpart_of(model, words):
+    """A composition LAMMPS cannot run is refused, not run without the law (a liquid bridge was once
+    dropped silently); checked without LAMMPS installed."""
+    from calib_cli.dem.laws import ContactModel
+    from calib_cli.engines.lammps import check_laws
+    from calib_cli.errors import CalibError
+
+    check_laws(ContactModel(normal="jkr", cap="pulloff", rolling="sds"))  # what LAMMPS maps
+    with pytest.raises(CalibError, match=words):
+        check_laws(ContactModel(**model))

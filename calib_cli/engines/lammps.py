@@ -49,7 +49,8 @@ from ..dem.angle import repose_angle_coords
 from ..dem.laws.rolling import rolling_spring_constants
 from ..dem.timestep import jkr_time_step, rayleigh_time_step
 from ..dem.heap import DriftMeter, HeapCondition, HeapResult, Numerics, fill_cylinder, interactions
-from ..dem.materials import Material, effective_moduli
+from ..dem.laws import ContactModel
+from ..dem.materials import Material, contact_model, effective_moduli
 from ..errors import CalibError
 from .clumps import SPHERES, clump_fill
 
@@ -133,6 +134,206 @@ def _rank() -> int:
     return int(os.environ.get("PMI_RANK", os.environ.get("OMPI_COMM_WORLD_RANK", "0")))
 
 
+#: the laws LAMMPS's `pair granular` has a counterpart of (module docstring); a composition with any
+#: other law (e.g. a liquid bridge, or a law added later) is refused rather than silently dropped
+LAMMPS_LAWS = {"normal": ("hertz", "jkr"), "cohesion": ("none",), "damping": ("edem",),
+               "cap": ("repulsive", "pulloff"), "tangential": ("mindlin",), "rolling": ("cdt_relative", "sds")}
+_WHY = {"cdt_own": "LAMMPS has no rolling law on each body's own spin",
+        "net": "LAMMPS caps JKR friction at |F_ne + 2 F_pulloff| (caps_pulloff = 1)"}
+
+
+def check_laws(model: ContactModel) -> None:
+    """Refuse a composition LAMMPS cannot run, naming the first law it lacks."""
+    for family, allowed in LAMMPS_LAWS.items():
+        name = getattr(model, family)
+        if name not in allowed:
+            raise CalibError(f"the {family} law {name!r} is built-in only: "
+                             f"{_WHY.get(name, 'LAMMPS pair granular has no counterpart')} (docs/physics.md)")
+
+
+@dataclass
+class _Rig:
+    """One heap's fill, time step and LAMMPS pair models: what the input script and the phases read."""
+
+    cond: HeapCondition
+    num: Numerics
+    parts: object  # Particles (spheres or a clump fill's sub-spheres)
+    mol: np.ndarray | None  # the clump of each sphere (0: a lone sphere); None without clumps
+    dens: object  # density, per sphere with clumps
+    masses: np.ndarray
+    dt: float
+    models: tuple[str, str, str]  # pair granular's model between grains, on the floor, on the cylinder
+
+    @property
+    def Rc(self) -> float:
+        return self.cond.cylinder_diameter_mm * 0.5e-3
+
+    @property
+    def vlift(self) -> float:
+        return self.cond.lift_speed_mm_s * 1e-3
+
+
+def _rig(params, cond: HeapCondition, num: Numerics, seed: int, shapes) -> _Rig:
+    """The built-in engine's fill of this seed (clumped when ``shapes`` ask), the JKR-aware time step
+    at the smallest sphere, and the three pair models."""
+    cond.validate()
+    pp, pf, pc = interactions(params, cond)
+    check_laws(contact_model(pp, pf, pc))
+    parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
+    mat = Material(num.shear_modulus, num.poisson, num.density)
+    E, nu, rho = mat.youngs_modulus, mat.poisson, mat.density
+    mol, dens = None, rho
+    if tuple(shapes) != SPHERES:
+        clumps = clump_fill(parts.pos, parts.rad, rho, tuple(shapes), np.random.default_rng([seed, 1]))
+        single = np.bincount(clumps.body)[clumps.body] == 1
+        mol = np.where(single, 0, clumps.body + 1)  # lone spheres integrate as spheres, not as bodies
+        parts, dens = type(parts)(clumps.pos, clumps.rad, vel=np.zeros_like(clumps.pos)), clumps.density
+    Es, Gs = effective_moduli(mat, mat)
+    rmin = float(parts.rad.min())
+    dt = num.safety * min(rayleigh_time_step(rmin, rho, mat.shear_modulus, nu),
+                          jkr_time_step(rmin, rho, Es, Gs, pp.surface_energy))
+    masses = dens * 4 / 3 * np.pi * parts.rad**3
+    # of the order of a contact's tangential stiffness, critically damped at the mean grain: the
+    # built-in kernel's rolling_spring law takes the same two constants
+    roll = rolling_spring_constants(Gs, float(masses.mean()))
+    m = float(masses.mean())
+    models = (_model(E, nu, pp, rmin / 2, m, roll, 2.0), _model(E, nu, pf, rmin, m, roll, 1.0),
+              _model(E, nu, pc, rmin, m, roll, 1.0))
+    return _Rig(cond, num, parts, mol, dens, masses, dt, models)
+
+
+def _input(rig: _Rig, data: str) -> list[str]:
+    """The input script up to ``run 0``: the data file, pair granular between grains, the rising
+    cylinder and the floor as granular walls, gravity, the settling drag and the integrators."""
+    model, floor, cyl = rig.models
+    ztop = float(rig.parts.pos[:, 2].max()) + 0.1
+    read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
+            "comm_modify vel yes"]
+    if rig.mol is None:
+        read += [f"read_data {data}"]
+        integrate = ["fix nve all nve/sphere"]
+    else:
+        read += ["fix pmol all property/atom mol ghost yes", f"read_data {data} fix pmol NULL Molecules",
+                 "group lone molecule == 0", "group rig molecule > 0",
+                 # a sphere has 6 degrees of freedom where the default temperature counts 3, so
+                 # rigid/small's removal of the clumps' internal ones leaves it negative; unused here
+                 "thermo_style custom step", "compute_modify thermo_temp dynamic/dof yes"]
+        # rigid/small after the force fixes (walls, gravity, drag): it sums their forces on the bodies
+        integrate = ["fix nve lone nve/sphere", "fix rig rig rigid/small molecule"]
+    return read + [
+        "thermo_modify lost ignore",
+        f"neighbor {0.3 * float(rig.parts.rad.mean()):.6g} bin", "neigh_modify delay 0 every 1 check yes",
+        *(["neigh_modify exclude molecule/intra rig"] if rig.mol is not None else []),
+        "pair_style granular", f"pair_coeff * * {model}",
+        "variable t0 equal 1e9", f"variable lz equal {rig.vlift:.10g}*(time>v_t0)*(time-v_t0)",
+        f"region cyl cylinder z 0 0 {rig.Rc:.10g} 0.0 {ztop:.10g} side in open 1 open 2 "
+        "move NULL NULL v_lz units box",
+        f"fix cylw all wall/gran/region granular {cyl} region cyl",
+        f"fix floor all wall/gran granular {floor} zplane 0.0 NULL",
+        "fix grav all gravity 9.81 vector 0 0 -1",
+        f"fix drag all viscous {rig.num.settle_drag * float(rig.masses.mean()):.6g}", *integrate,
+        f"timestep {rig.dt:.10g}", "run 0",
+    ]
+
+
+def _write_data(rig: _Rig, d: str) -> str:
+    """Rank 0 writes the data file; the other ranks wait for it (no mpi4py needed)."""
+    data = os.environ.get("CALIB_LAMMPS_DATA") or os.path.join(d, "heap.data")
+    if _rank() == 0:
+        half = max(6 * rig.Rc, 0.15)
+        write_data(data + ".tmp", rig.parts.pos, rig.parts.rad, rig.dens, (-half, -half, -0.001),
+                   (half, half, float(rig.parts.pos[:, 2].max()) + 0.1), mol=rig.mol)
+        os.replace(data + ".tmp", data)
+    else:
+        while not os.path.exists(data):
+            time.sleep(0.05)
+    return data
+
+
+class _Session:
+    """A running LAMMPS heap: advances it a chunk at a time and reads it back, the same on every rank
+    (every atom, ordered by id), so all ranks take the same decisions."""
+
+    def __init__(self, lmp, rig: _Rig, progress):
+        self.lmp, self.rig, self.progress = lmp, rig, progress
+        self.steps, self.energy, self.setup = 0, [], True  # a run after a change of fixes needs LAMMPS' setup
+        self.t_settled = np.inf
+
+    @property
+    def t(self) -> float:
+        return self.steps * self.rig.dt
+
+    def command(self, cmd: str) -> None:
+        self.lmp.command(cmd)
+        self.setup = True
+
+    def gather(self, name: str) -> np.ndarray:
+        return np.ctypeslib.as_array(self.lmp.gather_atoms(name, 1, 3)).reshape(-1, 3).copy()
+
+    def rms(self, v) -> float:
+        m = self.rig.masses
+        return float(np.sqrt(np.sum(m * np.sum(v * v, axis=1)) / m.sum()))
+
+    def chunk(self, phase: str):
+        num = self.rig.num
+        self.lmp.command(f"run {num.chunk} pre {'yes' if self.setup else 'no'} post no")
+        self.setup = False
+        self.steps += num.chunk
+        x, v = self.gather("x"), self.gather("v")
+        lifted = self.rig.vlift * max(0.0, self.t - self.t_settled) if phase != "settle" else 0.0
+        self.energy.append((self.t, 0.5 * float(np.sum(self.rig.masses * np.sum(v * v, axis=1))), lifted))
+        if self.progress:
+            self.progress(self.t, num.time_max, phase)
+        return x, v
+
+
+def _phases(s: _Session):
+    """Settle with drag, lift the cylinder until it clears the fill, rest until still (the built-in
+    engine's phases and stop criteria: dem.heap). Returns x, v, the fill's top, the lift's end and
+    the drift meter."""
+    rig, num = s.rig, s.rig.num
+    while s.t < num.settle_time_max:
+        x, v = s.chunk("settle")
+        if s.rms(v) < num.settle_speed and s.t > 0.05:
+            break
+    s.lmp.command("unfix drag")
+    s.t_settled = s.t
+    fill_top = float(np.max(x[:, 2] + rig.parts.rad))
+    s.command(f"variable t0 equal {s.t_settled:.10g}")
+    t_lift_end = np.nan
+    while s.t < num.time_max:
+        x, v = s.chunk("lift")
+        inside = x[:, 0] ** 2 + x[:, 1] ** 2 < rig.Rc * rig.Rc
+        top_inside = float(np.max(x[inside, 2] + rig.parts.rad[inside])) if inside.any() else 0.0
+        if rig.vlift * (s.t - s.t_settled) > min(fill_top, top_inside) + rig.cond.particle_d_max_mm * 1e-3:
+            t_lift_end = s.t
+            break
+    s.command("unfix cylw")
+    drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else s.t, num.rest_time_min)
+    while s.t < num.time_max:
+        drift.sample(s.t, x, rig.parts.rad)
+        if s.rms(v) < num.rest_speed and drift.done(s.t):
+            break
+        x, v = s.chunk("rest")
+    return x, v, fill_top, t_lift_end, drift
+
+
+def _verdict(s: _Session, x, v, fill_top: float, t_lift_end: float):
+    """The built-in engine's statuses: timeout (lift or rest unfinished), column, no_heap, ok."""
+    rig, num = s.rig, s.rig.num
+    status, message = "ok", ""
+    if not np.isfinite(t_lift_end):
+        status, message = "timeout", f"the cylinder had not cleared the particles at t = {s.t:.2f} s"
+    elif s.rms(v) >= num.rest_speed:
+        status, message = "timeout", f"not at rest at the time limit {num.time_max:g} s"
+    ang = repose_angle_coords(x, rig.parts.rad)
+    if ang.height > 0.7 * min(fill_top, rig.cond.fill_height_mm * 1e-3) and ang.base_radius < 1.5 * rig.Rc:
+        status, message = "column", f"no heap: the fill stood as a column ({ang.height * 1e3:.0f} mm high)"
+    elif status == "ok" and not np.isfinite(ang.angle):
+        status, message = "no_heap", "no flank could be fitted to the final state"
+    return status, message, ang
+
+
 def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: int = 0,
                     progress=None, mpi: int = 1, shapes: tuple[str, ...] = SPHERES) -> HeapResult:
     """The heap test in LAMMPS; ``mpi > 1`` runs it on that many MPI ranks (the mpich wheel's mpirun).
@@ -144,152 +345,23 @@ def run_heap_lammps(params, condition: HeapCondition, numerics: Numerics, seed: 
         if tuple(shapes) != SPHERES:
             raise CalibError("clumps run on one LAMMPS rank only")
         return _run_mpi(params, condition, numerics, seed, mpi)
-    cond, num = condition, numerics
-    cond.validate()
-    pp, pf, pc = interactions(params, cond)
-    if any(i.rolling_own_spin or i.friction_net_force for i in (pp, pf, pc)):
-        raise CalibError("rolling_own_spin = 1 and friction_net_force = 1 are built-in only: LAMMPS has no "
-                         "rolling law on each body's own spin, and caps JKR friction at |F_ne + 2 F_pulloff| "
-                         "(caps_pulloff = 1)")
     t0 = time.perf_counter()
-    parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
-    mat = Material(num.shear_modulus, num.poisson, num.density)
-    E, nu, rho = mat.youngs_modulus, mat.poisson, mat.density
-    clumps = None
-    if tuple(shapes) != SPHERES:
-        clumps = clump_fill(parts.pos, parts.rad, rho, tuple(shapes), np.random.default_rng([seed, 1]))
-        single = np.bincount(clumps.body)[clumps.body] == 1
-        mol = np.where(single, 0, clumps.body + 1)  # lone spheres integrate as spheres, not as bodies
-        parts = type(parts)(clumps.pos, clumps.rad, vel=np.zeros_like(clumps.pos))
-    n = len(parts.rad)
-    Es, Gs = effective_moduli(mat, mat)
-    rmin = float(parts.rad.min())
-    dt_crit = min(rayleigh_time_step(rmin, rho, mat.shear_modulus, nu), jkr_time_step(rmin, rho, Es, Gs,
-                                                                                      pp.surface_energy))
-    dt = num.safety * dt_crit
-    Rc = cond.cylinder_diameter_mm * 0.5e-3
-    vlift = cond.lift_speed_mm_s * 1e-3
-    d_max = cond.particle_d_max_mm * 1e-3
-    dens = clumps.density if clumps is not None else rho
-    masses = dens * 4 / 3 * np.pi * parts.rad**3
-    # of the order of a contact's tangential stiffness, critically damped at the mean grain: the
-    # built-in kernel's rolling_spring law takes the same two constants
-    roll = rolling_spring_constants(Gs, float(masses.mean()))
-    half = max(6 * Rc, 0.15)
-    ztop = float(parts.pos[:, 2].max()) + 0.1
+    rig = _rig(params, condition, numerics, seed, shapes)
     lmp = open_lammps()
     try:
         with tempfile.TemporaryDirectory() as d:
-            data = os.environ.get("CALIB_LAMMPS_DATA") or os.path.join(d, "heap.data")
-            if _rank() == 0:
-                write_data(data + ".tmp", parts.pos, parts.rad, dens, (-half, -half, -0.001), (half, half, ztop),
-                           mol=mol if clumps is not None else None)
-                os.replace(data + ".tmp", data)
-            else:  # the other ranks wait for rank 0's file (no mpi4py needed)
-                while not os.path.exists(data):
-                    time.sleep(0.05)
-            model = _model(E, nu, pp, rmin / 2, float(masses.mean()), roll, 2.0)
-            floor = _model(E, nu, pf, rmin, float(masses.mean()), roll, 1.0)
-            cyl = _model(E, nu, pc, rmin, float(masses.mean()), roll, 1.0)
-            if clumps is None:
-                read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
-                        "comm_modify vel yes", f"read_data {data}"]
-                integrate = ["fix nve all nve/sphere"]
-            else:
-                read = ["units si", "atom_style sphere", "atom_modify map array", "boundary m m m", "newton off",
-                        "comm_modify vel yes", "fix pmol all property/atom mol ghost yes",
-                        f"read_data {data} fix pmol NULL Molecules",
-                        "group lone molecule == 0", "group rig molecule > 0",
-                        # a sphere has 6 degrees of freedom where the default temperature counts 3, so
-                        # rigid/small's removal of the clumps' internal ones leaves it negative; unused here
-                        "thermo_style custom step", "compute_modify thermo_temp dynamic/dof yes"]
-                # rigid/small after the force fixes (walls, gravity, drag): it sums their forces on the bodies
-                integrate = ["fix nve lone nve/sphere", "fix rig rig rigid/small molecule"]
-            for cmd in read + [
-                "thermo_modify lost ignore",
-                f"neighbor {0.3 * float(parts.rad.mean()):.6g} bin", "neigh_modify delay 0 every 1 check yes",
-                *(["neigh_modify exclude molecule/intra rig"] if clumps is not None else []),
-                "pair_style granular", f"pair_coeff * * {model}",
-                "variable t0 equal 1e9", f"variable lz equal {vlift:.10g}*(time>v_t0)*(time-v_t0)",
-                f"region cyl cylinder z 0 0 {Rc:.10g} 0.0 {ztop:.10g} side in open 1 open 2 "
-                "move NULL NULL v_lz units box",
-                f"fix cylw all wall/gran/region granular {cyl} region cyl",
-                f"fix floor all wall/gran granular {floor} zplane 0.0 NULL",
-                "fix grav all gravity 9.81 vector 0 0 -1",
-                f"fix drag all viscous {num.settle_drag * float(masses.mean()):.6g}", *integrate,
-                f"timestep {dt:.10g}", "run 0",
-            ]:
+            data = _write_data(rig, d)
+            for cmd in _input(rig, data):
                 lmp.command(cmd)
-            steps = 0
-            energy = []
-            setup = [True]  # the first run after a change of fixes or variables needs LAMMPS' setup
-
-            def gather(name):
-                # every atom, ordered by id, on every rank: all ranks take the same decisions
-                return np.ctypeslib.as_array(lmp.gather_atoms(name, 1, 3)).reshape(-1, 3).copy()
-
-            def state():
-                return gather("x"), gather("v")
-
-            def rms(v):
-                return float(np.sqrt(np.sum(masses * np.sum(v * v, axis=1)) / masses.sum()))
-
-            def chunk(phase):
-                nonlocal steps
-                lmp.command(f"run {num.chunk} pre {'yes' if setup[0] else 'no'} post no")
-                setup[0] = False
-                steps += num.chunk
-                t = steps * dt
-                x, v = state()
-                energy.append((t, 0.5 * float(np.sum(masses * np.sum(v * v, axis=1))),
-                               vlift * max(0.0, t - t_settled) if phase != "settle" else 0.0))
-                if progress:
-                    progress(t, num.time_max, phase)
-                return x, v
-
-            t_settled = np.inf
-            while steps * dt < num.settle_time_max:
-                x, v = chunk("settle")
-                if rms(v) < num.settle_speed and steps * dt > 0.05:
-                    break
-            lmp.command("unfix drag")
-            t_settled = steps * dt
-            fill_top = float(np.max(x[:, 2] + parts.rad))
-            lmp.command(f"variable t0 equal {t_settled:.10g}")
-            setup[0] = True
-            t_lift_end = np.nan
-            while steps * dt < num.time_max:
-                x, v = chunk("lift")
-                inside = x[:, 0] ** 2 + x[:, 1] ** 2 < Rc * Rc
-                top_inside = float(np.max(x[inside, 2] + parts.rad[inside])) if inside.any() else 0.0
-                if vlift * (steps * dt - t_settled) > min(fill_top, top_inside) + d_max:
-                    t_lift_end = steps * dt
-                    break
-            lmp.command("unfix cylw")
-            setup[0] = True
-            drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else steps * dt, num.rest_time_min)
-            while steps * dt < num.time_max:
-                drift.sample(steps * dt, x, parts.rad)
-                if rms(v) < num.rest_speed and drift.done(steps * dt):
-                    break
-                x, v = chunk("rest")
-            omg = gather("omega")
+            s = _Session(lmp, rig, progress)
+            x, v, fill_top, t_lift_end, drift = _phases(s)
+            omg = s.gather("omega")
     finally:
         lmp.close()
-    t_end = steps * dt
-    status, message = "ok", ""
-    if not np.isfinite(t_lift_end):
-        status, message = "timeout", f"the cylinder had not cleared the particles at t = {t_end:.2f} s"
-    elif rms(v) >= num.rest_speed:
-        status, message = "timeout", f"not at rest at the time limit {num.time_max:g} s"
-    ang = repose_angle_coords(x, parts.rad)
-    if ang.height > 0.7 * min(fill_top, cond.fill_height_mm * 1e-3) and ang.base_radius < 1.5 * Rc:
-        status, message = "column", f"no heap: the fill stood as a column ({ang.height * 1e3:.0f} mm high)"
-    elif status == "ok" and not np.isfinite(ang.angle):
-        status, message = "no_heap", "no flank could be fitted to the final state"
-    info = _SystemInfo(n, steps, dt, float("nan"), _Parts(x, parts.rad, v, omg))
-    return HeapResult(info, status, message, ang, t_settled, t_lift_end, t_end, time.perf_counter() - t0,
-                      dict(params), cond, num, seed, energy, drift.rate())
+    status, message, ang = _verdict(s, x, v, fill_top, t_lift_end)
+    info = _SystemInfo(len(rig.parts.rad), s.steps, rig.dt, float("nan"), _Parts(x, rig.parts.rad, v, omg))
+    return HeapResult(info, status, message, ang, s.t_settled, t_lift_end, s.t, time.perf_counter() - t0,
+                      dict(params), condition, numerics, seed, s.energy, drift.rate())
 
 
 def _run_mpi(params, condition, numerics, seed, ranks: int) -> HeapResult:
