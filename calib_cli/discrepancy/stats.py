@@ -39,6 +39,8 @@ the significance level has an unreliable rank, whatever its p-value says.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 from scipy import stats
@@ -203,6 +205,19 @@ def confounded(u, J, G: dict[str, np.ndarray], threshold: float = 0.9) -> list[t
             if na > 0 and nb > 0 and abs(np.sum(w * ga * gb)) / (na * nb) > threshold:
                 out.append((a, b))
     return out
+
+
+def confound(J: np.ndarray, g: np.ndarray, u: np.ndarray, names) -> tuple[str, float]:
+    """The parameter whose sensitivity is most collinear with g (weighted), and |corr|."""
+    w = 1.0 / np.asarray(u, float) ** 2
+    best, top = "", 0.0
+    for k, name in enumerate(names):
+        j = np.asarray(J, float)[:, k]
+        den = math.sqrt(float(np.sum(w * j * j)) * float(np.sum(w * g * g)))
+        c = abs(float(np.sum(w * j * g))) / den if den > 0 else 0.0
+        if c > top:
+            best, top = name, c
+    return best, top
 
 
 def trends(res: pd.DataFrame, variables: pd.DataFrame) -> pd.DataFrame:

@@ -35,8 +35,9 @@ R = TypeVar("R")
 #: committed chain and fails when a stage's outputs moved at an unchanged version, or when a committed
 #: lock's version is not the code's (regenerate that run: make paper).
 #: measure 2: heaps that are not cones (a standing column, cut by the frame, ...) are left out of the statistics
+#: diagnose 2: the ranking names the parameter each candidate is confounded with (confounded_with, confound)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 1}
+                 "diagnose": 2, "suggest": 1}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:

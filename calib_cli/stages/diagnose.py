@@ -13,7 +13,7 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..campaign import CACHE_SOURCE
-from ..discrepancy.stats import at_bounds, confounded, difference_se, score_effects, signature_noise, trends
+from ..discrepancy.stats import at_bounds, confound, confounded, difference_se, score_effects, signature_noise, trends
 from ..errors import CalibError
 from ..model import EFFECTS, Model
 from ..requests import COND_VARS, heap_setup, modulus_settings
@@ -23,10 +23,15 @@ from .compare import measured_conditions, model_and_theta, simulate_at
 from .simulate import Pairs
 
 
+#: |weighted correlation| of a candidate's signature with a parameter's above which the evidence says
+#: the two are confounded on the measured conditions
+CONFOUND = 0.8
+
+
 @dataclass
 class DiagnoseResult(Result):
     """RUN/diagnose/: the missing effects ``ranking`` (effect, score, p_value, explained_fraction,
-    signature_p, verdict, evidence), most likely first."""
+    signature_p, confounded_with, confound, verdict, evidence), most likely first."""
 
     ranking: Optional[pd.DataFrame] = None
     revision: int = 0
@@ -155,6 +160,10 @@ def _rank(run: Path, model: Model, theta: dict, res: pd.DataFrame, conds: pd.Dat
             "the data cannot tell them apart; add conditions that separate them")
     # a signature within the scatter of the heaps that measured it ranks noise (discrepancy/stats.py)
     ranking["signature_p"] = [signature_noise(G[e], G_se[e])[1] for e in ranking["effect"]]
+    # the parameter each candidate's signature most resembles: what it is confounded with here
+    alike = [confound(J[:, free], G[e], u_all[ok], [pars[k] for k in free]) for e in ranking["effect"]]
+    ranking["confounded_with"] = [a for a, _ in alike]
+    ranking["confound"] = [c for _, c in alike]
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
     top = tr.sort_values("p_value").iloc[0] if len(tr) else None
     return ranking, tr, top, ok, J, G
@@ -182,6 +191,10 @@ def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) 
                 "rank is noise; rerun with more --repeats (cached heaps are reused)")
             txt += (f"; its signature is within the simulation noise (p = {r['signature_p']:.2g}): "
                     "the rank is unreliable")
+        if r["confound"] >= CONFOUND:
+            txt += (f"; on these conditions its signature is {r['confound']:.0%} alike "
+                    f"{r['confounded_with']}'s, so the calibration can trade one for the other: "
+                    "`calib suggest-conditions` names conditions that tell them apart")
         if top is not None and verdict == "significant":
             way = "grows" if top["slope"] > 0 else "falls"
             txt += f"; observed: the residual {way} with {top['variable']} (p = {top['p_value']:.3g})"
@@ -229,7 +242,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
         sens[f"candidate_{e}"] = g
     with st.commit() as out:
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
-                                              "verdict", "evidence"]],
+                                              "confounded_with", "confound", "verdict", "evidence"]],
                   model_revision=model.revision)
         out.table("sensitivities.parquet", sens)
         out.table("trends.parquet", tr)

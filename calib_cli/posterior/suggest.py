@@ -1,0 +1,225 @@
+"""Which conditions to measure next: rank the conditions a rig can make by what one more measured
+condition is expected to teach, about the parameters and about the missing effects.
+
+About the parameters (expected shrinkage). Linearise the heap model at the posterior mean: one more
+condition c, measured with n piles of scatter s, adds the row J_c (the angle's sensitivity to each
+parameter at c) with variance u_c^2 = s^2 / n + v_c (v_c: the surrogate's own variance there), and
+the posterior covariance S becomes (Laplace / Kalman update)
+
+    S' = (S^-1 + J_c^T J_c / u_c^2)^-1,    gain = 1/2 log(det S / det S')  (nats),
+
+each parameter's interval shrinking by 1 - sqrt(S'_ii / S_ii).
+
+About a missing effect e (expected separation). Its signature g_e over the measured conditions is
+what the current parameters cannot absorb once projected off their sensitivities J (the score test
+of ``calib diagnose``); at a step D of its parameter the test's expected statistic is
+
+    lambda = D^2 g_perp^T W g_perp,    g_perp = g - J (J^T W J)^-1 J^T W g,   W = diag(1/u^2),
+
+and adding c raises it by d lambda: how much more clearly the effect stands apart from what the
+parameters absorb. A confound is a pair (effect, parameter) whose signatures are collinear on the
+measured conditions (|weighted correlation| near 1); the condition that lowers it most breaks it.
+
+Sensitivities at an unmeasured condition come from the measured ones (a linear fit in the
+condition variables that vary among them) when the condition lies within their range; elsewhere
+they are unknown until simulated (``simulate``: diagnose's own finite differences at c).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..discrepancy.stats import confound
+from ..errors import CalibError
+
+#: the rig's variables a rig file may list, with the heap-test variable each sets
+RIG_VARIABLES = ("cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s")
+
+
+@dataclass(frozen=True)
+class Rig:
+    """What a rig can make: values per variable, grain size fractions (d_min, d_max) and piles a condition."""
+
+    values: dict[str, tuple[float, ...]]
+    sizes: tuple[tuple[float, float], ...]
+    piles: int = 10
+
+    def conditions(self) -> pd.DataFrame:
+        """Every combination, one row each, with a condition_id in the lab's naming (d4-5_D40_H100)."""
+        names = list(self.values)
+        rows = []
+        for (dmin, dmax), combo in itertools.product(self.sizes, itertools.product(*self.values.values())):
+            row = {"particle_d_min_mm": dmin, "particle_d_max_mm": dmax, **dict(zip(names, combo))}
+            rows.append(row)
+        df = pd.DataFrame(rows)
+        single = {k for k, v in self.values.items() if len(v) == 1 and k == "lift_speed_mm_s"}
+        df.insert(0, "condition_id", [_cid(r, single) for r in rows])
+        return df
+
+
+def _cid(r: dict, single: set[str]) -> str:
+    """The lab's naming (d4-5_D40_H100); a variable the rig holds at one value is left out."""
+    out = f"d{r['particle_d_min_mm']:g}-{r['particle_d_max_mm']:g}"
+    for k, tag in (("cylinder_diameter_mm", "D"), ("fill_height_mm", "H"), ("lift_speed_mm_s", "V")):
+        if k in r and k not in single:
+            out += f"_{tag}{r[k]:g}"
+    return out
+
+
+def parse_rig(d: dict, where: str = "rig file") -> Rig:
+    """A rig from its TOML table (docs/cli.md): ``particle_sizes_mm = [[4, 5], [5, 6]]``, lists of
+    ``cylinder_diameter_mm``, ``fill_height_mm``, ``lift_speed_mm_s``, and ``piles``."""
+    rig = d.get("rig", d)
+    unknown = sorted(set(rig) - {*RIG_VARIABLES, "particle_sizes_mm", "piles"})
+    if unknown:
+        raise CalibError(f"{where}: unknown key(s) {', '.join(unknown)}; a rig lists particle_sizes_mm, "
+                         f"{', '.join(RIG_VARIABLES)} and piles")
+    try:
+        sizes = tuple((float(a), float(b)) for a, b in rig.get("particle_sizes_mm", []))
+        values = {k: tuple(float(v) for v in rig[k]) for k in RIG_VARIABLES if k in rig}
+        piles = int(rig.get("piles", 10))
+    except (TypeError, ValueError):
+        raise CalibError(f"{where}: particle_sizes_mm must be pairs [d_min, d_max] and the other variables lists "
+                         "of numbers") from None
+    if not sizes or any(not (0 < a <= b) or not math.isfinite(b) for a, b in sizes):
+        raise CalibError(f"{where}: particle_sizes_mm must list at least one pair [d_min, d_max] with 0 < d_min <= d_max")
+    if any(not vs or any(not (v > 0 and math.isfinite(v)) for v in vs) for vs in values.values()):
+        raise CalibError(f"{where}: every rig variable needs at least one positive, finite value")
+    if piles < 1:
+        raise CalibError(f"{where}: piles must be at least 1")
+    return Rig(values, sizes, piles)
+
+
+# ------------------------------------------------------------------ sensitivities at new conditions
+def varying(conds: pd.DataFrame, variables) -> list[str]:
+    """The condition variables that take more than one value among ``conds``."""
+    return [v for v in variables if v in conds and conds[v].nunique() > 1]
+
+
+def extrapolate(measured: pd.DataFrame, sens: pd.DataFrame, candidates: pd.DataFrame, variables) -> tuple[
+        pd.DataFrame, np.ndarray, np.ndarray]:
+    """Each sensitivity column at each candidate, from a linear fit in the variables that vary among
+    the measured conditions (least squares; their mean where none varies). Returns the values,
+    ``known`` (False where the candidate sets a variable the measurements never varied: nothing says
+    how the sensitivities move along it until it is simulated) and ``extrapolated`` (outside the
+    measured range of a variable they did vary)."""
+    vary = varying(measured, variables)
+    X = np.column_stack([np.ones(len(measured))] + [measured[v].to_numpy(float) for v in vary])
+    coef, *_ = np.linalg.lstsq(X, sens.to_numpy(float), rcond=None)
+    Xc = np.column_stack([np.ones(len(candidates))] + [candidates[v].to_numpy(float) for v in vary])
+    known = np.ones(len(candidates), bool)
+    extrapolated = np.zeros(len(candidates), bool)
+    for v in (v for v in variables if v in candidates and v in measured):
+        x, lo, hi = candidates[v].to_numpy(float), measured[v].min(), measured[v].max()
+        outside = (x < lo - 1e-9) | (x > hi + 1e-9)
+        if v in vary:
+            extrapolated |= outside
+        else:
+            known &= ~outside
+    return pd.DataFrame(Xc @ coef, columns=sens.columns, index=candidates.index), known, extrapolated
+
+
+# ------------------------------------------------------------------ expected gains
+def parameter_gain(cov: np.ndarray, Jc: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per candidate (rows of Jc, variances u2): the information gain (nats) and each parameter's
+    expected interval shrinkage (module docstring: S' = (S^-1 + J^T J / u^2)^-1)."""
+    cov = np.atleast_2d(np.asarray(cov, float))
+    P = np.linalg.pinv(cov)
+    _, logdet = np.linalg.slogdet(cov)
+    gains, shrink = np.full(len(Jc), np.nan), np.full((len(Jc), cov.shape[0]), np.nan)
+    for i, (j, v) in enumerate(zip(np.asarray(Jc, float), np.asarray(u2, float))):
+        if not (np.all(np.isfinite(j)) and np.isfinite(v) and v > 0):
+            continue
+        post = np.linalg.pinv(P + np.outer(j, j) / v)
+        gains[i] = 0.5 * (logdet - np.linalg.slogdet(post)[1])
+        shrink[i] = 1.0 - np.sqrt(np.clip(np.diag(post) / np.diag(cov), 0.0, 1.0))
+    return gains, shrink
+
+
+def separation(J: np.ndarray, g: np.ndarray, u: np.ndarray, step: float) -> float:
+    """The score test's expected statistic for an effect of signature g at a step of its parameter:
+    lambda = step^2 g_perp^T W g_perp (module docstring)."""
+    J = np.asarray(J, float).reshape(len(g), -1)
+    w = 1.0 / np.asarray(u, float) ** 2
+    gp = np.asarray(g, float)
+    if J.shape[1]:
+        gp = gp - J @ np.linalg.lstsq(J.T @ (w[:, None] * J), J.T @ (w * gp), rcond=None)[0]
+    return float(step**2 * np.sum(w * gp * gp))
+
+
+# ------------------------------------------------------------------ the ranking
+@dataclass
+class Evidence:
+    """What the ranking reads: the measured conditions with the sensitivities diagnose simulated there
+    (``J``: per calibrated parameter, ``G``: per candidate effect), the uncertainty of each measured
+    mean, the pile scatter a new condition is measured with, and the posterior's covariance."""
+
+    measured: pd.DataFrame
+    J: pd.DataFrame  # diagnose's, per measured condition; columns: the model's parameters
+    G: pd.DataFrame  # diagnose's; columns: the candidate effects
+    u: np.ndarray  # the uncertainty of each measured mean (deg)
+    scatter: float  # pile-to-pile sd (deg)
+    params: list[str]  # the posterior's parameters, in cov's order
+    cov: np.ndarray
+    steps: dict[str, float]  # each effect's probe step (Effect.step)
+
+
+def rank_conditions(ev: Evidence, candidates: pd.DataFrame, Jp: np.ndarray, vp: np.ndarray, piles: int,
+                    variables) -> pd.DataFrame:
+    """One row per candidate (not yet measured): the expected information gain about the parameters
+    (nats) and each one's interval shrinkage, from the surrogate's sensitivities ``Jp`` and variance
+    ``vp`` at the candidates; each candidate effect's separation gain, from diagnose's sensitivities
+    carried to the candidates (:func:`extrapolate`; NaN where they cannot be). Sorted by the sum of
+    the two ranks (information, best separation)."""
+    u2 = ev.scatter**2 / piles + np.asarray(vp, float)
+    gains, shrink = parameter_gain(ev.cov, Jp, u2)
+    out = candidates.assign(info_gain_nats=gains, surrogate_sd=np.sqrt(np.asarray(vp, float)))
+    for k, p in enumerate(ev.params):
+        out[f"shrink_{p}"] = shrink[:, k]
+    Jc, known, extrapolated = extrapolate(ev.measured, ev.J, candidates, variables)
+    Gc, _, _ = extrapolate(ev.measured, ev.G, candidates, variables)
+    out = out.assign(known=known, extrapolated=extrapolated)
+    J0, u0 = ev.J.to_numpy(float), np.asarray(ev.u, float)
+    for e in ev.G.columns:
+        g0 = ev.G[e].to_numpy(float)
+        base = separation(J0, g0, u0, ev.steps[e])
+        out[f"separation_{e}"] = [
+            separation(np.vstack([J0, Jc.iloc[i].to_numpy()]), np.append(g0, Gc[e].iloc[i]),
+                       np.append(u0, math.sqrt(u2[i])), ev.steps[e]) - base if known[i] else np.nan
+            for i in range(len(candidates))]
+    seps = out[[f"separation_{e}" for e in ev.G.columns]]
+    top = seps.fillna(-np.inf).to_numpy().argmax(axis=1) if len(seps.columns) else np.zeros(len(out), int)
+    out["best_separation"] = seps.max(axis=1) if len(seps.columns) else np.nan
+    out["best_effect"] = [list(ev.G.columns)[k] if np.isfinite(b) else ""
+                          for k, b in zip(top, out["best_separation"])]
+    order = out["info_gain_nats"].rank(ascending=False, na_option="bottom") + out["best_separation"].rank(
+        ascending=False, na_option="bottom")
+    return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
+
+
+def explain(ev: Evidence, row: pd.Series, effect: str, variables, words: dict[str, str] | None = None) -> str:
+    """A plain-language reason for a candidate: the variable it moves furthest from the measured
+    conditions, and how the effect's and its most confounded parameter's sensitivities change along it."""
+    vary = varying(ev.measured, variables)
+    if not vary:
+        return "the measured conditions vary no variable: any new condition adds a first contrast"
+    span = {v: (row[v] - ev.measured[v].mean()) / (ev.measured[v].max() - ev.measured[v].min()) for v in vary}
+    var = max(span, key=lambda k: abs(span[k]))
+    param, corr = confound(ev.J.to_numpy(float), ev.G[effect].to_numpy(float), ev.u, list(ev.J.columns))
+
+    def trend(y):
+        x = ev.measured[var].to_numpy(float)
+        s = np.polyfit(x, np.asarray(y, float), 1)[0] * (x.max() - x.min())
+        scale = max(float(np.mean(np.abs(y))), 1e-12)
+        return "does not change" if abs(s) < 0.2 * scale else ("rises" if s > 0 else "falls")
+
+    name = (words or {}).get(var, var.replace("_", " "))
+    te, tp = trend(ev.G[effect]), trend(ev.J[param]) if param else "does not change"
+    return (f"a {name} of {row[var]:g} separates {effect.replace('_', ' ')} from {param.replace('_', ' ')} "
+            f"(signatures {corr:.0%} alike on the measured conditions): the effect's sensitivity {te} with {name}, "
+            f"{param.replace('_', ' ')}'s {tp}")

@@ -1,0 +1,153 @@
+"""suggest-conditions' pure functions against closed forms (calib_cli.posterior.suggest)."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from calib_cli.errors import CalibError
+from calib_cli.discrepancy.stats import confound
+from calib_cli.posterior.suggest import extrapolate, parameter_gain, parse_rig, separation
+
+VARS = ["particle_d_min_mm", "cylinder_diameter_mm", "fill_height_mm"]
+
+
+def test_one_parameter_gain_is_the_kalman_update():
+    s2, j, u2 = 0.04, 30.0, 2.0
+    gains, shrink = parameter_gain(np.array([[s2]]), np.array([[j]]), np.array([u2]))
+    post = 1.0 / (1.0 / s2 + j * j / u2)
+    assert gains[0] == pytest.approx(0.5 * math.log(s2 / post), rel=1e-12)
+    assert shrink[0, 0] == pytest.approx(1 - math.sqrt(post / s2), rel=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-50, 50), min_size=2, max_size=2), st.floats(0.1, 10))
+def test_a_measurement_never_widens_the_posterior(j, u2):
+    cov = np.array([[0.02, 0.005], [0.005, 0.01]])
+    gains, shrink = parameter_gain(cov, np.array([j]), np.array([u2]))
+    assert gains[0] >= -1e-12 and np.all(shrink[0] >= -1e-12) and np.all(shrink[0] <= 1)
+
+
+def test_unknown_sensitivities_give_no_gain_rather_than_a_guess():
+    gains, shrink = parameter_gain(np.eye(2), np.array([[np.nan, 1.0]]), np.array([1.0]))
+    assert np.isnan(gains[0]) and np.isnan(shrink[0]).all()
+
+
+def test_separation_without_parameters_is_the_signature_in_noise_units():
+    g, u = np.array([1.0, 2.0, 3.0]), np.array([0.5, 1.0, 2.0])
+    assert separation(np.zeros((3, 0)), g, u, 0.5) == pytest.approx(0.25 * (4 + 4 + 9 / 4))
+
+
+def test_an_effect_a_parameter_can_absorb_has_no_separation():
+    J = np.array([[1.0], [2.0], [3.0]])
+    assert separation(J, 4.0 * J[:, 0], np.ones(3), 1.0) == pytest.approx(0.0, abs=1e-20)
+    assert separation(J, np.array([1.0, -1.0, 0.0]), np.ones(3), 1.0) > 1.0  # not in J's span
+    assert confound(J, 4.0 * J[:, 0], np.ones(3), ["mu"]) == ("mu", pytest.approx(1.0))
+
+
+def test_extrapolation_is_exact_for_a_linear_sensitivity_and_flags_what_it_cannot_know():
+    measured = pd.DataFrame({"particle_d_min_mm": [4, 4, 5, 5], "cylinder_diameter_mm": [40] * 4,
+                             "fill_height_mm": [50, 100, 50, 100]})
+    sens = pd.DataFrame({"g": 3 - 0.5 * measured["particle_d_min_mm"] + 0.02 * measured["fill_height_mm"]})
+    cand = pd.DataFrame({"particle_d_min_mm": [4.5, 3.0, 4.0], "cylinder_diameter_mm": [40, 40, 60],
+                         "fill_height_mm": [75, 150, 75]})
+    val, known, extrapolated = extrapolate(measured, sens, cand, VARS)
+    assert val["g"].tolist() == pytest.approx([3 - 2.25 + 1.5, 3 - 1.5 + 3.0, 3 - 2 + 1.5])
+    assert known.tolist() == [True, True, False]  # the cylinder never varied
+    assert extrapolated.tolist() == [False, True, False]
+
+
+def test_a_rig_lists_every_combination_in_the_labs_naming():
+    rig = parse_rig({"rig": {"particle_sizes_mm": [[4, 5], [2, 3]], "cylinder_diameter_mm": [40, 60],
+                             "fill_height_mm": [100], "piles": 8}})
+    c = rig.conditions()
+    assert len(c) == 4 and rig.piles == 8
+    assert "d4-5_D40_H100" in c["condition_id"].tolist() and "d2-3_D60_H100" in c["condition_id"].tolist()
+
+
+@pytest.mark.parametrize("bad, words", [
+    ({"particle_sizes_mm": [[5, 4]]}, "0 < d_min <= d_max"),
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": []}, "at least one positive"),
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": ["tall"]}, "lists of numbers"),
+    ({"particle_sizes_mm": [[4, 5]], "floor": ["steel"]}, "unknown key(s) floor"),
+    ({"particle_sizes_mm": [[4, 5]], "piles": 0}, "piles must be at least 1"),
+])
+def test_a_bad_rig_file_is_a_one_line_error(bad, words):
+    with pytest.raises(CalibError) as e:
+        parse_rig({"rig": bad})
+    assert words in str(e.value) and "\n" not in str(e.value)
+
+
+# ------------------------------------------------------------------ the stage and the command
+def _run_with_posterior(tmp_path_factory):
+    """test_posterior's tiny run (fills 50 and 100 mm measured), its posterior, and diagnose's
+    sensitivities there: cohesion's signature falls with the fill, rolling friction's does not."""
+    from test_posterior import QUIET, _tiny_run
+
+    from calib_cli import artifacts as art
+    from calib_cli.stages.posterior import posterior
+
+    run = _tiny_run(tmp_path_factory.mktemp("suggest") / "run")
+    posterior(run, walkers=8, steps=60, **QUIET)
+    sens = pd.DataFrame({"condition_id": ["H50", "H100"], "d_static_friction": [20.0, 20.0],
+                         "d_rolling_friction": [32.5, 35.0], "d_restitution": [-2.0, -2.0],
+                         "candidate_cohesion": [12.0, 3.0]})
+    art.write_table(run / "diagnose" / "sensitivities.parquet", sens)
+    return run
+
+
+@pytest.fixture(scope="module")
+def ranked(tmp_path_factory):
+    from calib_cli.stages.suggest import suggest_conditions
+
+    run = _run_with_posterior(tmp_path_factory)
+    rig = run.parent / "rig.toml"
+    rig.write_text("[rig]\nparticle_sizes_mm = [[4, 5]]\ncylinder_diameter_mm = [40, 60]\n"
+                   "fill_height_mm = [50, 75, 100]\nlift_speed_mm_s = [50]\npiles = 4\n")
+    return run, rig, suggest_conditions(run, rig, top=2, say=lambda *a, **k: None)
+
+
+def test_the_ranking_leaves_out_what_is_measured_and_what_no_heap_knows(ranked):
+    run, rig, r = ranked
+    t = r.table.set_index("condition_id")
+    assert "d4-5_D40_H50" not in t.index and "d4-5_D40_H100" not in t.index  # measured already
+    assert t.loc["d4-5_D40_H75", "info_gain_nats"] > 0 and t.loc["d4-5_D40_H75", "known"]
+    assert t.loc["d4-5_D60_H75", ["info_gain_nats", "separation_cohesion"]].isna().all()  # no 60 mm heap
+    assert "simulate heaps there first" in t.loc["d4-5_D60_H75", "reason"]
+    assert r.table["condition_id"].iloc[0] == "d4-5_D40_H75"
+
+
+def test_its_conditions_file_is_what_measure_angle_reads(ranked, tmp_path):
+    run, rig, r = ranked
+    c = pd.read_csv(run / "suggest" / "conditions.csv")
+    assert list(c.columns[:2]) == ["image", "condition_id"] and len(c) == 2 * 4  # top 2, 4 piles each
+    assert c["image"].iloc[0] == "d4-5_D40_H75_r1.png"
+    lock = (run / "suggest" / "rank.lock.json")
+    assert lock.is_file()
+
+
+def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+
+    run, rig, _ = ranked
+    mine = tmp_path / "run"
+    shutil.copytree(run, mine)
+    r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig), "--force"],
+                           env={"COLUMNS": "160"})
+    assert r.exit_code == 0, r.output
+    assert "d4-5_D40_H75" in r.output and "conditions.csv" in r.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[rig]\nparticle_sizes_mm = [[4, 5]]\nfill_height_mm = [50, 100]\ncylinder_diameter_mm = [40]\n"
+                   "lift_speed_mm_s = [50]\n")
+    r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(bad)])
+    assert r.exit_code == 2 and "measured already" in r.output
+    shutil.rmtree(mine / "posterior")
+    r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig)])
+    assert r.exit_code == 2 and "calibrate-posterior" in r.output
