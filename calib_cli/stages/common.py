@@ -36,7 +36,7 @@ R = TypeVar("R")
 #: lock's version is not the code's (regenerate that run: make paper).
 #: measure 2: heaps that are not cones (a standing column, cut by the frame, ...) are left out of the statistics
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 1}
+                 "diagnose": 1, "posterior": 1}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:
