@@ -153,7 +153,8 @@ def test_the_stage_writes_its_tables_and_figure_then_its_lock(done):
     assert set(lock["outputs"]) == {"samples.parquet", "summary.parquet", "surrogates.parquet", "corner.png"}
     assert set(lock["inputs"]) == {"results", "conditions", "model"} and lock["inputs"]["model"] is None
     assert list(r.summary()["parameter"]) == ["static_friction", "rolling_friction", "restitution"]
-    assert set(r.surrogates["surrogate"]) == {"gp", "rsm", "bp"}
+    assert set(r.surrogates["surrogate"]) == {"gp", "rsm", "bp"} and (r.surrogates["folds"] == 5).all()
+    assert (r.surrogates["piles"] == 60).all() and (r.surrogates["rmse"] < 3).all()
     assert len(r.samples) > 0 and "log_prob" in r.samples.columns
     assert art.read_provenance(run / "posterior" / "summary.parquet")["model_revision"] == 0
     assert posterior(run, walkers=8, steps=60, **QUIET).skipped

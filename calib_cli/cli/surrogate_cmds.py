@@ -121,8 +121,8 @@ def calibrate_posterior(
                                          "parameters).")] = 32,
     steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker; the first quarter (or three "
                                        "autocorrelation times) is burn-in.")] = 5000,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the sampler and of the held-out split: the same "
-                                      "seed gives the same draws.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the sampler and of the surrogates' held-out "
+                                      "folds: the same seed gives the same draws.")] = 0,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
@@ -141,8 +141,10 @@ def calibrate_posterior(
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
-    console.print(df_table(r.surrogates[["surrogate", "rmse", "noise_sd", "train_piles", "test_piles"]],
-                           "surrogates on held-out design points: RMSE per pile [deg] (noise_sd: the piles' "
-                           "own scatter, the floor)"))
+    cv = r.surrogates
+    console.print(df_table(cv[["surrogate", "rmse", "noise_sd", "piles"]],
+                           f"surrogates on held-out design points ({cv['folds'].iloc[0]}-fold over "
+                           f"{cv['design_points'].iloc[0]}): RMSE per pile [deg] (noise_sd: the piles' own "
+                           "scatter, the floor)"))
     for line in r.conclusion():
         console.print(line)
