@@ -19,11 +19,11 @@ from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
 from .run_cmd import run_pipeline
 from .simulate_cmd import simulate_heap
-from .surrogate_cmds import fit_surrogate, invert, predict
+from .surrogate_cmds import calibrate_posterior, fit_surrogate, invert, predict
 
 #: the order `calib --help` lists the commands in: the order a calibration uses them
 WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "pb", "ascent", "bbd", "simulate-heap", "fit-surrogate",
-            "predict", "invert", "model", "compare", "diagnose", "report", "diff-runs"]
+            "predict", "invert", "calibrate-posterior", "model", "compare", "diagnose", "report", "diff-runs"]
 
 
 class _InWorkflowOrder(TyperGroup):
@@ -89,6 +89,8 @@ _add("simulate-heap", simulate_heap, SIMULATE, "Simulate heap tests (a design, o
 _add("fit-surrogate", fit_surrogate, SURROGATE, "Fit RSM, BP and PSO-BP surrogates and compare them held out.")
 _add("predict", predict, SURROGATE, "Evaluate the saved surrogates at a point.")
 _add("invert", invert, SURROGATE, "GA inversion to the target angle, validated (and corrected) by simulation.")
+_add("calibrate-posterior", calibrate_posterior, SURROGATE,
+     "Posterior of the model's parameters given every condition (Gaussian process, MCMC).")
 app.add_typer(model_app, name="model", rich_help_panel=LOOP)
 _add("compare", compare, LOOP, "The calibrated model against the measurements, per condition.")
 _add("diagnose", diagnose, LOOP, "Rank the effects missing from the model, with the evidence.")

@@ -1,5 +1,5 @@
-"""`calib fit-surrogate`, `calib predict`, `calib invert`: the options of calib_cli.stages.surrogate
-and calib_cli.stages.invert, and their tables."""
+"""`calib fit-surrogate`, `calib predict`, `calib invert`, `calib calibrate-posterior`: the options of
+calib_cli.stages.surrogate, .invert and .posterior, and their tables."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import typer
 from ..errors import CalibError
 from ..requests import parse_pairs, parse_params
 from ..stages.invert import invert as solve
+from ..stages.posterior import posterior as posterior_stage
 from ..stages.surrogate import fit_surrogate as fit
 from ..stages.surrogate import load_models
 from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
@@ -111,4 +112,39 @@ def invert(
     if refinement is not None:
         console.print(df_table(refinement, f"Refinement by simulation: {int(refinement['round'].max())} correction(s)"))
     for line in r.verdict:
+        console.print(line)
+
+
+def calibrate_posterior(
+    run: RunOpt,
+    walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers (at least twice the "
+                                         "parameters).")] = 32,
+    steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker; the first quarter (or three "
+                                       "autocorrelation times) is burn-in.")] = 5000,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the sampler and of the surrogates' held-out "
+                                      "folds: the same seed gives the same draws.")] = 0,
+    force: ForceOpt = False,
+):
+    """The posterior over the current model's parameters given every measured condition: a
+    Gaussian process of the angle over the parameters and the condition variables, trained on all
+    the run's simulated heaps of the model, and the likelihood of each condition's mean angle
+    (measured scatter over n, plus the surrogate's own uncertainty), sampled by emcee under a
+    uniform prior over each effect's range (`calib model show`). A parameter is identified when
+    its 90 % interval spans at most a fifth of that range; an effect the model gained gets the
+    Bayes factor of its being off (docs/method.md, 'The posterior').
+
+    Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet and RUN/model.toml. Writes
+    RUN/posterior/summary.parquet, samples.parquet, surrogates.parquet (held-out RMSE of the GP,
+    RSM and BP network) and corner.png. Skipped when its inputs and options are unchanged.
+    """
+    r = posterior_stage(run, walkers, steps, seed, force, say=say)
+    if r.skipped:
+        return skipped(r.stage)
+    console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
+    cv = r.surrogates
+    console.print(df_table(cv[["surrogate", "rmse", "noise_sd", "piles"]],
+                           f"surrogates on held-out design points ({cv['folds'].iloc[0]}-fold over "
+                           f"{cv['design_points'].iloc[0]}): RMSE per pile [deg] (noise_sd: the piles' own "
+                           "scatter, the floor)"))
+    for line in r.conclusion():
         console.print(line)
