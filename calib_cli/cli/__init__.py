@@ -14,7 +14,7 @@ from ..stages.run_dir import init_run
 from .common import (ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
                      handle_errors)
 from .diff_cmd import diff_runs_cmd
-from .discrepancy_cmds import compare, diagnose, model_app, synth_lab
+from .discrepancy_cmds import compare, diagnose, model_app, suggest_conditions, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
 from .measure_cmd import measure_angle
 from .run_cmd import run_pipeline
@@ -23,7 +23,8 @@ from .surrogate_cmds import calibrate_posterior, fit_surrogate, invert, predict
 
 #: the order `calib --help` lists the commands in: the order a calibration uses them
 WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "pb", "ascent", "bbd", "simulate-heap", "fit-surrogate",
-            "predict", "invert", "calibrate-posterior", "model", "compare", "diagnose", "report", "diff-runs"]
+            "predict", "invert", "calibrate-posterior", "model", "compare", "diagnose", "suggest-conditions", "report",
+            "diff-runs"]
 
 
 class _InWorkflowOrder(TyperGroup):
@@ -94,6 +95,7 @@ _add("calibrate-posterior", calibrate_posterior, SURROGATE,
 app.add_typer(model_app, name="model", rich_help_panel=LOOP)
 _add("compare", compare, LOOP, "The calibrated model against the measurements, per condition.")
 _add("diagnose", diagnose, LOOP, "Rank the effects missing from the model, with the evidence.")
+_add("suggest-conditions", suggest_conditions, LOOP, "The next conditions to measure, ranked by what they would teach.")
 _add("report", _report, REPORT, "Write RUN/report.html: the answer first, then every stage.")
 _add("diff-runs", diff_runs_cmd, REPORT, "A run's headline numbers beside a reference run's.")
 

@@ -15,6 +15,7 @@ from ..model import EFFECTS, Model, load_model, save_model
 from ..stages import compare as compare_stage
 from ..stages import diagnose as diagnose_stage
 from ..stages import lab
+from ..stages import suggest as suggest_stage
 from .common import (PRESETS_HELP, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, check_run_dir, console, df_table, handle_errors,
                      say, skipped)
 
@@ -113,6 +114,35 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
     console.print(df_table(r.summary(), f"missing effects, ranked (model revision {r.revision})"))
     for line in r.conclusion():
         console.print(line)
+
+
+def suggest_conditions(
+    run: RunOpt,
+    rig: Annotated[Path, typer.Option(help="TOML file of the conditions the rig can make: particle_sizes_mm = "
+                                      "[[4, 5], [5, 6]], lists of cylinder_diameter_mm, fill_height_mm, "
+                                      "lift_speed_mm_s, and piles (per condition).")],
+    piles: Annotated[Optional[int], typer.Option(min=1, help="Piles to measure a condition with (default: the "
+                                                 "rig file's piles, else 10).")] = None,
+    top: Annotated[int, typer.Option(min=1, help="Conditions to write into RUN/suggest/conditions.csv.")] = 5,
+    force: ForceOpt = False,
+):
+    """Rank the conditions the rig can make by what measuring them would teach: the expected
+    information about the model's parameters (how much each one's posterior interval would narrow)
+    and how far each would separate a missing effect from what the parameters absorb, with a reason
+    in words.
+
+    Reads RUN/posterior/ (run `calib calibrate-posterior` first), the simulated heaps, and
+    RUN/diagnose/sensitivities.parquet when diagnose has run. Writes RUN/suggest/ranking.parquet and
+    RUN/suggest/conditions.csv: the top conditions, one row per pile, in measure-angle's
+    --conditions format, to go and measure.
+    """
+    r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say)
+    if r.skipped:
+        return skipped(r.stage)
+    console.print(df_table(r.summary(), "the next conditions to measure, best first"))
+    for line in r.conclusion():
+        console.print(line)
+    console.print(f"[green]✓[/] {r.dir / 'conditions.csv'}")
 
 
 def synth_lab(
