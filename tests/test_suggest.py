@@ -151,3 +151,13 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
     shutil.rmtree(mine / "posterior")
     r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig)])
     assert r.exit_code == 2 and "calibrate-posterior" in r.output
+
+
+def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
+    from calib_cli.report import build_report
+
+    run, _, r = ranked
+    page = build_report(run)
+    assert "<h3>Posterior</h3>" in page or ">Posterior<" in page
+    assert "90 % interval" in page and "Measure next" in page
+    assert r.table["condition_id"].iloc[0] in page

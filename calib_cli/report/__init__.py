@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import CalibError
-from .cards import fit_card, history_card, params_card, ranking_card
+from .cards import fit_card, history_card, params_card, posterior_card, ranking_card
 from .details import RAW_STAGES, discrepancy, measurement, raw_tables, simulations
 from .html import RunFiles, esc
 from .photos import photos_card
@@ -51,10 +51,10 @@ details{margin:4px 0}summary{cursor:pointer}details.raw{border-bottom:1px solid 
 
 
 def first_screen(f: RunFiles) -> str:
-    """Headline and verdict, then parameters, fit, error history, ranking and photographs."""
+    """Headline and verdict, then parameters, fit, error history, ranking, posterior and photographs."""
     fit = fit_rows(f)
     return (f"<section id=summary>{headline(f, fit)}<div class=grid>{params_card(f)}{fit_card(f, fit)}"
-            f"<div class=stack>{history_card(f)}{ranking_card(f)}</div>{photos_card(f)}</div></section>")
+            f"<div class=stack>{history_card(f)}{ranking_card(f)}{posterior_card(f)}</div>{photos_card(f)}</div></section>")
 
 
 def build_report(run: Path) -> str:

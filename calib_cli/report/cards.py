@@ -112,3 +112,21 @@ def ranking_card(f: RunFiles) -> str:
     return card("Missing effects, ranked", rows_table(["effect", "verdict", "p", "would explain"], rows, "compact")
                 + note(f"Judged on model revision {esc(rev)}'s residuals; the evidence is under "
                        "<a href='#discrepancy'>Discrepancy loop</a>.", "prov"))
+
+
+def posterior_card(f: RunFiles) -> str:
+    """The posterior's 90 % intervals and the next conditions to measure, when those stages ran."""
+    post = f.table("posterior/summary.parquet")
+    if post is None or post.empty:
+        return ""
+    rev = f.prov("posterior/summary.parquet").get("model_revision", "?")
+    rows = [[esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
+             badge("identified", "pass") if r.identified else badge(f"{100 * r.rel_width:.0f} % of range", "warn")]
+            for r in post.itertuples(index=False)]
+    body = rows_table(["parameter", "median", "90 % interval", ""], rows, "compact")
+    body += note(f"Posterior of model revision {esc(rev)} (<code>calib calibrate-posterior</code>).", "prov")
+    nxt = f.table("suggest/ranking.parquet")
+    if nxt is not None and not nxt.empty:
+        body += "<h3>Measure next</h3>" + "".join(
+            f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
+    return card("Posterior", body)

@@ -10,7 +10,8 @@ from .html import RunFiles, esc, img, note, table
 from .stages import _cols, figures, not_run, section
 
 #: stage folders in run order: their Parquet tables are listed raw at the end
-RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "compare", "diagnose", "simulate"]
+RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "compare", "diagnose", "posterior", "suggest",
+              "simulate"]
 
 
 def measurement(f: RunFiles) -> str:
