@@ -219,6 +219,10 @@ def read_provenance(path: Path) -> dict:
     return json.loads(raw) if raw else {}
 
 
+#: response columns that hold a repose angle (deg)
+ANGLES = ("repose_angle", "angle_coords", "angle_image")
+
+
 def read_responses(path: Path, factors: Sequence[str], response: str,
                    optional: Sequence[str] = ()) -> pd.DataFrame:
     """A responses table from another engine or a paper: CSV or Parquet.
@@ -259,6 +263,12 @@ def read_responses(path: Path, factors: Sequence[str], response: str,
         out[c] = vals.astype(float)
     if len(out) == 0:
         raise CalibError(f"responses file {path} has no rows")
+    if response in ANGLES:  # a repose angle outside (0, 90) deg is a typo or another quantity's column
+        off = np.flatnonzero(~((out[response] > 0) & (out[response] < 90)).to_numpy())
+        if len(off):
+            rows = ", ".join(str(i + 1) for i in off[:5])
+            raise CalibError(f"responses file {path}: {response} must lie in (0, 90) deg (row {rows}: "
+                             f"{out[response].iloc[off[0]]:g})")
     return out
 
 

@@ -90,6 +90,10 @@ def test_read_responses_validation(tmp_path):
     p.write_text("a,repose_angle\n1,30\n2,\n")
     with pytest.raises(CalibError, match="missing or non-numeric.*row 2"):
         art.read_responses(p, ["a"], "repose_angle")
+    for bad in ("-5", "0", "95"):  # a repose angle outside (0, 90) deg: a typo, not a heap
+        p.write_text(f"a,repose_angle\n1,30\n2,{bad}\n")
+        with pytest.raises(CalibError, match=r"must lie in \(0, 90\) deg \(row 2"):
+            art.read_responses(p, ["a"], "repose_angle")
     p.write_text("a,angle\n1,30\n")
     with pytest.raises(CalibError, match="lacks column.*repose_angle"):
         art.read_responses(p, ["a"], "repose_angle")
