@@ -50,11 +50,22 @@ def test_the_gp_recovers_a_smooth_function_and_its_white_noise(gp):
     X = pd.DataFrame({"a": rng.random(300), "b": 2 * rng.random(300), "fill_height_mm": rng.choice(HEIGHTS, 300)})
     mean, sd = gp.predict(X, return_std=True)
     err = mean - _smooth(X["a"], X["b"], X["fill_height_mm"]).to_numpy()
-    # the latent function to a fraction of the piles' scatter, and its own sd honest about the error left
-    assert np.sqrt(np.mean(err ** 2)) < 0.6, np.sqrt(np.mean(err ** 2))
+    # the latent function to under 40 % of the piles' scatter (0.60 deg from 120 piles), and its own sd
+    # honest about the error left
+    assert np.sqrt(np.mean(err ** 2)) < 0.75, np.sqrt(np.mean(err ** 2))
     assert np.mean(np.abs(err) <= 2 * sd) > 0.9
     assert np.all(sd < gp.noise_sd_)  # the latent sd leaves out a pile's scatter
     assert np.allclose(gp.predict(X.to_numpy()), mean)  # an array in inputs_ order is the same
+
+
+def test_the_joint_prediction_is_scikit_learns_covariance_without_the_piles_scatter(gp):
+    X = np.random.default_rng(0).random((4, 3, 3)) * [1, 2, 50] + [0, 0, 50]
+    mean, cov = gp.predict_joint(X)
+    for g in range(4):
+        m, c = gp.gp_.predict(gp._scale(X[g]), return_cov=True)
+        assert np.allclose(gp.y_mean_ + gp.y_sd_ * m, mean[g])
+        assert np.allclose(gp.y_sd_ ** 2 * c - gp.noise_sd_ ** 2 * np.eye(3), cov[g])
+        assert np.allclose(np.sqrt(np.diag(cov[g])), gp.predict(X[g], return_std=True)[1])
 
 
 def test_conditions_that_add_nothing_are_not_inputs():
@@ -95,10 +106,10 @@ def _coverage(gp, runs: int) -> float:
 
 @pytest.mark.slow
 def test_the_90_percent_intervals_hold_the_truth_90_percent_of_the_time(gp):
-    """50 calibrations (100 intervals, ~15 s); 90 % of them hold the truth. Leaving the surrogate's variance
-    out of the likelihood gives 82 %. Intervals too wide are not caught this way: with truths drawn over
-    the prior, an interval near a bound moves inward as much as it gains inside (ten times the measured
-    variance still gave 93 %)."""
+    """50 calibrations (100 intervals, ~15 s); 89 % of them hold the truth. Leaving the surrogate's
+    covariance out of the likelihood gives 79 %. Intervals too wide are not caught this way: with truths
+    drawn over the prior, an interval near a bound moves inward as much as it gains inside (ten times the
+    measured variance still gave 91 %)."""
     assert 0.85 <= _coverage(gp, 50) <= 0.95
 
 
@@ -165,7 +176,11 @@ def test_the_stage_writes_its_tables_and_figure_then_its_lock(done):
 def test_the_stage_reruns_when_an_option_changes(done, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(done[0], run)
-    assert not posterior(run, walkers=8, steps=60, seed=1, **QUIET).skipped
+    r = posterior(run, walkers=8, steps=60, prior="heaps", **QUIET)
+    rows = pd.read_parquet(run / "simulate" / "results.parquet")
+    assert not r.skipped and r.table["low"].tolist() == [rows[p].min() for p in r.table["parameter"]]
+    with pytest.raises(CalibError, match="--prior must be one of effects, heaps"):
+        posterior(run, prior="box", **QUIET)
 
 
 @pytest.mark.parametrize("spoil, message", [

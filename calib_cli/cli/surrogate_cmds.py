@@ -123,28 +123,30 @@ def calibrate_posterior(
                                        "autocorrelation times) is burn-in.")] = 5000,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the sampler and of the surrogates' held-out "
                                       "folds: the same seed gives the same draws.")] = 0,
+    prior: Annotated[str, typer.Option("--prior", help="The uniform prior's ranges: effects (each effect's "
+                                       "own, `calib model show`) or heaps (what the model's simulated heaps "
+                                       "cover; beyond them the surrogate knows nothing).")] = "effects",
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
     Gaussian process of the angle over the parameters and the condition variables, trained on all
     the run's simulated heaps of the model, and the likelihood of each condition's mean angle
-    (measured scatter over n, plus the surrogate's own uncertainty), sampled by emcee under a
-    uniform prior over each effect's range (`calib model show`). A parameter is identified when
-    its 90 % interval spans at most a fifth of that range; an effect the model gained gets the
-    Bayes factor of its being off (docs/method.md, 'The posterior').
+    (measured scatter over n, plus the surrogate's own uncertainty, shared by the conditions),
+    sampled by emcee under a uniform prior (--prior). A parameter is identified when its 90 %
+    interval spans at most a fifth of its prior range; an effect the model gained gets the Bayes
+    factor of its being off (docs/method.md, 'The posterior').
 
     Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet and RUN/model.toml. Writes
     RUN/posterior/summary.parquet, samples.parquet, surrogates.parquet (held-out RMSE of the GP,
     RSM and BP network) and corner.png. Skipped when its inputs and options are unchanged.
     """
-    r = posterior_stage(run, walkers, steps, seed, force, say=say)
+    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
     cv = r.surrogates
-    console.print(df_table(cv[["surrogate", "rmse", "noise_sd", "piles"]],
-                           f"surrogates on held-out design points ({cv['folds'].iloc[0]}-fold over "
-                           f"{cv['design_points'].iloc[0]}): RMSE per pile [deg] (noise_sd: the piles' own "
-                           "scatter, the floor)"))
+    console.print(df_table(cv[["surrogate", "rmse", "noise_sd", "piles"]], "held-out RMSE per pile [deg]"))
+    console.print(f"each surrogate trained without a fifth of the {cv['design_points'].iloc[0]} design points, "
+                  f"{cv['folds'].iloc[0]} times; noise_sd is the piles' own scatter, the floor")
     for line in r.conclusion():
         console.print(line)

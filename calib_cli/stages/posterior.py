@@ -33,6 +33,8 @@ PILES_PER_INPUT = 10
 #: Jeffreys' scale for the Bayes factor of an effect off: above 3 substantial evidence it is off, below
 #: 1/10 strong evidence it is on
 BF_OFF, BF_NEEDED = 3.0, 0.1
+#: the prior ranges: each effect's own (`calib model show`), or what the model's heaps cover
+PRIORS = ("effects", "heaps")
 
 
 def model_rows(run: Path, model: Model) -> pd.DataFrame:
@@ -135,8 +137,8 @@ def _verdicts(table: pd.DataFrame, samples: pd.DataFrame) -> pd.DataFrame:
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
     table = table.assign(neutral=[e.neutral if e else math.nan for e in added])
-    table["bf_off"] = [savage_dickey(samples[r.parameter], r.neutral, r.low, r.high) if e else math.nan
-                       for r, e in zip(table.itertuples(), added)]
+    table["bf_off"] = [savage_dickey(samples[r.parameter], r.neutral, r.low, r.high)
+                       if e and r.low <= r.neutral <= r.high else math.nan for r, e in zip(table.itertuples(), added)]
     words = []
     for r in table.itertuples():
         w = (f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
@@ -178,7 +180,9 @@ class PosteriorStageResult(Result):
     def conclusion(self) -> list[str]:
         t = self.table
         out = [f"[bold]{r.parameter}[/]: {r.verdict}" for r in t.itertuples()]
-        out.append(f"acceptance fraction {t['acceptance'].iloc[0]:.2f} (0.2 to 0.5 is healthy)")
+        acc = t["acceptance"].iloc[0]
+        out.append(f"acceptance fraction {acc:.2f}" + (" (below 0.1: walkers are stuck; look at corner.png)"
+                                                       if acc < 0.1 else ""))
         if not t["chain_ok"].all():
             out.append(f"[yellow]warning:[/] the chains are shorter than 50 autocorrelation times "
                        f"(longest {t['autocorr_time'].max():.0f} steps): the intervals are rough; rerun with "
@@ -192,19 +196,22 @@ def _note_extrapolation(rows: pd.DataFrame, model: Model, say: Say) -> None:
              for e in (EFFECTS[n] for n in model.effects)
              if np.ptp(rows[e.parameter].to_numpy(float)) < 0.8 * (e.high - e.low)]
     if short:
-        say(f"[yellow]note:[/] the heaps cover {'; '.join(short)}: beyond them the posterior rests on the "
-            "surrogate's extrapolation, whose growing uncertainty widens it")
+        say(f"[yellow]note:[/] the heaps cover {'; '.join(short)}: beyond them the surrogate knows nothing, and "
+            "the posterior there stays as wide as the prior (--prior heaps keeps it to what the heaps cover)")
 
 
 @writes_run
-def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, force: bool = False,
-              say: Optional[Say] = None) -> PosteriorStageResult:
-    """Sample the posterior of the current model's parameters (uniform over each effect's range) given
-    every measured condition, through a Gaussian process trained on the run's simulated heaps of the
-    model. Writes RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of
-    the GP, RSM and BP network) and corner.png."""
+def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
+              force: bool = False, say: Optional[Say] = None) -> PosteriorStageResult:
+    """Sample the posterior of the current model's parameters given every measured condition, through a
+    Gaussian process trained on the run's simulated heaps of the model; the prior is uniform over each
+    effect's range (``prior="effects"``) or over the range the heaps cover (``"heaps"``). Writes
+    RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP, RSM
+    and BP network) and corner.png."""
     say = say or plain
     run = check_run_dir(run)
+    if prior not in PRIORS:
+        raise CalibError(f"--prior must be one of {', '.join(PRIORS)}, got {prior!r}")
     model = load_model(run)
     conds = measured_conditions(run)
     if conds.empty:
@@ -213,7 +220,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, fo
     rows = model_rows(run, model)
     cond_vars = _check_rows(run, rows, model)
     params = model.parameters
-    bounds = {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+    scale = {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+    bounds = scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in params}
     used = rows[[*params, *cond_vars, RESPONSE]]
     mfile = run / MODEL_FILE
     st = stage(run, "posterior", "sample",
@@ -222,12 +230,13 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, fo
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
-    _note_extrapolation(rows, model, say)
+    if prior == "effects":
+        _note_extrapolation(rows, model, say)
     say(f"posterior of model revision {model.revision} ({', '.join(params)}): a Gaussian process on {len(rows)} "
         f"simulated heaps, {len(conds)} measured condition(s), {walkers} walkers x {steps} steps")
-    gp = GPSurrogate(params, COND_VARS, bounds, RESPONSE, seed=seed).fit(used)
+    gp = GPSurrogate(params, COND_VARS, scale, RESPONSE, seed=seed).fit(used)
     _check_measured(conds, gp, run / "measure" / "conditions.parquet")
-    held = holdout_rmse(used, params, COND_VARS, bounds, RESPONSE, seed=seed)
+    held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed)
     post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed)
     table = _verdicts(post.summary(), post.samples_)
     fig = _corner(post.samples_, table)
