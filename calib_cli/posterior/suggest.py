@@ -1,14 +1,15 @@
 """Which conditions to measure next: rank the conditions a rig can make by what one more measured
 condition is expected to teach, about the parameters and about the missing effects.
 
-About the parameters (expected shrinkage). Linearise the heap model at the posterior mean: one more
-condition c, measured with n piles of scatter s, adds the row J_c (the angle's sensitivity to each
-parameter at c) with variance u_c^2 = s^2 / n + v_c (v_c: the surrogate's own variance there), and
-the posterior covariance S becomes (Laplace / Kalman update)
-
-    S' = (S^-1 + J_c^T J_c / u_c^2)^-1,    gain = 1/2 log(det S / det S')  (nats),
-
-each parameter's interval shrinking by 1 - sqrt(S'_ii / S_ii).
+About the parameters (expected shrinkage), a preposterior over the posterior's draws theta_s: a
+condition c measured with n piles of scatter s gives a mean y ~ N(mu(theta, c), u_c^2), u_c^2 = s^2 / n,
+mu the surrogate's mean. Its own variance is not counted as the measurement's: it shrinks by
+simulating, not by measuring (where it is large the reason says to simulate there first). For outcomes y_k drawn as a draw's prediction plus
+that noise, the draws reweighted by N(y_k; mu(theta_s, c), u_c^2) are the posterior after measuring
+c; each parameter's interval is expected to shrink by 1 - E_k[width_k] / width, and the
+information gain is 1/2 log(1 + Var_s mu(theta_s, c) / u_c^2) nats (exact for a Gaussian
+predictive). Unlike a linearisation at the posterior mean it sees a posterior with two modes: a
+condition where they predict different angles tells them apart.
 
 About a missing effect e (expected separation). Its signature g_e over the measured conditions is
 what the current parameters cannot absorb once projected off their sensitivities J (the score test
@@ -125,20 +126,35 @@ def extrapolate(measured: pd.DataFrame, sens: pd.DataFrame, candidates: pd.DataF
 
 
 # ------------------------------------------------------------------ expected gains
-def parameter_gain(cov: np.ndarray, Jc: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per candidate (rows of Jc, variances u2): the information gain (nats) and each parameter's
-    expected interval shrinkage (module docstring: S' = (S^-1 + J^T J / u^2)^-1)."""
-    cov = np.atleast_2d(np.asarray(cov, float))
-    P = np.linalg.pinv(cov)
-    _, logdet = np.linalg.slogdet(cov)
-    gains, shrink = np.full(len(Jc), np.nan), np.full((len(Jc), cov.shape[0]), np.nan)
-    for i, (j, v) in enumerate(zip(np.asarray(Jc, float), np.asarray(u2, float))):
-        if not (np.all(np.isfinite(j)) and np.isfinite(v) and v > 0):
-            continue
-        post = np.linalg.pinv(P + np.outer(j, j) / v)
-        gains[i] = 0.5 * (logdet - np.linalg.slogdet(post)[1])
-        shrink[i] = 1.0 - np.sqrt(np.clip(np.diag(post) / np.diag(cov), 0.0, 1.0))
-    return gains, shrink
+def parameter_gain(mu: np.ndarray, draws: np.ndarray, u2: float, outcomes: int = 64,
+                   seed: int = 0) -> tuple[float, np.ndarray]:
+    """One candidate's expected information gain (nats) and each parameter's expected interval
+    shrinkage (module docstring): ``mu`` the surrogate's angle at each posterior draw (S,), ``draws``
+    the draws (S, k), ``u2`` the variance of the new condition's measured mean."""
+    mu, draws = np.asarray(mu, float), np.asarray(draws, float)
+    if not (np.all(np.isfinite(mu)) and np.isfinite(u2) and u2 > 0):
+        return np.nan, np.full(draws.shape[1], np.nan)
+    rng = np.random.default_rng(seed)
+    width0 = _widths(draws, np.full(len(mu), 1.0 / len(mu)))
+    widths = []
+    for s in rng.integers(0, len(mu), outcomes):
+        y = mu[s] + rng.normal(0.0, np.sqrt(u2))
+        logw = -0.5 * (y - mu) ** 2 / u2
+        w = np.exp(logw - logw.max())
+        widths.append(_widths(draws, w / w.sum()))
+    shrink = 1.0 - np.mean(widths, axis=0) / np.where(width0 > 0, width0, np.nan)
+    return 0.5 * float(np.log1p(np.var(mu) / u2)), np.clip(shrink, 0.0, 1.0)
+
+
+def _widths(draws: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Each column's weighted 90 % interval width (5th to 95th weighted percentile)."""
+    out = []
+    for col in draws.T:
+        order = np.argsort(col)
+        cdf = np.cumsum(w[order])
+        lo, hi = np.searchsorted(cdf, [0.05, 0.95])
+        out.append(col[order][min(hi, len(col) - 1)] - col[order][min(lo, len(col) - 1)])
+    return np.array(out)
 
 
 def separation(J: np.ndarray, g: np.ndarray, u: np.ndarray, step: float) -> float:
@@ -157,27 +173,32 @@ def separation(J: np.ndarray, g: np.ndarray, u: np.ndarray, step: float) -> floa
 class Evidence:
     """What the ranking reads: the measured conditions with the sensitivities diagnose simulated there
     (``J``: per calibrated parameter, ``G``: per candidate effect), the uncertainty of each measured
-    mean, the pile scatter a new condition is measured with, and the posterior's covariance."""
+    mean, the pile scatter a new condition is measured with, and the posterior's draws."""
 
     measured: pd.DataFrame
     J: pd.DataFrame  # diagnose's, per measured condition; columns: the model's parameters
     G: pd.DataFrame  # diagnose's; columns: the candidate effects
     u: np.ndarray  # the uncertainty of each measured mean (deg)
     scatter: float  # pile-to-pile sd (deg)
-    params: list[str]  # the posterior's parameters, in cov's order
-    cov: np.ndarray
+    params: list[str]  # the posterior's parameters, the columns of draws
+    draws: np.ndarray  # posterior draws (S, k)
     steps: dict[str, float]  # each effect's probe step (Effect.step)
 
+    def draws_frame(self) -> pd.DataFrame:
+        return pd.DataFrame(self.draws, columns=self.params)
 
-def rank_conditions(ev: Evidence, candidates: pd.DataFrame, Jp: np.ndarray, vp: np.ndarray, piles: int,
+
+def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: np.ndarray, piles: int,
                     variables) -> pd.DataFrame:
     """One row per candidate (not yet measured): the expected information gain about the parameters
-    (nats) and each one's interval shrinkage, from the surrogate's sensitivities ``Jp`` and variance
-    ``vp`` at the candidates; each candidate effect's separation gain, from diagnose's sensitivities
-    carried to the candidates (:func:`extrapolate`; NaN where they cannot be). Sorted by the sum of
-    the two ranks (information, best separation)."""
-    u2 = ev.scatter**2 / piles + np.asarray(vp, float)
-    gains, shrink = parameter_gain(ev.cov, Jp, u2)
+    (nats) and each one's interval shrinkage, from the surrogate's angle at every posterior draw
+    ``mu`` (candidates, draws) and its own variance ``vp`` at the candidates; each candidate effect's
+    separation gain, from diagnose's sensitivities carried to the candidates (:func:`extrapolate`;
+    NaN where they cannot be). Sorted by the sum of the two ranks (information, best separation)."""
+    u2 = np.full(len(candidates), ev.scatter**2 / piles)
+    pairs = [parameter_gain(m, ev.draws, v) for m, v in zip(mu, u2)]
+    gains = np.array([g for g, _ in pairs])
+    shrink = np.array([s for _, s in pairs]).reshape(len(candidates), len(ev.params))
     out = candidates.assign(info_gain_nats=gains, surrogate_sd=np.sqrt(np.asarray(vp, float)))
     for k, p in enumerate(ev.params):
         out[f"shrink_{p}"] = shrink[:, k]
