@@ -37,7 +37,8 @@ NU = 1.5
 
 def informative_conditions(rows: pd.DataFrame, candidates: Sequence[str]) -> list[str]:
     """The candidate condition columns that vary among ``rows`` and are not linear in the ones before
-    (d_max = d_min + 1 adds nothing): the same choice as ``fit-surrogate --from-simulations``."""
+    (d_max = d_min + 1 adds nothing; a fill height proportional to the diameter would make a fit
+    singular): what every surrogate over conditions learns from (``fit-surrogate``, the posterior)."""
     keep, basis = [], np.ones((len(rows), 1))
     for c in candidates:
         if c in rows.columns and rows[c].nunique() > 1:

@@ -16,6 +16,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
+from ..posterior.gp import informative_conditions  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
@@ -59,13 +60,7 @@ def _simulated_training_data(run: Path, stage: str, response: str, say: Say) -> 
     keys = ["run_id", "condition_id"]
     # condition variables that carry information of their own (d_max = d_min + 1, or a fill height
     # proportional to the diameter, add nothing and would make the fit singular)
-    conds, basis = [], np.ones((len(res), 1))
-    for c in COND_VARS:
-        if c in res.columns and res[c].nunique() > 1:
-            trial = np.column_stack([basis, res[c].to_numpy(float)])
-            if np.linalg.matrix_rank(trial) > basis.shape[1]:
-                conds.append(c)
-                basis = trial
+    conds = informative_conditions(res, COND_VARS)
     data = res.groupby(keys, as_index=False).agg({**{n: "first" for n in space.names}, **{c: "first" for c in conds},
                                                   response: "mean"})
     return data, space.names + conds, {"design": design, "results": art.Rows(res_path, data)}
