@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import CalibError
 from . import laws
-from .laws import REGISTRY, ContactModel, law_params
+from .laws import ContactModel, all_laws, law_params
 from .laws import columns
 from .laws.damping import damping_ratio
 from .laws.normal import jkr_constants
@@ -77,7 +77,7 @@ class _BuiltIn:
             (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1"),
             (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
              "each other (two friction caps)"),
-            *((p.check(getattr(self, p.name)) is None, p.check(getattr(self, p.name))) for p in law_params()),
+            *((why is None, why) for why in (p.check(getattr(self, p.name)) for p in law_params())),
         ]
         for ok, msg in checks:
             if not ok:
@@ -111,10 +111,10 @@ def param_row(m1: Material, m2: Material, it: Interaction, m_typ: float = 0.0) -
     k13, att = jkr_constants(Es, it.surface_energy)
     kr, gr = rolling_spring_constants(Gs, m_typ) if it.rolling_spring else (0.0, 0.0)
     row = np.zeros(columns.NCOL)
-    row[:11] = [Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
+    row[:columns.BUILT_IN] = [Es, Gs, it.static_friction, it.rolling_friction, damping_ratio(it.restitution),
                 it.surface_energy, k13, att, math.sqrt(4.0 * Gs / Es), kr, gr]
     values = asdict(it)
-    for law in (law for family in REGISTRY.values() for law in family.values() if law.columns):
+    for law in (law for law in all_laws() if law.columns):
         row[list(law.columns)] = law.constants(**{p.name: values[p.name] for p in law.params})
     return row
 

@@ -98,14 +98,19 @@ for _law in [
     register(_law)
 
 
+def all_laws() -> list[Law]:
+    """Every registered law, family by family in registry order."""
+    return [law for family in REGISTRY.values() for law in family.values()]
+
+
 def law_params() -> tuple[Param, ...]:
     """Every law's own parameters, in registry order (the interaction's fields after the built-in ones)."""
-    return tuple(p for family in REGISTRY.values() for law in family.values() for p in law.params)
+    return tuple(p for law in all_laws() for p in law.params)
 
 
 def law_effects() -> list[Effect]:
     """The diagnose candidates the laws bring, in registry order."""
-    return [law.effect for family in REGISTRY.values() for law in family.values() if law.effect is not None]
+    return [law.effect for law in all_laws() if law.effect is not None]
 
 
 def compose(*interactions) -> "ContactModel":

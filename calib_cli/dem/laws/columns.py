@@ -14,7 +14,8 @@ PP, FLOOR, CYL = 0, 1, 2
 #: E*, G*, static and rolling friction, damping ratio, surface energy g, the JKR constants k^(1/3) and
 #: 4 sqrt(pi g E* k^(1/3)), sqrt(4 G*/E*), the rolling spring's stiffness and damping
 E_S, G_S, MU_S, MU_R, BETA, GAMMA, K13, ATT, T_RATIO, K_ROLL, G_ROLL = range(11)
-NCOL = 11
+#: the built-in laws' columns come first; the laws' own follow (allocate)
+BUILT_IN = NCOL = 11
 
 #: columns of a contact's history row: tangential spring (3), contact radius a of the last step,
 #: cached R*^(1/3), rolling spring (3)
