@@ -185,7 +185,8 @@ def at_bounds(theta: dict, ranges: dict[str, tuple[float, float]], tol: float = 
     return out
 
 
-def _project(u, J, g):
+def project_out(u, J, g):
+    """g less what the columns of J absorb under weights w = 1/u^2, g - J (J' W J)^-1 J' W g, and w."""
     w = 1.0 / np.asarray(u, float) ** 2
     if J.shape[1] == 0:
         return g, w
@@ -196,15 +197,20 @@ def confounded(u, J, G: dict[str, np.ndarray], threshold: float = 0.9) -> list[t
     """Pairs of candidates whose projected signatures are collinear (|weighted corr| > threshold):
     the data cannot tell them apart, whatever their scores."""
     J = np.atleast_2d(np.asarray(J, float)).reshape(len(u), -1) if np.size(J) else np.zeros((len(u), 0))
-    proj = {k: _project(u, J, np.asarray(g, float)) for k, g in G.items()}
+    proj = {k: project_out(u, J, np.asarray(g, float)) for k, g in G.items()}
     names, out = list(proj), []
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             (ga, w), (gb, _) = proj[a], proj[b]
-            na, nb = np.sqrt(np.sum(w * ga * ga)), np.sqrt(np.sum(w * gb * gb))
-            if na > 0 and nb > 0 and abs(np.sum(w * ga * gb)) / (na * nb) > threshold:
+            if _alike(w, ga, gb) > threshold:
                 out.append((a, b))
     return out
+
+
+def _alike(w, a, b) -> float:
+    """|weighted correlation| of a and b about zero, |a' W b| / sqrt(a' W a b' W b) (0 if either is 0)."""
+    den = math.sqrt(float(np.sum(w * a * a)) * float(np.sum(w * b * b)))
+    return abs(float(np.sum(w * a * b))) / den if den > 0 else 0.0
 
 
 def confound(J: np.ndarray, g: np.ndarray, u: np.ndarray, names) -> tuple[str, float]:
@@ -212,9 +218,7 @@ def confound(J: np.ndarray, g: np.ndarray, u: np.ndarray, names) -> tuple[str, f
     w = 1.0 / np.asarray(u, float) ** 2
     best, top = "", 0.0
     for k, name in enumerate(names):
-        j = np.asarray(J, float)[:, k]
-        den = math.sqrt(float(np.sum(w * j * j)) * float(np.sum(w * g * g)))
-        c = abs(float(np.sum(w * j * g))) / den if den > 0 else 0.0
+        c = _alike(w, np.asarray(J, float)[:, k], np.asarray(g, float))
         if c > top:
             best, top = name, c
     return best, top

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..discrepancy.stats import confound
+from ..discrepancy.stats import confound, project_out
 from ..errors import CalibError
 
 #: the rig's variables a rig file may list, with the heap-test variable each sets
@@ -160,11 +160,7 @@ def _widths(draws: np.ndarray, w: np.ndarray) -> np.ndarray:
 def separation(J: np.ndarray, g: np.ndarray, u: np.ndarray, step: float) -> float:
     """The score test's expected statistic for an effect of signature g at a step of its parameter:
     lambda = step^2 g_perp^T W g_perp (module docstring)."""
-    J = np.asarray(J, float).reshape(len(g), -1)
-    w = 1.0 / np.asarray(u, float) ** 2
-    gp = np.asarray(g, float)
-    if J.shape[1]:
-        gp = gp - J @ np.linalg.lstsq(J.T @ (w[:, None] * J), J.T @ (w * gp), rcond=None)[0]
+    gp, w = project_out(u, np.asarray(J, float).reshape(len(g), -1), np.asarray(g, float))
     return float(step**2 * np.sum(w * gp * gp))
 
 
