@@ -188,6 +188,7 @@ def test_the_stage_reruns_when_an_option_changes(done, tmp_path):
     ("few_heaps", "has 30 simulated heaps of model revision 0; the posterior's surrogate needs at least 40"),
     ("flat", "same restitution"),
     ("off_rig", "fill_height_mm outside the simulated heaps' 50 to 100"),
+    ("off_cylinder", "cylinder_diameter_mm other than the 40 of every simulated heap"),
 ])
 def test_the_stage_refuses_bad_input_and_writes_nothing(tmp_path, spoil, message):
     run = _tiny_run(tmp_path / "run", n_points=15 if spoil == "few_heaps" else 30)
@@ -196,6 +197,9 @@ def test_the_stage_refuses_bad_input_and_writes_nothing(tmp_path, spoil, message
     elif spoil == "flat":
         rows = pd.read_parquet(run / "simulate" / "results.parquet").assign(restitution=0.3)
         art.write_table(run / "simulate" / "results.parquet", rows)
+    elif spoil == "off_cylinder":  # a cylinder no heap was simulated in
+        meas = pd.read_parquet(run / "measure" / "conditions.parquet")
+        art.write_table(run / "measure" / "conditions.parquet", meas.assign(cylinder_diameter_mm=[40.0, 60.0]))
     elif spoil == "off_rig":
         meas = pd.read_parquet(run / "measure" / "conditions.parquet")
         art.write_table(run / "measure" / "conditions.parquet", meas.assign(fill_height_mm=[50.0, 150.0]))

@@ -200,6 +200,19 @@ def _note_extrapolation(rows: pd.DataFrame, model: Model, say: Say) -> None:
             "the posterior there stays as wide as the prior (--prior heaps keeps it to what the heaps cover)")
 
 
+def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
+    """Each of the model's parameters' range (its effect's bounds): the scale of the surrogate's inputs."""
+    return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+
+
+def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0) -> GPSurrogate:
+    """The Gaussian process of the model's heaps, fitted on every condition column the heaps have: it
+    learns the ones that vary and records the ones they all shared (``constants_``), at which a
+    measured or suggested condition elsewhere is beyond what it knows."""
+    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), RESPONSE]
+    return GPSurrogate(model.parameters, COND_VARS, effect_ranges(model), RESPONSE, seed=seed).fit(rows[cols])
+
+
 @writes_run
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
               force: bool = False, say: Optional[Say] = None) -> PosteriorStageResult:
@@ -220,7 +233,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     rows = model_rows(run, model)
     cond_vars = _check_rows(run, rows, model)
     params = model.parameters
-    scale = {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+    scale = effect_ranges(model)
     bounds = scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in params}
     used = rows[[*params, *cond_vars, RESPONSE]]
     mfile = run / MODEL_FILE
@@ -234,7 +247,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         _note_extrapolation(rows, model, say)
     say(f"posterior of model revision {model.revision} ({', '.join(params)}): a Gaussian process on {len(rows)} "
         f"simulated heaps, {len(conds)} measured condition(s), {walkers} walkers x {steps} steps")
-    gp = GPSurrogate(params, COND_VARS, scale, RESPONSE, seed=seed).fit(used)
+    gp = model_surrogate(rows, model, seed)
     _check_measured(conds, gp, run / "measure" / "conditions.parquet")
     held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed)
     post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed)

@@ -15,14 +15,14 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
+from ..campaign import RESULTS
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, explain, parse_rig, rank_conditions
-from ..requests import COND_VARS
 from .common import Result, Say, check_run_dir, plain, stage, writes_run
 from .compare import measured_conditions
-from .posterior import RESPONSE, _check_rows, model_rows
+from .posterior import RESPONSE, _check_rows, model_rows, model_surrogate
 
 #: posterior draws the preposterior uses (evenly thinned)
 DRAWS = 2000
@@ -152,7 +152,7 @@ WORDS = {"particle_d_min_mm": "grain size", "particle_d_max_mm": "grain size", "
          "cylinder diameter", "fill_height_mm": "fill height", "lift_speed_mm_s": "lift speed"}
 
 
-def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, piles: int) -> list[str]:
+def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int) -> list[str]:
     """Why each candidate: the effect it separates (its confound and the variable that breaks it)
     when it does, else the parameters whose intervals it narrows; a warning where the surrogate is
     unsure (its sd above the measured mean's, or well above its own at the measured conditions)
@@ -169,7 +169,7 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, piles: int) 
                 why += f"; separates no missing effect (at most {row['best_separation']:.2g} chi-square units)"
         else:
             why = "unknown: it sets a variable no simulated heap varied; simulate heaps there first"
-        sd, mean_sd = row["surrogate_sd"], ev.scatter / math.sqrt(piles)
+        sd = row["surrogate_sd"]
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
                     f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain")
@@ -203,11 +203,15 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if measured.empty:
         raise CalibError(f"no measured condition in {run}: run `calib measure-angle` first")
     samples = _posterior(run, model)
+    rows = model_rows(run, model)
+    cond_vars = _check_rows(run, rows, model)
     sens = run / "diagnose" / "sensitivities.parquet"
     mfile = run / MODEL_FILE
+    # the heaps the surrogate learns from are an input too: more of them change the gains
     st = stage(run, "suggest", "rank",
                inputs={"posterior": run / "posterior" / "samples.parquet", "conditions": run / "measure" /
                        "conditions.parquet", "sensitivities": sens if sens.is_file() else None,
+                       "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                        "model": mfile if mfile.is_file() else None, "rig": Path(rig)},
                settings={"piles": piles, "top": top})
     if st.up_to_date() and not force:
@@ -216,13 +220,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     ev, notes = _evidence(run, model, measured, samples)
-    rows = model_rows(run, model)
-    _check_rows(run, rows, model)
-    bounds = {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
-    # every condition column, not only those that vary: the surrogate records the ones its heaps shared
-    # (constants_), and a candidate elsewhere along one of them is beyond what it knows
-    gp = GPSurrogate(model.parameters, COND_VARS, bounds, RESPONSE).fit(
-        rows[[*model.parameters, *(c for c in COND_VARS if c in rows.columns), RESPONSE]])
+    gp = model_surrogate(rows, model)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
         f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)")
     draws = ev.draws_frame()
@@ -230,8 +228,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
     table = rank_conditions(ev, cand, mu, vp, piles, SUGGEST_VARS)
-    table["reason"] = _reasons(ev, table, sd_measured, piles)
-    mean_sd = ev.scatter / math.sqrt(piles)
+    mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
+    table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
         notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
                      f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
