@@ -54,7 +54,8 @@ def first_screen(f: RunFiles) -> str:
     """Headline and verdict, then parameters, fit, error history, ranking, posterior and photographs."""
     fit = fit_rows(f)
     return (f"<section id=summary>{headline(f, fit)}<div class=grid>{params_card(f)}{fit_card(f, fit)}"
-            f"<div class=stack>{history_card(f)}{ranking_card(f)}{posterior_card(f)}</div>{photos_card(f)}</div></section>")
+            f"<div class=stack>{history_card(f)}{ranking_card(f)}{posterior_card(f)}</div>"
+            f"{photos_card(f)}</div></section>")
 
 
 def build_report(run: Path) -> str:

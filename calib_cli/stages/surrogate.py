@@ -16,8 +16,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
-from ..posterior.gp import informative_conditions  # noqa: E402
 from ..errors import CalibError  # noqa: E402
+from ..posterior.gp import informative_conditions  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
 from ..surrogate.models import make_model, model_from_state  # noqa: E402
