@@ -162,12 +162,12 @@ def simd_level() -> str:
 
 
 def _row(req: Request, res, img) -> dict:
-    """The results row. The primary angle is the rendered side view's, measured by the same
-    code as the photographs (SPEC 5), falling back to the coordinate angle."""
+    """The results row. The primary angle is the rendered side view's (``img``; None for a run that blew
+    up), measured by the same code as the photographs (SPEC 5), falling back to the coordinate angle."""
     a = res.angle
     ok = res.status == "ok"
     s = res.system
-    img_ok = ok and img.status == "ok"
+    img_ok = ok and img is not None and img.status == "ok"
     primary = img.repose_angle if img_ok else a.angle
     return {
         "run_hash": req.hash, "design": req.design, "run_id": req.run_id, "repeat": req.repeat,
@@ -226,14 +226,16 @@ def _write_run(out: Path, req: Request, res) -> dict:
     state = pd.DataFrame({"x": p.pos[:, 0], "y": p.pos[:, 1], "z": p.pos[:, 2], "radius": p.rad,
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
                           "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
-    view = render_side_view(p.pos, p.rad)
+    # a blown-up run's grains may be anywhere (or NaN): it has no side view to render or measure
+    view = render_side_view(p.pos, p.rad) if res.status != "unstable" else None
     # without the photographs' shape checks: a run's hash does not cover the measurement code, so a cached row
     # and a fresh one must agree; the coordinate path has its own (column, no_heap)
-    row = _row(req, res, measure_image(view.image, limits=None))
+    row = _row(req, res, measure_image(view.image, limits=None) if view is not None else None)
     art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
     art.write_table(out / "profile.parquet", pd.DataFrame({"r_m": res.angle.profile_r, "h_m": res.angle.profile_h}))
     art.write_table(out / "energy.parquet", pd.DataFrame(res.energy, columns=["t", "kinetic_energy", "rim_height"]))
-    art.write_png(out / "side.png", view.image)
+    if view is not None:
+        art.write_png(out / "side.png", view.image)
     art.write_vtp(out / "particles.vtp", p.pos, {"radius": p.rad, "velocity": p.vel, "angular_velocity": p.omg})
     art.write_json(out / "key.json", req.key)
     art.write_json(out / "result.json", row)  # last: marks the run complete

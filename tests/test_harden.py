@@ -351,3 +351,79 @@ def test_a_read_only_run_directory_needs_no_lock(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "open", read_only)
     with art.run_lock(tmp_path):
         pass
+
+
+# ------------------------------------------------------------------ a heap that blows up is recorded, not fatal
+def test_a_heap_that_blows_up_comes_back_unstable_with_no_angle(monkeypatch):
+    import numpy as np
+
+    from calib_cli.dem import heap
+    from calib_cli.dem.system import System, UnstableError
+
+    calls = []
+
+    def blow_up(self, n):  # the second chunk diverges, as a too-stiff cohesive contact does
+        calls.append(n)
+        if len(calls) == 2:
+            self.particles.pos[0] = np.nan
+            raise UnstableError("unstable run: a particle exceeded 50 m/s (or went NaN) at t = 0.01 s")
+
+    monkeypatch.setattr(System, "advance", blow_up)
+    res = heap.run_heap({"static_friction": 0.3}, heap.PRESETS["smoke"].condition, heap.PRESETS["smoke"].numerics)
+    assert res.status == "unstable" and "50 m/s" in res.message
+    assert np.isnan(res.angle.angle) and len(res.angle.profile_r) == 0 and np.isnan(res.t_lift_end)
+
+
+def test_a_campaign_records_an_unstable_heap_and_goes_on(tmp_path, monkeypatch):
+    """One heap of three blows up: its row says so (no angle, no side view) and is cached like any
+    finished heap; the others are simulated; the stage's notes name it."""
+    import numpy as np
+    from types import SimpleNamespace as NS
+
+    from calib_cli import campaign
+    from calib_cli.dem.angle import no_angle
+    from calib_cli.stages.simulate import plan_simulation, run_simulation
+
+    def heaps(params, condition, numerics, seed, progress=None):
+        if seed != plan.requests[1].seed:
+            return _fake_heap(30.0 + seed % 7)
+        res = _fake_heap(0.0)
+        res.system.particles.pos[:] = np.nan
+        return NS(**{**vars(res), "status": "unstable", "message": "unstable run: overlap reached 12% of a radius",
+                     "angle": no_angle(), "t_settled": np.nan, "t_lift_end": np.nan, "angle_drift": np.nan})
+
+    run = tmp_path / "run"
+    plan = plan_simulation(run, {"static_friction": 0.3}, preset="smoke", repeats=3)
+    monkeypatch.setattr(campaign, "run_heap", heaps)
+    result = run_simulation(plan)
+    rows = result.rows.sort_values("repeat")
+    assert rows["status"].tolist() == ["ok", "unstable", "ok"]
+    assert np.isnan(rows["repose_angle"].iloc[1]) and rows["repose_angle"].notna().sum() == 2
+    folder = run / campaign.RUNS / rows["run_hash"].iloc[1]
+    assert (folder / "result.json").is_file() and not (folder / "side.png").exists()
+    assert any("unstable" in n and "12%" in n for n in result.check().notes())
+
+    monkeypatch.setattr(campaign, "run_heap", lambda *a, **k: pytest.fail("a cached heap was simulated again"))
+    again = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", repeats=3)).rows
+    assert again.sort_values("repeat")["status"].tolist() == ["ok", "unstable", "ok"]
+
+
+def test_a_command_sweeps_what_a_killed_writer_staged(tmp_path):
+    """A kill leaves hidden staging folders and temporary files; the next command to take the run
+    lock deletes them (no writer is alive then), and nothing else: not a stepped-aside cached run."""
+    run = tmp_path / "run"
+    runs = run / "simulate" / "runs"
+    left = [run / "pb" / ".design.staging-abc", runs / ".0123.staging-xyz", run / "simulate" / ".results.parquet.k2.tmp"]
+    kept = [runs / "0123", runs / ".4567.old", run / "pb" / "design.parquet", run / "pb" / "sub" / "deep" / ".x.tmp"]
+    for p in left[:2] + kept[:2]:
+        p.mkdir(parents=True)
+        (p / "state.parquet").write_bytes(b"x")
+    for p in left[2:] + kept[2:]:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"x")
+    with art.run_lock(run, wait=True):  # a library's index update: others may be staging beside it
+        pass
+    assert all(p.exists() for p in left)
+    with art.run_lock(run):
+        assert not any(p.exists() for p in left)
+    assert all(p.exists() for p in kept)  # deeper than a run's folders reach: not swept

@@ -30,6 +30,12 @@ class CoordAngle:
     profile_h: np.ndarray
 
 
+def no_angle() -> CoordAngle:
+    """The angle of a run that has none (it blew up): every value NaN, no profile."""
+    empty = np.zeros(0)
+    return CoordAngle(np.nan, np.nan, 0, np.nan, np.nan, empty, empty, empty)
+
+
 @nb.njit(cache=True)
 def azimuthal_sector(x, y, sectors):
     """Sector index floor((atan2(y, x) + pi) / 2pi * sectors) mod sectors, with libm's atan2:

@@ -19,10 +19,10 @@ import numpy as np
 from ..errors import CalibError
 from . import KERNEL_VERSION
 from ..profile import line_fit
-from .angle import CoordAngle, repose_angle_coords
+from .angle import CoordAngle, no_angle, repose_angle_coords
 from .laws import ContactModel, law_params
 from .materials import LAW_SWITCHES, Interaction, Material, contact_model
-from .system import Particles, System, Walls
+from .system import Particles, System, UnstableError, Walls
 
 #: parameters the heap test takes (natural units). wall_* set the floor and the cylinder alike and
 #: default to the particle values, except wall_surface_energy (default 0); cylinder_* set the
@@ -199,7 +199,7 @@ def fill_cylinder(cond: HeapCondition, packing: float, rng: np.random.Generator)
 @dataclass
 class HeapResult:
     system: System
-    status: str  # ok | column | timeout
+    status: str  # ok | column | no_heap | timeout | unstable
     message: str
     angle: CoordAngle
     t_settled: float
@@ -258,7 +258,9 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
              seed: int = 0, progress: Callable[[float, float, str], None] | None = None) -> HeapResult:
     """Simulate one heap test and measure its angle from the particle coordinates.
 
-    ``progress(t, t_max, phase)`` is called after each chunk.
+    ``progress(t, t_max, phase)`` is called after each chunk. A run whose integration blows up
+    (:class:`UnstableError`) comes back with status ``unstable`` and no angle, so a campaign records
+    it and goes on; a time step that cannot be stable is refused before any step (a :class:`CalibError`).
     """
     cond = condition or PRESETS["default"].condition
     num = numerics or PRESETS["default"].numerics
@@ -268,16 +270,30 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     rng = np.random.default_rng(seed)
     parts = fill_cylinder(cond, num.packing_fraction, rng)
     Rc = cond.cylinder_diameter_mm * 0.5e-3
-    vlift = cond.lift_speed_mm_s * 1e-3
     sysm = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
                   wall_material=Material(num.wall_shear_modulus, num.poisson, num.density),
-                  pp=pp, floor=pf, cylinder=pc, walls=Walls(True, Rc, vlift, np.inf), safety=num.safety)
-    energy = []
-    d_max = cond.particle_d_max_mm * 1e-3
+                  pp=pp, floor=pf, cylinder=pc, walls=Walls(True, Rc, cond.lift_speed_mm_s * 1e-3, np.inf),
+                  safety=num.safety)
+    energy: list = []
+    try:
+        t_settled, t_lift_end, fill_top, drift = _phases(sysm, cond, num, energy, progress)
+    except UnstableError as e:
+        return HeapResult(sysm, "unstable", str(e), no_angle(), np.nan, np.nan, sysm.t, time.perf_counter() - t0,
+                          dict(params), cond, num, seed, energy)
+    status, message, ang = _verdict(sysm, cond, num, fill_top, t_lift_end)
+    return HeapResult(sysm, status, message, ang, t_settled, t_lift_end, sysm.t, time.perf_counter() - t0,
+                      dict(params), cond, num, seed, energy, drift.rate())
 
-    def rms_speed():
-        v = parts.vel
-        return float(np.sqrt(np.sum(sysm.mass * np.sum(v * v, axis=1)) / np.sum(sysm.mass)))
+
+def _rms_speed(sysm: System) -> float:
+    v = sysm.particles.vel
+    return float(np.sqrt(np.sum(sysm.mass * np.sum(v * v, axis=1)) / np.sum(sysm.mass)))
+
+
+def _phases(sysm: System, cond: HeapCondition, num: Numerics, energy: list, progress) -> tuple:
+    """Settle, lift, rest (paper section 2.2); returns (t_settled, t_lift_end, fill_top, drift meter).
+    ``t_lift_end`` is NaN when the cylinder never cleared the grains."""
+    parts, Rc, d_max = sysm.particles, cond.cylinder_diameter_mm * 0.5e-3, cond.particle_d_max_mm * 1e-3
 
     def top_inside():
         p = parts.pos
@@ -294,15 +310,14 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     sysm.drag = num.settle_drag
     while sysm.t < num.settle_time_max:
         chunk("settle")
-        if rms_speed() < num.settle_speed and sysm.t > 0.05:
+        if _rms_speed(sysm) < num.settle_speed and sysm.t > 0.05:
             break
     sysm.drag = 0.0
     t_settled = sysm.t
     fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
     # 2. lift until the rim clears the settled fill, then remove the cylinder
     sysm.walls.lift_start = t_settled
-    sysm.geo[2] = vlift
-    status, message = "ok", ""
+    sysm.geo[2] = cond.lift_speed_mm_s * 1e-3
     t_lift_end = np.nan
     while sysm.t < num.time_max:
         chunk("lift")
@@ -317,23 +332,30 @@ def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None
     drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else sysm.t, num.rest_time_min)
     while sysm.t < num.time_max:
         drift.sample(sysm.t, parts.pos, parts.rad)
-        if rms_speed() < num.rest_speed and drift.done(sysm.t):
+        if _rms_speed(sysm) < num.rest_speed and drift.done(sysm.t):
             break
         chunk("rest")
+    return t_settled, t_lift_end, fill_top, drift
+
+
+def _verdict(sysm: System, cond: HeapCondition, num: Numerics, fill_top: float, t_lift_end: float) -> tuple:
+    """(status, message, coordinate angle): timeout (lift or rest unfinished), column, no_heap or ok."""
+    parts = sysm.particles
+    status, message = "ok", ""
     if not np.isfinite(t_lift_end):
         status, message = "timeout", f"the cylinder had not cleared the particles at t = {sysm.t:.2f} s"
-    elif rms_speed() >= num.rest_speed:
+    elif _rms_speed(sysm) >= num.rest_speed:
         status, message = "timeout", (f"not at rest at the time limit {num.time_max:g} s "
-                                      f"(rms speed {rms_speed() * 1e3:.1f} mm/s)")
+                                      f"(rms speed {_rms_speed(sysm) * 1e3:.1f} mm/s)")
     ang = repose_angle_coords(parts.pos, parts.rad)
     # a cohesive fill can stand as a column after the lift: that is not a heap (issue 3)
+    Rc = cond.cylinder_diameter_mm * 0.5e-3
     if ang.height > 0.7 * min(fill_top, cond.fill_height_mm * 1e-3) and ang.base_radius < 1.5 * Rc:
         status, message = "column", (f"no heap: the fill stood as a column ({ang.height * 1e3:.0f} mm high, "
                                      f"base radius {ang.base_radius * 1e3:.0f} mm)")
     elif not np.isfinite(ang.angle):
         status, message = "no_heap", "no flank could be fitted to the final state"
-    return HeapResult(sysm, status, message, ang, t_settled, t_lift_end, sysm.t, time.perf_counter() - t0,
-                      dict(params), cond, num, seed, energy, drift.rate())
+    return status, message, ang
 
 
 def condition_dict(c: HeapCondition) -> dict:
