@@ -364,6 +364,8 @@ def run_lock(run: Path, wait: bool = False):
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
     _HELD[key] = [fd, 1]
+    if not wait:  # a command's lock, not a library call's short index update (which may run beside its own stagings)
+        sweep_leftovers(run)
     try:
         yield
     except BaseException:
@@ -379,6 +381,32 @@ def run_lock(run: Path, wait: bool = False):
         with contextlib.suppress(OSError):
             os.ftruncate(fd, 0)
         os.close(fd)  # closing the last descriptor releases the lock
+
+
+#: what a writer killed mid-write leaves: a stage's or a heap's staging folder, an atomic write's temporary file
+LEFTOVERS = (".*.staging-*", ".*.tmp")
+
+
+def sweep_leftovers(run: Path, depth: int = 2) -> int:
+    """Delete the :data:`LEFTOVERS` in ``run`` and its folders down to ``depth`` (RUN/simulate/runs is
+    2); returns how many. Only with the run lock newly taken: every writer is then gone, so what is
+    staged belongs to a dead one. Nothing reads these names, so this only frees the space."""
+    level, n = [Path(run)], 0
+    for d in range(depth + 1):
+        for folder in level:
+            for pattern in LEFTOVERS:
+                for p in folder.glob(pattern):
+                    with contextlib.suppress(OSError):
+                        shutil.rmtree(p) if p.is_dir() else p.unlink()
+                        n += 1
+        level = [c for f in level for c in _subfolders(f)] if d < depth else []
+    return n
+
+
+def _subfolders(folder: Path) -> list[Path]:
+    with contextlib.suppress(OSError):
+        return [c for c in folder.iterdir() if c.is_dir() and not c.name.startswith(".")]
+    return []
 
 
 def _acquire(fd: int, run: Path, wait: bool) -> int:

@@ -553,6 +553,8 @@ def check_run(run: Path, settled: bool) -> None:
             for rel, h in d["outputs"].items():
                 assert art.file_hash(lock.parent / rel) == h, (lock, rel)
         assert not list(run.rglob(f".*{art.PENDING_SUFFIX}")), "a commit left unfinished"
+        left = [p for pattern in art.LEFTOVERS for p in run.rglob(pattern)]
+        assert not left, f"a completed command left what a killed one staged: {left[:3]}"
     for p in run.rglob("*.parquet"):
         if any(part.startswith(".") for part in p.relative_to(run).parts):
             continue  # a staging folder a kill left: no reader looks there
