@@ -72,3 +72,31 @@ def test_user_docs_cite_no_spec():
     pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
     cited = [p.name for p in pages if re.search(r"\bSPEC\b", p.read_text())]
     assert not cited, f"pages citing SPEC: {cited}"
+
+
+def test_a_wide_result_table_comes_in_parts_that_fit_100_columns(tmp_path, monkeypatch):
+    """measure-angle's per-condition statistics (110 columns whole, as the tutorial shows them) on a
+    100-column terminal: every line fits, nothing is cut to '…', and every column is shown, in parts
+    that each start with the condition the row belongs to."""
+    import numpy as np
+
+    from calib_cli import artifacts as art
+    from calib_cli.cli import common
+
+    monkeypatch.setattr(common.console, "width", WIDTH)
+    rng = np.random.default_rng(0)
+    conditions = ["d4-5_D40_H100", "d4-5_D40_H50", "d5-6_D40_H75"]
+    rows = [(f"i{c}{k}", cond, 30 + 6 * rng.standard_normal()) for c, cond in enumerate(conditions) for k in range(10)]
+    (tmp_path / "a.csv").write_text("image,repose_angle,condition_id\n" + "".join(f"{i},{a:.4f},{c}\n" for i, c, a in rows))
+    r = CliRunner().invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--angles", str(tmp_path / "a.csv")])
+    assert r.exit_code == 0, r.output
+    per_condition = r.output[r.output.index("Per condition"):]
+    assert "(2 of" in per_condition  # whole, it would not fit
+    assert max(map(len, r.output.splitlines())) <= WIDTH and "…" not in r.output
+    parts = per_condition.split("(2 of")
+    for column in ["n", "mean", "median", "sd", "range", "cv_percent", "se", "ci95_low", "ci95_high"]:
+        assert f" {column} " in per_condition, column
+    for part in parts:
+        assert all(c in part for c in conditions)
+    stats = art.read_table(tmp_path / "run" / "measure" / "conditions.parquet")
+    assert f"{stats['ci95_high'].iloc[0]:.5g}" in per_condition

@@ -13,7 +13,7 @@ from typing import Annotated, Callable, Optional
 import numpy as np
 import pandas as pd
 import typer
-from rich.console import Console
+from rich.console import Console, Group
 from rich.markup import escape
 from rich.table import Table
 
@@ -121,12 +121,35 @@ def pvalue(p: float) -> str:
     return "<0.0001" if p < 1e-4 else f"{p:.4f}"
 
 
-def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None = None) -> Table:
+def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None = None,
+             width: int | None = None) -> Table | Group:
+    """``df`` as a table; one wider than the console (``width``) comes as several, each repeating
+    the first column (the row's name) with as many of the others as fit, so nothing is cut to "…"."""
     formats = formats or {}
+    cells = {c: [escape(formats.get(c, fmt)(v)) for v in df[c]] for c in df.columns}
+    width = width or console.width
+    full = _table(df, cells, list(df.columns), title)
+    if len(df.columns) < 3 or _width(full) <= width:
+        return full
+    key, groups = df.columns[0], [[]]
+    for c in df.columns[1:]:
+        if groups[-1] and _width(_table(df, cells, [key, *groups[-1], c], title)) > width:
+            groups.append([])
+        groups[-1].append(c)
+    return Group(*[_table(df, cells, [key, *g], f"{title} ({i} of {len(groups)})" if i == 1 else f"({i} of "
+                          f"{len(groups)})") for i, g in enumerate(groups, 1)])
+
+
+def _table(df: pd.DataFrame, cells: dict[str, list[str]], columns: list, title: str) -> Table:
     t = Table(title=title, title_justify="left", header_style="bold")
-    for c in df.columns:
+    for c in columns:
         t.add_column(str(c), justify="right" if pd.api.types.is_numeric_dtype(df[c]) else "left")
-    for _, r in df.iterrows():
-        t.add_row(*[escape(formats.get(c, fmt)(r[c])) for c in df.columns])
+    for i in range(len(df)):
+        t.add_row(*[cells[c][i] for c in columns])
     return t
+
+
+def _width(t: Table) -> int:
+    """The table's width with no column squeezed."""
+    return Console(width=10_000).measure(t).maximum
 
