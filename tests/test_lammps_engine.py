@@ -192,7 +192,7 @@ def test_pulloff_caps_are_lammps_jkr_caps(w0):
 
 @pytest.mark.parametrize("model, words", [
     ({"cohesion": "capillary"}, "the cohesion law 'capillary' is built-in only"),
-    ({"rolling": "cdt_own"}, "own spin"),
+    ({"rolling": "standard"}, "own spin"),
     ({"cap": "net"}, "caps_pulloff = 1"),
 ])
 def test_lammps_refuses_a_law_it_has_no_counterpart_of(model, words):

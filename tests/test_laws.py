@@ -59,7 +59,7 @@ def test_every_registered_law_has_a_reference_a_version_and_composes():
     (Interaction(surface_energy=0.5), ContactModel(normal="jkr")),
     (Interaction(surface_energy=0.5, caps_pulloff=1.0, rolling_spring=1.0),
      ContactModel(normal="jkr", cap="pulloff", rolling="sds")),
-    (Interaction(rolling_own_spin=1.0, friction_net_force=1.0), ContactModel(cap="net", rolling="cdt_own")),
+    (Interaction(rolling_own_spin=1.0, friction_net_force=1.0), ContactModel(cap="net", rolling="standard")),
     (Interaction(surface_tension=0.07), ContactModel(cohesion="capillary")),
 ])
 def test_interactions_name_their_laws(it, want):

@@ -16,7 +16,9 @@ from .common import PresetOpt, RunOpt, ShearModulusOpt, console, df_table, say
 def simulate_heap(
     run: RunOpt,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Parameter KEY=VALUE (repeatable): "
-                    + ", ".join(PARAMETERS) + ". With --design, values for factors the design lacks.")] = None,
+                    + ", ".join(PARAMETERS) + ". The rolling law is EDEM's RVD unless rolling_own_spin=1 "
+                    "(EDEM's Standard) or rolling_spring=1 (LAMMPS's rolling sds). With --design, values for "
+                    "factors the design lacks.")] = None,
     design: Annotated[Optional[Path], typer.Option(help="Simulate every row of a design (e.g. RUN/bbd/design.parquet).")] = None,
     repeats: Annotated[int, typer.Option(min=1, help="Runs per parameter point, each with its own seed.")] = 1,
     seed: Annotated[int, typer.Option(help="Base seed (the run seeds derive from it, the run id and the repeat).")] = 0,

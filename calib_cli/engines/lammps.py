@@ -137,8 +137,8 @@ def _rank() -> int:
 #: the laws LAMMPS's `pair granular` has a counterpart of (module docstring); a composition with any
 #: other law (e.g. a liquid bridge, or a law added later) is refused rather than silently dropped
 LAMMPS_LAWS = {"normal": ("hertz", "jkr"), "cohesion": ("none",), "damping": ("edem",),
-               "cap": ("repulsive", "pulloff"), "tangential": ("mindlin",), "rolling": ("cdt_relative", "sds")}
-_WHY = {"cdt_own": "LAMMPS has no rolling law on each body's own spin",
+               "cap": ("repulsive", "pulloff"), "tangential": ("mindlin",), "rolling": ("rvd", "sds")}
+_WHY = {"standard": "LAMMPS has no rolling law on each body's own spin",
         "net": "LAMMPS caps JKR friction at |F_ne + 2 F_pulloff| (caps_pulloff = 1)"}
 
 

@@ -10,8 +10,11 @@ cohesion     ``none``, ``capillary``                     :mod:`.capillary`
 damping      ``edem``                                    :mod:`.damping`
 cap          ``repulsive``, ``net``, ``pulloff``         :mod:`.cap`
 tangential   ``mindlin``                                 :mod:`.tangential`
-rolling      ``cdt_relative``, ``cdt_own``, ``sds``      :mod:`.rolling`
+rolling      ``rvd``, ``standard``, ``sds``              :mod:`.rolling`
 ===========  ==========================================  ====================================
+
+The rolling laws keep EDEM's names where EDEM has the law (``rvd``: "RVD Rolling Friction",
+``standard``: "Standard Rolling Friction") and LAMMPS's where only LAMMPS has it (``sds``).
 
 Each family's module documents the one signature all its laws share. A :class:`ContactModel` names
 the composition; its :attr:`~ContactModel.spec` string is a compile-time constant of the kernel
@@ -89,8 +92,8 @@ for _law in [
     Law("cap", "net", cap.net, 1, "EDEM's JKR help, literally", selected=lambda pp, *w: pp.friction_net_force > 0),
     Law("cap", "pulloff", cap.pulloff, 1, "Thornton 1991; LAMMPS jkr", selected=lambda pp, *w: pp.caps_pulloff > 0),
     Law("tangential", "mindlin", tangential.mindlin, 1, "Mindlin & Deresiewicz 1953; EDEM Hertz-Mindlin"),
-    Law("rolling", "cdt_relative", rolling.cdt_relative, 1, "Ai et al. 2011 type A; EDEM 'RVD'"),
-    Law("rolling", "cdt_own", rolling.cdt_own, 1, "Ai et al. 2011 type A on own spin; EDEM 'Standard'",
+    Law("rolling", "rvd", rolling.rvd, 1, "Ai et al. 2011 type A; EDEM 'RVD'"),
+    Law("rolling", "standard", rolling.standard, 1, "Ai et al. 2011 type A on own spin; EDEM 'Standard'",
         selected=lambda pp, *w: pp.rolling_own_spin > 0),
     Law("rolling", "sds", rolling.sds, 1, "Ai et al. 2011 type C; LAMMPS rolling sds",
         selected=lambda pp, *w: pp.rolling_spring > 0),
@@ -132,7 +135,7 @@ class ContactModel:
     damping: str = "edem"
     cap: str = "repulsive"
     tangential: str = "mindlin"
-    rolling: str = "cdt_relative"
+    rolling: str = "rvd"
 
     def __post_init__(self):
         for f in FAMILIES:

@@ -18,8 +18,8 @@ from .columns import G_ROLL, K_ROLL, MU_R, PP, ROLL_SPRING
 
 
 @nb.njit(cache=True, inline="always")
-def cdt_relative(tix, tiy, tiz, tjx, tjy, tjz, ht, k, nx, ny, nz, Ri, Rj, Rs, Ii_inv, Ij_inv, ci, cj,
-                 wix, wiy, wiz, wjx, wjy, wjz, Nr, prm, row, dt):
+def rvd(tix, tiy, tiz, tjx, tjy, tjz, ht, k, nx, ny, nz, Ri, Rj, Rs, Ii_inv, Ij_inv, ci, cj,
+        wix, wiy, wiz, wjx, wjy, wjz, Nr, prm, row, dt):
     """Constant directional torque on the pair's relative spin (Ai et al. type A; EDEM's 'RVD'
     rolling friction): tau = -mu_r |F_n| R w_rel/|w_rel| on i, its opposite (with R_j) on j.
 
@@ -51,7 +51,7 @@ def cdt_relative(tix, tiy, tiz, tjx, tjy, tjz, ht, k, nx, ny, nz, Ri, Rj, Rs, Ii
 
 @nb.njit(cache=True, inline="always")
 def _own_spin_brake(m, R, I_inv, c, wx, wy, wz, dt):
-    """-m R w/|w| on one body, limited (as :func:`cdt_relative`) so that it never reverses the
+    """-m R w/|w| on one body, limited (as :func:`rvd`) so that it never reverses the
     body's spin within the step; nothing on a wall (I_inv = 0)."""
     w = math.sqrt(wx * wx + wy * wy + wz * wz)
     if w == 0.0 or I_inv == 0.0:
@@ -63,8 +63,8 @@ def _own_spin_brake(m, R, I_inv, c, wx, wy, wz, dt):
 
 
 @nb.njit(cache=True, inline="always")
-def cdt_own(tix, tiy, tiz, tjx, tjy, tjz, ht, k, nx, ny, nz, Ri, Rj, Rs, Ii_inv, Ij_inv, ci, cj,
-            wix, wiy, wiz, wjx, wjy, wjz, Nr, prm, row, dt):
+def standard(tix, tiy, tiz, tjx, tjy, tjz, ht, k, nx, ny, nz, Ri, Rj, Rs, Ii_inv, Ij_inv, ci, cj,
+             wix, wiy, wiz, wjx, wjy, wjz, Nr, prm, row, dt):
     """Constant directional torque on each body's own spin (EDEM's 'Standard' rolling friction):
     tau_i = -mu_r |F_n| R_i w_i/|w_i|, a wall has none. It brakes a cluster turning as one, where
     the relative law does not, and it does not conserve angular momentum in a free collision."""
