@@ -39,6 +39,7 @@ from typing import Callable
 
 import numpy as np
 from numba import types
+from numba.core.target_extension import current_target
 from numba.extending import overload
 
 from ...effects import Effect
@@ -173,14 +174,20 @@ def _law_of(spec, family: str):
     return ContactModel.parse(spec.literal_value).laws[FAMILIES.index(family)].fn
 
 
+def _inline_on_cpu(expr, caller_info, callee_info) -> bool:
+    """Inline a law into its caller on the CPU (numba's IR inliner); on the GPU call it instead, where
+    numba-cuda's inliner fails on these laws (and its own compiler inlines the call anyway)."""
+    return "cuda" not in str(current_target()).lower()
+
+
 def _dispatcher(family: str, params: str):
     """``family(spec, <params>)``: calls the law that ``spec`` (a string literal) names for ``family``.
 
     Made with exec because numba's overloads need explicit parameters (no *args) and each family has
     its own; the generated text is only the forwarding call."""
-    ns: dict = {"overload": overload, "_law_of": _law_of}
+    ns: dict = {"overload": overload, "_law_of": _law_of, "_inline_on_cpu": _inline_on_cpu}
     exec(f"def {family}(spec, {params}):\n    raise NotImplementedError('compiled only')\n"
-         f"@overload({family}, inline='always')\n"
+         f"@overload({family}, inline=_inline_on_cpu)\n"
          f"def _typing(spec, {params}):\n"
          f"    law = _law_of(spec, {family!r})\n"
          f"    if law is None:\n        return None\n"

@@ -26,6 +26,7 @@ import numba as nb
 import numpy as np
 
 from .columns import ATT, E_S, GAMMA, K13, R13
+from .targets import cbrt
 
 #: u_c^3 = 9/2 (3/4 - 1/sqrt 2): the cutoff contact radius in units of (k R*^2)^(1/3)
 U_CUT = (4.5 * (0.75 - 1.0 / math.sqrt(2.0))) ** (1.0 / 3.0)
@@ -159,7 +160,7 @@ def jkr(delta, Rs, a_old, ht, k, prm, row):
     if r13 == 0.0 and gamma > 0.0:
         # R*^(1/3) is fixed for a pair (or a particle on a wall): a cube root per contact and
         # step was a fifth of the step's time
-        r13 = np.cbrt(Rs)
+        r13 = cbrt(Rs)
         ht[k, R13] = r13
     return normal_law_core(delta, Rs, r13, prm[row, E_S], gamma, prm[row, K13], prm[row, ATT], a_old)
 
