@@ -1,7 +1,12 @@
+import os
 from pathlib import Path
 
-import pandas as pd
-import pytest
+# the GPU engine's kernels run under numba's CUDA simulator unless told otherwise (CI has no GPU; on a
+# machine with one, NUMBA_ENABLE_CUDASIM=0 runs tests/test_gpu.py on it). Before numba reads its config.
+os.environ.setdefault("NUMBA_ENABLE_CUDASIM", "1")
+
+import pandas as pd  # noqa: E402
+import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "sample_data" / "paper"

@@ -1,0 +1,577 @@
+"""Many heaps advanced together on a GPU (numba's CUDA target, the ``[gpu]`` extra: numba-cuda).
+
+A batch holds every heap's grains in one set of arrays, heap by heap (``first[h]:first[h+1]``), each
+heap with its own time step, parameter rows, walls, neighbour grid and state; one launch sequence
+per step advances them all, and a heap whose work is done is switched off (``active``). A step is the
+CPU kernel's (:func:`.integrate.run_steps`): half kick and drift, a Verlet-list rebuild where a grain
+moved half the skin, the rim's height, forces, half kick, the overlap and speed checks.
+
+One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
+run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
+module's own is the bookkeeping around it: per-particle neighbour slots (pairs i < j, their contact
+history carried over a rebuild by looking j up in i's old slots), a cell grid per heap, and atomic
+accumulation of pair forces (so, unlike the CPU kernel, the sum's order and its last bits vary from
+run to run). The floor and cylinder contacts' geometry is :func:`.forces.compute_forces`'s, written
+again for one grain per thread.
+
+Without a GPU it runs under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``: every thread in
+Python), which is how ``make test`` checks it against the CPU kernel on a few grains.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import os
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from numba import cuda  # a module global: the simulator swaps it for its own in each kernel
+
+from ..errors import CalibError
+from .forces import contact_of
+from .laws.columns import A_OLD, CYL, FLOOR, HIST, PP, R13
+
+SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
+#: per-heap status after a chunk, as :func:`.integrate.run_steps` returns it
+OK, OVERLAP, SPEED = 0, 2, 3
+
+
+def cuda_module():
+    """numba's CUDA module, or a one-line error saying what is missing."""
+    if not SIMULATOR and not cuda.is_available():
+        raise CalibError("--engine gpu found no usable NVIDIA GPU (or no CUDA driver); install the [gpu] "
+                         "extra on a machine with one, or set NUMBA_ENABLE_CUDASIM=1 to run the GPU code on the "
+                         "CPU (slow: for tests)")
+    return cuda
+
+
+def _unwrap(a):
+    """The numpy array under a simulator's kernel argument (a compiled law takes arrays, not proxies)."""
+    while not isinstance(a, np.ndarray):
+        a = a._item if hasattr(a, "_item") else a._ary
+    return a
+
+
+@nb.njit(inline="always")
+def _same(a):
+    return a
+
+
+#: what a kernel hands a compiled law: the array itself on a GPU, the array under the proxy in the simulator
+_raw = _unwrap if SIMULATOR else _same
+
+
+@dataclass
+class Grid:
+    """One heap's neighbour cells: origin ``lo``, ``dims`` cells of side ``side`` (a grain outside the
+    box counts in the nearest edge cell, so it is still found, only with more candidates)."""
+
+    lo: np.ndarray
+    dims: np.ndarray
+    side: float
+
+    @classmethod
+    def around(cls, pos: np.ndarray, side: float, spread: float = 3.0) -> "Grid":
+        """A box ``spread`` times the grains' horizontal extent (a heap spreads as the cylinder lifts),
+        from the floor to 1.5 times the top, at least 3 cells a side."""
+        r = max(float(np.abs(pos[:, :2]).max()) * spread, 2 * side)
+        lo = np.array([-r, -r, min(float(pos[:, 2].min()), 0.0) - side])
+        hi = np.array([r, r, float(pos[:, 2].max()) * 1.5 + side])
+        dims = np.maximum(np.ceil((hi - lo) / side).astype(np.int64), 3)
+        return cls(lo, dims, side)
+
+
+def kernels(spec: str):
+    """The step's kernels for one composition of laws (``spec``), compiled once per process."""
+    return _kernels(spec)
+
+
+_CACHE: dict = {}
+
+
+def _kernels(spec: str):
+    if spec in _CACHE:
+        return _CACHE[spec]
+    cuda_module()
+    ks = _build(contact_of(spec))
+    _CACHE[spec] = ks
+    return ks
+
+
+def _build(contact):  # noqa: C901 - the kernels, one closure each over the composed contact
+    """Compile the kernels of one step around ``contact`` (kernels are compiled code: long on purpose)."""
+
+    @cuda.jit
+    def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+                   rebuild):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if active[h] == 0:
+            return
+        half = 0.5 * dt[h]
+        im = 1.0 / mass[i]
+        for d in range(3):
+            vel[i, d] += half * force[i, d] * im
+            omg[i, d] += half * torque[i, d] * inv_inertia[i]
+            pos[i, d] += dt[h] * vel[i, d]
+        dx = pos[i, 0] - ref_pos[i, 0]
+        dy = pos[i, 1] - ref_pos[i, 1]
+        dz = pos[i, 2] - ref_pos[i, 2]
+        if dx * dx + dy * dy + dz * dz > limit2[h]:
+            rebuild[h] = 1
+
+    @cuda.jit
+    def clear_cells(ncells, cell_heap, rebuild, count):
+        c = cuda.grid(1)
+        if c < ncells and rebuild[cell_heap[c]] != 0:
+            count[c] = 0
+
+    @cuda.jit(device=True)
+    def cell_of(pos, i, lo, dims, side, h, d):
+        c = int(math.floor((pos[i, d] - lo[h, d]) / side[h]))
+        return min(max(c, 0), dims[h, d] - 1)
+
+    @cuda.jit
+    def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if rebuild[h] == 0:
+            return
+        cx = cell_of(pos, i, lo, dims, side, h, 0)
+        cy = cell_of(pos, i, lo, dims, side, h, 1)
+        cz = cell_of(pos, i, lo, dims, side, h, 2)
+        c = cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
+        s = cuda.atomic.add(count, c, 1)
+        if s < cap:
+            slots[c, s] = i
+        else:
+            overflow[0] = 1
+
+    @cuda.jit
+    def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+                        nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if rebuild[h] == 0:
+            return
+        cx = cell_of(pos, i, lo, dims, side, h, 0)
+        cy = cell_of(pos, i, lo, dims, side, h, 1)
+        cz = cell_of(pos, i, lo, dims, side, h, 2)
+        m = 0
+        width = nbr.shape[1]
+        for x in range(max(cx - 1, 0), min(cx + 2, dims[h, 0])):
+            for y in range(max(cy - 1, 0), min(cy + 2, dims[h, 1])):
+                for z in range(max(cz - 1, 0), min(cz + 2, dims[h, 2])):
+                    c = cell0[h] + (x * dims[h, 1] + y) * dims[h, 2] + z
+                    for q in range(min(count[c], cap)):
+                        j = slots[c, q]
+                        if j <= i:
+                            continue
+                        dx = pos[i, 0] - pos[j, 0]
+                        dy = pos[i, 1] - pos[j, 1]
+                        dz = pos[i, 2] - pos[j, 2]
+                        r = rad[i] + rad[j] + reach[h]
+                        if dx * dx + dy * dy + dz * dz >= r * r:
+                            continue
+                        if m >= width:
+                            overflow[0] = 1
+                            continue
+                        new_nbr[i, m] = j
+                        old = -1
+                        for s in range(nnb[i]):  # carry the contact's history (springs, contact radius)
+                            if nbr[i, s] == j:
+                                old = s
+                        for col in range(hist.shape[2]):
+                            new_hist[i, m, col] = hist[i, old, col] if old >= 0 else 0.0
+                        m += 1
+        new_nnb[i] = m
+
+    @cuda.jit
+    def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
+        i = cuda.grid(1)
+        if i >= n or rebuild[heap[i]] == 0:
+            return
+        nnb[i] = new_nnb[i]
+        for s in range(new_nnb[i]):
+            nbr[i, s] = new_nbr[i, s]
+            for col in range(hist.shape[2]):
+                hist[i, s, col] = new_hist[i, s, col]
+        for d in range(3):
+            ref_pos[i, d] = pos[i, d]
+
+    @cuda.jit
+    def heap_step(nheaps, active, rebuild, step, t0, dt, lift_start, geo):
+        """Per heap: the rebuild flags reset, the rim's height at the step's end."""
+        h = cuda.grid(1)
+        if h >= nheaps or active[h] == 0:
+            return
+        rebuild[h] = 0
+        if geo[h, 2] != 0.0:  # as the CPU kernel rounds it: t = t0 + s dt, then t + dt
+            t = t0[h] + step * dt[h]
+            geo[h, 1] = geo[h, 2] * max(0.0, t + dt[h] - lift_start[h])
+
+    @cuda.jit
+    def gravity(n, active, heap, mass, grav, force, torque, cnew):
+        i = cuda.grid(1)
+        if i >= n or active[heap[i]] == 0:
+            return
+        for d in range(3):
+            force[i, d] = mass[i] * grav[d]
+            torque[i, d] = 0.0
+        cnew[i] = 0.0
+
+    @cuda.jit
+    def pairs(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, prm, gap, dt, force,
+              torque, ncont, cnew, worst):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if active[h] == 0:
+            return
+        ht = _raw(hist[i])
+        p = _raw(prm[h])
+        for s in range(nnb[i]):
+            j = nbr[i, s]
+            dx = pos[i, 0] - pos[j, 0]
+            dy = pos[i, 1] - pos[j, 1]
+            dz = pos[i, 2] - pos[j, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            Ri = rad[i]
+            Rj = rad[j]
+            reach = Ri + Rj + gap[h, PP]
+            if d2 >= reach * reach:
+                for c in range(hist.shape[2]):
+                    if c != R13:
+                        ht[s, c] = 0.0
+                continue
+            Rs = Ri * Rj / (Ri + Rj)
+            d = math.sqrt(d2)
+            inv = 1.0 / d
+            delta = Ri + Rj - d
+            fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = contact(
+                dx * inv, dy * inv, dz * inv, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs,
+                mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
+                vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
+                omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
+            cuda.atomic.add(force, (i, 0), fx)
+            cuda.atomic.add(force, (i, 1), fy)
+            cuda.atomic.add(force, (i, 2), fz)
+            cuda.atomic.add(force, (j, 0), -fx)
+            cuda.atomic.add(force, (j, 1), -fy)
+            cuda.atomic.add(force, (j, 2), -fz)
+            cuda.atomic.add(torque, (i, 0), tix)
+            cuda.atomic.add(torque, (i, 1), tiy)
+            cuda.atomic.add(torque, (i, 2), tiz)
+            cuda.atomic.add(torque, (j, 0), tjx)
+            cuda.atomic.add(torque, (j, 1), tjy)
+            cuda.atomic.add(torque, (j, 2), tjz)
+            if ht[s, A_OLD] > 0.0:
+                cuda.atomic.add(cnew, i, 1.0)
+                cuda.atomic.add(cnew, j, 1.0)
+            cuda.atomic.max(worst, h, ov / min(Ri, Rj))
+
+    @cuda.jit
+    def walls(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, hf, hc, prm, gap, geo, dt, force,
+              torque, ncont, cnew, worst):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if active[h] == 0:
+            return
+        p = _raw(prm[h])
+        Ri = rad[i]
+        drag = geo[h, 5]
+        if drag > 0.0:  # settling aid only (set during the fill): background viscous drag
+            for d in range(3):
+                force[i, d] -= drag * mass[i] * vel[i, d]
+        # floor z = 0, normal +z
+        if geo[h, 4] > 0.0:
+            delta = Ri - pos[i, 2]
+            if delta > -gap[h, FLOOR]:
+                fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
+                    0.0, 0.0, 1.0, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
+                    vel[i, 0], vel[i, 1], vel[i, 2], omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
+                    _raw(hf), i, p, FLOOR, dt[h])
+                force[i, 0] += fx
+                force[i, 1] += fy
+                force[i, 2] += fz
+                torque[i, 0] += tix
+                torque[i, 1] += tiy
+                torque[i, 2] += tiz
+                cnew[i] += 1.0
+                cuda.atomic.max(worst, h, ov / Ri)
+            else:
+                for c in range(hf.shape[1]):
+                    if c != R13:
+                        hf[i, c] = 0.0
+        # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
+        if geo[h, 3] > 0.0:
+            Rc, zedge = geo[h, 0], geo[h, 1]
+            x, y, z = pos[i, 0], pos[i, 1], pos[i, 2]
+            r = math.sqrt(x * x + y * y)
+            delta = -1.0
+            nx = ny = nz = 0.0
+            if r > 1e-12:
+                if z >= zedge:
+                    if r <= Rc:
+                        delta = Ri - (Rc - r)
+                        nx, ny = -x / r, -y / r
+                    else:
+                        delta = Ri - (r - Rc)
+                        nx, ny = x / r, y / r
+                else:
+                    qx, qy = Rc * x / r, Rc * y / r
+                    ex, ey, ez = x - qx, y - qy, z - zedge
+                    dd = math.sqrt(ex * ex + ey * ey + ez * ez)
+                    if dd > 1e-15:
+                        delta = Ri - dd
+                        nx, ny, nz = ex / dd, ey / dd, ez / dd
+            if delta > -gap[h, CYL]:
+                fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
+                    nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
+                    vel[i, 0], vel[i, 1], vel[i, 2] - geo[h, 2], omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
+                    _raw(hc), i, p, CYL, dt[h])
+                force[i, 0] += fx
+                force[i, 1] += fy
+                force[i, 2] += fz
+                torque[i, 0] += tix
+                torque[i, 1] += tiy
+                torque[i, 2] += tiz
+                cnew[i] += 1.0
+                cuda.atomic.max(worst, h, ov / Ri)
+            else:
+                for c in range(hc.shape[1]):
+                    if c != R13:
+                        hc[i, c] = 0.0
+
+    @cuda.jit
+    def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew, overlap_limit,
+             speed_limit, worst, status):
+        i = cuda.grid(1)
+        if i >= n:
+            return
+        h = heap[i]
+        if active[h] == 0:
+            return
+        half = 0.5 * dt[h]
+        im = 1.0 / mass[i]
+        for d in range(3):
+            vel[i, d] += half * force[i, d] * im
+            omg[i, d] += half * torque[i, d] * inv_inertia[i]
+        ncont[i] = cnew[i]
+        v2 = vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2
+        if not v2 <= speed_limit * speed_limit:  # NaN fails too
+            status[h] = SPEED
+        if worst[h] > overlap_limit and status[h] == OK:
+            status[h] = OVERLAP
+        if status[h] != OK:  # a heap that blew up stops where it is (the others go on)
+            active[h] = 0
+
+    return dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
+                find_neighbours=find_neighbours, adopt=adopt, heap_step=heap_step, gravity=gravity, pairs=pairs,
+                walls=walls, kick=kick)
+
+
+#: the per-grain and per-heap arrays a batch keeps on the device, and the ones a chunk may leave half-done
+STATE = ("pos", "vel", "omg", "force", "torque", "ref_pos", "ncont", "cnew", "hf", "hc", "nnb", "nbr", "hist",
+         "geo", "active", "status")
+
+
+def pack(systems: list, width: int = 32, cell_cap: int = 48) -> dict:
+    """Every heap's arrays, heap after heap, as the kernels take them (host numpy arrays, named as the
+    kernels' parameters). Starts from each system's own state, neighbour list and contact history."""
+    ss = list(systems)
+    cat = lambda f: np.ascontiguousarray(np.concatenate([f(s) for s in ss]))  # noqa: E731
+    host = {
+        "pos": cat(lambda s: s.particles.pos), "vel": cat(lambda s: s.particles.vel),
+        "omg": cat(lambda s: s.particles.omg), "force": cat(lambda s: s.force), "torque": cat(lambda s: s.torque),
+        "rad": cat(lambda s: s.particles.rad), "mass": cat(lambda s: s.mass),
+        "inv_inertia": cat(lambda s: s.inv_inertia), "ref_pos": cat(lambda s: s.ref_pos),
+        "ncont": cat(lambda s: s.ncont), "cnew": cat(lambda s: s.cnew), "hf": cat(lambda s: s.hf),
+        "hc": cat(lambda s: s.hc), "heap": np.repeat(np.arange(len(ss)), [s.n for s in ss]).astype(np.int64),
+        "dt": np.array([s.dt for s in ss]), "prm": np.ascontiguousarray(np.stack([s.prm for s in ss])),
+        "gap": np.stack([s.gap for s in ss]), "geo": np.stack([s.geo for s in ss]),
+        "lift_start": np.array([s.walls.lift_start for s in ss]), "reach": np.array([s.reach for s in ss]),
+        "limit2": np.array([(0.5 * s.skin) ** 2 for s in ss]), "grav": np.asarray(ss[0].grav, dtype=np.float64),
+        "active": np.ones(len(ss), np.int64), "status": np.zeros(len(ss), np.int64),
+        "rebuild": np.zeros(len(ss), np.int64), "worst": np.zeros(len(ss)), "overflow": np.zeros(1, np.int64),
+        "t0": np.array([s.t for s in ss]),
+    }
+    first = np.concatenate([[0], np.cumsum([s.n for s in ss])]).astype(np.int64)
+    return {**host, **_slots(ss, first, width), **_grids(ss, cell_cap)}
+
+
+def _slots(systems: list, first: np.ndarray, width: int) -> dict:
+    """Each grain's neighbours j > i and their contact history, from the systems' own pair lists (wider
+    than ``width`` where a grain has more)."""
+    n = int(first[-1])
+    pi = np.concatenate([s.pi[:int(s.npairs[0])] + off for s, off in zip(systems, first)]).astype(np.int64)
+    pj = np.concatenate([s.pj[:int(s.npairs[0])] + off for s, off in zip(systems, first)]).astype(np.int64)
+    ht = np.concatenate([s.ht[:int(s.npairs[0])] for s in systems])
+    nnb = np.bincount(pi, minlength=n).astype(np.int64)
+    width = max(width, int(nnb.max(initial=0)))
+    slot = np.arange(len(pi)) - np.concatenate([[0], np.cumsum(nnb)])[pi]  # pairs come sorted by i
+    nbr = np.zeros((n, width), np.int64)
+    hist = np.zeros((n, width, HIST))
+    nbr[pi, slot], hist[pi, slot] = pj, ht
+    return {"nnb": nnb, "nbr": nbr, "hist": hist, "new_nnb": np.zeros_like(nnb), "new_nbr": np.zeros_like(nbr),
+            "new_hist": np.zeros_like(hist)}
+
+
+def _grids(systems: list, cell_cap: int) -> dict:
+    grids = [Grid.around(s.particles.pos, 2.0 * float(s.particles.rad.max()) + s.reach) for s in systems]
+    sizes = [int(np.prod(g.dims)) for g in grids]
+    cell0 = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    return {"lo": np.stack([g.lo for g in grids]), "dims": np.stack([g.dims for g in grids]),
+            "side": np.array([g.side for g in grids]), "cell0": cell0,
+            "cell_heap": np.repeat(np.arange(len(grids)), sizes).astype(np.int64),
+            "count": np.zeros(cell0[-1], np.int64), "slots": np.zeros((cell0[-1], cell_cap), np.int64)}
+
+
+def _params(kernel) -> list[str]:
+    fn = getattr(kernel, "py_func", None) or getattr(kernel, "fn", None)
+    return list(inspect.signature(fn).parameters)
+
+
+def _scalars(host: dict, systems: list, cell_cap: int, step: int = 0) -> dict:
+    return {"n": len(host["heap"]), "nheaps": len(systems), "ncells": len(host["count"]), "cap": cell_cap,
+            "step": step, "overlap_limit": float(systems[0].overlap_limit),
+            "speed_limit": float(systems[0].speed_limit)}
+
+
+def compile_ptx(spec: str, systems: list, cc: tuple[int, int] = (9, 0)) -> dict[str, str]:
+    """Each kernel of composition ``spec`` compiled to PTX for compute capability ``cc`` (9.0: H100,
+    H200), typed by the arrays :func:`pack` makes of ``systems``: needs numba's CUDA compiler (the
+    [gpu] extra and CUDA's NVVM), not a GPU. The check that the laws compile for the GPU as written."""
+    from numba import typeof
+
+    import numba.cuda.dispatcher as dispatcher
+    from types import SimpleNamespace
+
+    host = pack(systems)
+    values = {**host, **_scalars(host, systems, 48)}
+    out = {}
+    # numba-cuda asks the current GPU's compute capability when it compiles a function a kernel calls
+    # (the composed contact); with no GPU there is none: it is given the target's
+    asked = dispatcher.get_current_device
+    dispatcher.get_current_device = lambda: SimpleNamespace(compute_capability=cc)
+    try:
+        for name, kernel in _build(contact_of(spec)).items():
+            types = tuple(typeof(values[p]) for p in _params(kernel))
+            out[name] = cuda.compile_ptx(kernel.py_func, types, cc=cc)[0]
+    finally:
+        dispatcher.get_current_device = asked
+    return out
+
+
+class Batch:
+    """Heaps advanced together: ``systems`` (:class:`.system.System`, one composition of laws) packed
+    into one set of device arrays. :meth:`advance` runs steps on all the active ones, :meth:`pull`
+    brings positions and velocities back into the systems, :meth:`push_walls` sends their wall
+    settings (lift, drag, cylinder on or off) to the device.
+
+    Starts from each system's own state, neighbour list and contact history, so that a batch and the
+    CPU kernel step from the same point."""
+
+    def __init__(self, systems: list, width: int = 32, cell_cap: int = 48, block: int = 128):
+        specs = {s.model.spec for s in systems}
+        if len(specs) != 1:
+            raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
+        # the simulator starts a Python thread per GPU thread: few of them
+        self.systems, self.spec = list(systems), specs.pop()
+        self.block = min(block, 32) if SIMULATOR else block
+        self.cuda = cuda_module()
+        self.k = kernels(self.spec)
+        self.width, self.cell_cap = width, cell_cap
+        self.first = np.concatenate([[0], np.cumsum([s.n for s in self.systems])]).astype(np.int64)
+        self.host = pack(self.systems, width, cell_cap)
+        self.width = self.host["nbr"].shape[1]
+        self.d = {k: self.cuda.to_device(v) for k, v in self.host.items()}
+
+    def _launch(self, name: str, threads: int, **scalars) -> None:
+        """Kernel ``name`` on ``threads`` threads, its arguments taken by parameter name."""
+        args = {**_scalars(self.host, self.systems, self.cell_cap), **scalars}
+        kernel = self.k[name]
+        b = min(self.block, max(threads, 1)) if SIMULATOR else self.block  # no idle simulated threads
+        kernel[(threads + b - 1) // b, b](*[args[p] if p in args else self.d[p] for p in _params(kernel)])
+
+    # -------------------------------------------------------------- stepping
+    def advance(self, nsteps: int) -> np.ndarray:
+        """``nsteps`` steps of every active heap; returns each heap's status (:data:`OK`, :data:`OVERLAP`,
+        :data:`SPEED`). A chunk whose neighbour slots or cells overflowed is run again with more room."""
+        while True:
+            saved = {k: self.d[k].copy_to_host() for k in STATE}
+            self._chunk(nsteps)
+            if not self.d["overflow"].copy_to_host()[0]:
+                break
+            for k, v in saved.items():
+                self.d[k] = self.cuda.to_device(v)
+            self._grow()
+        status = self.d["status"].copy_to_host()
+        worst = self.d["worst"].copy_to_host()
+        for h, s in enumerate(self.systems):
+            if self.host["active"][h]:  # as System.advance counts it
+                s.t += nsteps * s.dt
+                s.n_steps += nsteps
+                s.max_overlap = max(s.max_overlap, float(worst[h]))
+        self.host["active"] = self.d["active"].copy_to_host()
+        return status
+
+    def _chunk(self, nsteps: int) -> None:
+        n, nh = len(self.host["heap"]), len(self.systems)
+        self.d["worst"] = self.cuda.to_device(np.zeros(nh))
+        self.d["overflow"] = self.cuda.to_device(np.zeros(1, np.int64))
+        self.d["t0"] = self.cuda.to_device(np.array([s.t for s in self.systems]))
+        for step in range(nsteps):
+            self._launch("kick_drift", n)
+            # the simulator's launches cost milliseconds: it skips a rebuild no heap asked for (same result)
+            if not SIMULATOR or self.d["rebuild"].copy_to_host().any():
+                for name, threads in (("clear_cells", len(self.host["count"])), ("bin_grains", n),
+                                      ("find_neighbours", n), ("adopt", n)):
+                    self._launch(name, threads)
+            for name, threads in (("heap_step", nh), ("gravity", n), ("pairs", n), ("walls", n), ("kick", n)):
+                self._launch(name, threads, step=step)
+        self.cuda.synchronize()
+
+    def _grow(self) -> None:
+        """Twice the neighbour slots and cell room, the lists rebuilt from the current positions."""
+        self.width, self.cell_cap = 2 * self.width, 2 * self.cell_cap
+        state = {k: self.d[k].copy_to_host() for k in STATE}
+        n = len(self.host["heap"])
+        old_nbr, old_hist, old_nnb = state.pop("nbr"), state.pop("hist"), state.pop("nnb")
+        slots = {"nnb": old_nnb, "nbr": np.zeros((n, self.width), np.int64), "hist": np.zeros((n, self.width, HIST)),
+                 "new_nnb": np.zeros(n, np.int64), "new_nbr": np.zeros((n, self.width), np.int64),
+                 "new_hist": np.zeros((n, self.width, HIST))}
+        w = old_nbr.shape[1]
+        slots["nbr"][:, :w], slots["hist"][:, :w] = old_nbr, old_hist
+        grids = _grids(self.systems, self.cell_cap)
+        for name, v in {**slots, "count": grids["count"], "slots": grids["slots"]}.items():
+            self.host[name] = v
+            self.d[name] = self.cuda.to_device(v)
+
+    # -------------------------------------------------------------- exchange with the systems
+    def pull(self) -> None:
+        """Positions, velocities, spins, forces and wall settings back into each system."""
+        got = {k: self.d[k].copy_to_host() for k in ("pos", "vel", "omg", "force", "torque", "geo")}
+        for h, (s, a, b) in enumerate(zip(self.systems, self.first[:-1], self.first[1:])):
+            p = s.particles
+            p.pos[:], p.vel[:], p.omg[:] = got["pos"][a:b], got["vel"][a:b], got["omg"][a:b]
+            s.force[:], s.torque[:] = got["force"][a:b], got["torque"][a:b]
+            s.geo[:] = got["geo"][h]
+
+    def push_walls(self) -> None:
+        """The systems' wall settings (``geo``: lift speed, cylinder on, drag) and lift start to the device."""
+        self.host["geo"] = np.stack([s.geo for s in self.systems])
+        self.host["lift_start"] = np.array([s.walls.lift_start for s in self.systems])
+        self.d["geo"] = self.cuda.to_device(self.host["geo"])
+        self.d["lift_start"] = self.cuda.to_device(self.host["lift_start"])
