@@ -26,7 +26,7 @@ import pandas as pd
 
 from . import __version__
 from . import artifacts as art
-from .dem import KERNEL_VERSION
+from .dem import GPU_VERSION, KERNEL_VERSION
 from .dem.laws import REGISTRY, ContactModel
 from .dem.heap import FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, Numerics, condition_dict, heap_model, run_heap, run_key
 from .dem.render import render_side_view
@@ -90,7 +90,7 @@ class Request:
     repeat: int = 0
     model: str = ""
     condition_id: str = ""
-    engine: str = "builtin"  # builtin | lammps
+    engine: str = "builtin"  # builtin | lammps | gpu
     mpi: int = 1  # MPI ranks of a LAMMPS run (the summation order, hence the trajectory, depends on it)
     shapes: tuple[str, ...] = SPHERES  # grain shapes of a LAMMPS run (engines/clumps.py)
 
@@ -100,7 +100,7 @@ class Request:
         k["source"] = self.source
         if self.engine != "builtin":  # keeps the built-in engine's existing cache keys
             k["engine"] = self.engine
-            k["engine_source"] = ENGINE_SOURCE
+            k["engine_source"] = f"gpu-{GPU_VERSION}" if self.engine == "gpu" else ENGINE_SOURCE
         if self.mpi > 1:
             k["mpi"] = self.mpi
         if tuple(self.shapes) != SPHERES:
@@ -208,16 +208,14 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None, force:
 
         res = run_heap_lammps(req.params, req.condition, req.numerics, req.seed, progress=progress, mpi=req.mpi,
                               shapes=tuple(req.shapes))
+    elif req.engine == "gpu":
+        from .dem.gpu import run_heaps
+        from .dem.heap import HeapTest
+
+        res = run_heaps([HeapTest(req.params, req.condition, req.numerics, req.seed, progress)])[0]
     else:
         res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{req.hash}.staging-"))
-    try:
-        row = _write_run(tmp, req, res)
-        _swap_in(tmp, out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return row
+    return _store(req, res, Path(run_dir))
 
 
 def _write_run(out: Path, req: Request, res) -> dict:
@@ -428,6 +426,11 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     for i in cached:  # one write of the index for all of them
         if on_done:
             on_done(requests[i], rows[i])
+    on_gpu = [i for i in todo if requests[i].engine == "gpu"]
+    if on_gpu:  # together, in batches: not one heap per worker
+        for i, row in _execute_on_gpu([requests[i] for i in on_gpu], on_gpu, run_dir):
+            finish(i, row)
+        todo = [i for i in todo if requests[i].engine != "gpu"]
     if dask and todo:
         from distributed import Client, LocalCluster, as_completed
 
@@ -466,6 +469,36 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     for i in twins:  # computed once, above, under its first request's labels
         finish(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
     return pd.DataFrame([r for r in rows if r is not None])
+
+
+#: heaps a GPU batch holds at most: each finished batch is written to the cache, so a stop loses one
+GPU_BATCH = 128
+
+
+def _execute_on_gpu(reqs: list[Request], labels: list[int], run_dir: Path):
+    """Run requests on the GPU engine, :data:`GPU_BATCH` heaps at a time (calib_cli.dem.gpu); yields
+    (label, results row) as each batch's heaps are written, as :func:`execute` writes one."""
+    from .dem.gpu import run_heaps
+    from .dem.heap import HeapTest
+
+    for a in range(0, len(reqs), GPU_BATCH):
+        part = reqs[a:a + GPU_BATCH]
+        results = run_heaps([HeapTest(r.params, r.condition, r.numerics, r.seed) for r in part])
+        for req, res, label in zip(part, results, labels[a:a + GPU_BATCH]):
+            yield label, _store(req, res, run_dir)
+
+
+def _store(req: Request, res, run_dir: Path) -> dict:
+    """Write a finished heap's folder through a staging folder (a cached one is replaced only then)."""
+    out = Path(run_dir) / RUNS / req.hash
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{req.hash}.staging-"))
+    try:
+        row = _write_run(tmp, req, res)
+        _swap_in(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return row
 
 
 def _plan(requests: list[Request], run_dir: Path, force: bool, reuse: bool) -> tuple[list, list, list]:

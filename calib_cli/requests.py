@@ -44,6 +44,25 @@ def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
     return dataclasses.replace(pre, numerics=num)
 
 
+#: the engines a run directory's heaps can be simulated on by every command (``[heap] engine``)
+RUN_ENGINES = ("builtin", "gpu")
+
+
+def heap_engine(cfg: dict, engine: Optional[str] = None) -> str:
+    """The engine of a command's heaps: the option where given, else the run's ``[heap] engine``."""
+    name = engine if engine is not None else cfg["heap"].get("engine", "builtin")
+    if engine is None and name not in RUN_ENGINES:
+        raise CalibError(f"the run's heap settings: engine must be one of {', '.join(RUN_ENGINES)}, got {name!r}")
+    return name
+
+
+def engine_settings(cfg: dict) -> dict:
+    """The run's engine in a stage's settings where it is not the built-in one (so the locks made
+    before engines were a setting stay valid)."""
+    engine = heap_engine(cfg)
+    return {} if engine == "builtin" else {"engine": engine}
+
+
 def heap_setup(cfg: dict, preset: Optional[str], shear_modulus: Optional[float]) -> tuple[str, Optional[float]]:
     """The preset and shear modulus of a command's heaps: the option where given, else the run's
     settings (``[heap]`` preset and shear_modulus), else ``default`` at its own reduced modulus.

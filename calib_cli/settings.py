@@ -88,6 +88,8 @@ DEFAULTS: dict[str, Any] = {
         "preset": "default",
         # Pa; None (no key in a TOML file) -> the preset's reduced 5 MPa (docs/physics.md, 'Stiffness')
         "shear_modulus": None,
+        # builtin (the CPU kernel) or gpu (every heap of a command together on an NVIDIA GPU)
+        "engine": "builtin",
     },
 }
 
@@ -145,7 +147,7 @@ RULES: dict[str, Rule] = {
     "invert.crossover": Rule("number", 0, 1), "invert.mutation": Rule("number", 0, 1),
     "invert.tolerance": Rule("number", 0, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
     "invert.refine": Rule("integer", 0), "invert.refine_z": Rule("number", 0, open=True),
-    "heap.shear_modulus": Rule("number", empty=True),
+    "heap.shear_modulus": Rule("number", empty=True), "heap.engine": Rule("text"),
     "factors.*.low": Rule("number"), "factors.*.high": Rule("number"), "factors.*.unit": Rule("text"),
     "factors.*.label": Rule("text"), "factors.*.symbol": Rule("text"),
     "ascent.fixed.*": Rule("number"), "bbd.fixed.*": Rule("number"), "bbd.ranges.*": Rule("pair"),

@@ -1,7 +1,8 @@
-"""The GPU engine's kernels (calib_cli.dem.gpu) against the CPU kernel, run under numba's CUDA
-simulator (every GPU thread a Python thread): the same steps on the same heaps give the same state.
-The simulator runs threads one after another, so its atomic sums come in a fixed order; on a GPU the
-order varies and only the last bits may differ."""
+"""The GPU engine's kernels (calib_cli.dem.gpu) against the CPU kernel: the same steps on the same
+heaps give the same state. In make test they run under numba's CUDA simulator (every GPU thread a
+Python thread, tests/conftest.py), which runs threads one after another, so its atomic sums come in
+a fixed order and the states agree bit for bit; on a GPU (NUMBA_ENABLE_CUDASIM=0) the order varies
+and the compiler fuses multiply-adds, so only the tolerances below hold."""
 
 from __future__ import annotations
 
@@ -19,7 +20,6 @@ from calib_cli.errors import CalibError
 
 R = 1.5e-3
 MAT = Material(5e6, 0.25, 2600)
-pytestmark = pytest.mark.skipif(not gpu.SIMULATOR, reason="runs the kernels under the simulator")
 
 
 def pair():
@@ -37,8 +37,8 @@ def column(seed: int, mu: float, gamma: float = 0.0, kick: float = 0.05) -> Syst
     pos = np.array(pts) + rng.uniform(-2e-4, 2e-4, (len(pts), 3))
     p = Particles(pos, rng.uniform(0.9 * R, R, len(pts)), vel=rng.normal(0, kick, pos.shape))
     grains = Interaction(static_friction=mu, rolling_friction=0.2, surface_energy=gamma)
-    return System(p, material=MAT, pp=grains, floor=grains, cylinder=Interaction(static_friction=0.3, surface_energy=gamma),
-                  walls=Walls(True, 5.5e-3, 0.05, 0.004))
+    cylinder = Interaction(static_friction=0.3, surface_energy=gamma)
+    return System(p, material=MAT, pp=grains, floor=grains, cylinder=cylinder, walls=Walls(True, 5.5e-3, 0.05, 0.004))
 
 
 def same_state(a: System, b: System, tol: float) -> None:
@@ -127,3 +127,103 @@ def test_the_kernels_compile_for_an_h100_from_the_cpu_kernels_laws():
                        timeout=900)
     assert r.returncode == 0, r.stdout + r.stderr
     assert r.stdout.count("sm_90 ok") == 4, r.stdout
+
+
+def heap_tests_both_ways(num):
+    from calib_cli.dem.heap import HeapCondition, HeapTest, run_heap
+
+    cond = HeapCondition(6.0, 8.0, 32.0, 16.0, 1000.0)  # ~40 grains
+    params = [{"static_friction": 0.5, "rolling_friction": 0.1}, {"static_friction": 0.3, "rolling_friction": 0.2}]
+    cpu = [run_heap(p, cond, num, seed) for seed, p in enumerate(params)]
+    on_gpu = gpu.run_heaps([HeapTest(p, cond, num, seed) for seed, p in enumerate(params)])
+    for a, b in zip(cpu, on_gpu):
+        assert (a.status, a.message, a.system.n_steps, a.t_settled, len(a.energy)) == \
+               (b.status, b.message, b.system.n_steps, b.t_settled, len(b.energy))
+        assert a.t_lift_end == b.t_lift_end or (np.isnan(a.t_lift_end) and np.isnan(b.t_lift_end))
+        assert np.max(np.abs(a.system.particles.pos - b.system.particles.pos)) < 1e-9
+    return cpu, on_gpu
+
+
+def test_heap_tests_run_together_as_the_cpu_engine_runs_each():
+    """The heap protocol (settle, lift, rest) driving a batch: every phase change on the device as
+    on the CPU. Cut short (90 steps) for make test; the slow test below runs a whole short heap."""
+    from calib_cli.dem.heap import Numerics
+
+    cpu, _ = heap_tests_both_ways(Numerics(time_max=0.004, settle_time_max=0.0015, rest_time_min=0.001, chunk=30))
+    assert all(np.isfinite(r.t_settled) and len(r.energy) >= 3 for r in cpu)  # settled, then lifted
+
+
+@pytest.mark.slow
+def test_a_whole_short_heap_test_on_the_gpu_engine_as_on_the_cpu():
+    """2,200 steps: settle, the lift to its end, the rest phase; the same statuses, phase times and
+    coordinate angles (4 min under the simulator)."""
+    from calib_cli.dem.heap import Numerics
+
+    cpu, on_gpu = heap_tests_both_ways(Numerics(time_max=0.1, settle_time_max=0.02, rest_time_min=0.02, chunk=200))
+    assert all(np.isfinite(r.t_lift_end) for r in cpu)
+    assert on_gpu[1].angle.angle == pytest.approx(cpu[1].angle.angle, abs=1e-9)
+
+
+def test_a_campaign_on_the_gpu_engine_writes_the_rows_and_cache_the_cpu_engine_writes(tmp_path, monkeypatch):
+    """simulate-heap's library call with engine="gpu": the same statuses and angles as the built-in
+    engine on the same requests, rows marked gpu, heaps under their own keys, a rerun from the cache."""
+    import dataclasses
+
+    from calib_cli import campaign
+    from calib_cli.dem.heap import Numerics
+    from calib_cli.stages.simulate import plan_simulation, run_simulation
+
+    short = Numerics(time_max=0.004, settle_time_max=0.0015, rest_time_min=0.001, chunk=30)
+    tiny = ["particle_d_min_mm=6", "particle_d_max_mm=8", "cylinder_diameter_mm=32", "fill_height_mm=16",
+            "lift_speed_mm_s=1000"]
+
+    def run(engine):
+        plan = plan_simulation(tmp_path / engine, ["static_friction=0.4"], preset="smoke", repeats=2, condition=tiny,
+                               engine=engine)
+        plan.requests = [dataclasses.replace(r, numerics=short) for r in plan.requests]
+        return plan, run_simulation(plan).rows.sort_values("repeat")
+
+    _, cpu = run("builtin")
+    plan, rows = run("gpu")
+    assert list(rows["engine"]) == ["gpu", "gpu"] and list(rows["status"]) == list(cpu["status"])
+    assert np.allclose(rows["angle_coords"], cpu["angle_coords"], atol=1e-9, equal_nan=True)
+    assert set(rows["run_hash"]).isdisjoint(cpu["run_hash"])  # its own cache keys
+    monkeypatch.setattr(campaign, "_execute_on_gpu", lambda *a: pytest.fail("a cached GPU heap ran again"))
+    again = run_simulation(plan).rows.sort_values("repeat")
+    assert list(again["run_hash"]) == list(rows["run_hash"])
+
+
+def test_simulate_heap_engine_gpu_without_a_gpu_is_a_one_line_error(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+
+    monkeypatch.setattr(gpu, "SIMULATOR", False)
+    monkeypatch.setattr(gpu.cuda, "is_available", lambda: False, raising=False)
+    r = CliRunner().invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--preset", "smoke", "--engine", "gpu"])
+    assert r.exit_code == 2 and "no usable NVIDIA GPU" in r.output, r.output
+    assert not (tmp_path / "r" / "simulate").exists()
+
+
+def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_path):
+    """``[heap] engine = "gpu"`` in a run's settings: simulate-heap (and compare, diagnose, invert
+    --validate, which build their requests the same way) ask for the GPU without an option; an option
+    still wins; a bad value is refused in one line."""
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+    from calib_cli.requests import engine_settings, heap_engine
+    from calib_cli.stages.simulate import plan_simulation
+
+    runner = CliRunner()
+    run = tmp_path / "r"
+    assert runner.invoke(app, ["init", "--run", str(run), "-s", "heap.engine=gpu"]).exit_code == 0
+    assert {r.engine for r in plan_simulation(run, ["static_friction=0.4"], preset="smoke", repeats=2).requests} == {"gpu"}
+    assert {r.engine for r in plan_simulation(run, ["static_friction=0.4"], preset="smoke", engine="builtin").requests} \
+        == {"builtin"}
+    assert engine_settings({"heap": {"engine": "gpu"}}) == {"engine": "gpu"}
+    assert engine_settings({"heap": {"engine": "builtin"}}) == {}  # the locks made before keep their hashes
+    with pytest.raises(CalibError, match="engine must be one of builtin, gpu"):
+        heap_engine({"heap": {"engine": "cuda"}})
+    r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "lab"), "--engine", "cuda"])
+    assert r.exit_code == 2 and "unknown engine 'cuda'" in r.output

@@ -42,7 +42,7 @@ def test_heap_setup_of_a_run_is_a_setting_the_options_override():
     no modulus (the heaps' cache keys and the stages' hashes stay those of a run that named none)."""
     from calib_cli.requests import heap_setup
 
-    assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None}
+    assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None, "engine": "builtin"}
     stiff = load_settings(overrides=["heap.shear_modulus=1.5e8", "heap.preset='smoke'"])
     assert heap_setup(load_settings(), None, None) == ("default", None)
     assert heap_setup(stiff, None, None) == ("smoke", 1.5e8)

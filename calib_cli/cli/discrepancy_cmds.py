@@ -165,9 +165,11 @@ def synth_lab(
                      "rubber:static_friction=0.9. Without it the floor takes the walls' values.")] = None,
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
+    engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or gpu (every heap together on an NVIDIA "
+                                             "GPU; extra `pip install '.\\[gpu]'`).")] = "builtin",
 ):
     """Synthetic measurements with a hidden effect: DEM heaps under several conditions, rendered
     as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads)."""
     r = lab.synth_lab(out, set_, hidden, sizes, cylinders, fill_ratio, fills, repeats, preset, workers, shear_modulus,
-                      floor, noise, seed)
+                      floor, noise, seed, engine)
     console.print(f"[green]✓[/] {r.summary()}")

@@ -23,6 +23,8 @@ import os
 from pathlib import Path
 
 KERNEL_VERSION = "1"
+#: the GPU engine's own bookkeeping (dem/gpu.py: neighbour slots, grids, the step's kernels), in its heaps' keys
+GPU_VERSION = "1"
 
 
 def _source_hash() -> str:

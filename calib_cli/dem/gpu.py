@@ -20,6 +20,7 @@ Python), which is how ``make test`` checks it against the CPU kernel on a few gr
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 import os
@@ -438,9 +439,11 @@ def _grids(systems: list, cell_cap: int) -> dict:
             "count": np.zeros(cell0[-1], np.int64), "slots": np.zeros((cell0[-1], cell_cap), np.int64)}
 
 
-def _params(kernel) -> list[str]:
+@functools.cache
+def _params(kernel) -> tuple[str, ...]:
+    """A kernel's parameter names: a launch passes each the array or value of that name."""
     fn = getattr(kernel, "py_func", None) or getattr(kernel, "fn", None)
-    return list(inspect.signature(fn).parameters)
+    return tuple(inspect.signature(fn).parameters)
 
 
 def _scalars(host: dict, systems: list, cell_cap: int, step: int = 0) -> dict:
@@ -575,3 +578,51 @@ class Batch:
         self.host["lift_start"] = np.array([s.walls.lift_start for s in self.systems])
         self.d["geo"] = self.cuda.to_device(self.host["geo"])
         self.d["lift_start"] = self.cuda.to_device(self.host["lift_start"])
+
+    def stop(self, h: int) -> None:
+        """Heap ``h`` takes no more steps (its test is done)."""
+        self.host["active"][h] = 0
+        self.d["active"] = self.cuda.to_device(self.host["active"])
+
+
+def run_heaps(tests: list, progress=None) -> list:
+    """Run heap tests (:class:`.heap.HeapTest`) together on the GPU, one batch per composition of laws
+    and chunk length; returns their :class:`.heap.HeapResult`, in order. Each test follows the CPU
+    engine's protocol: every active heap advances one chunk, then each test decides its next phase (its
+    walls change on the device before the next chunk); a finished or blown-up heap leaves the batch."""
+    results: list = [None] * len(tests)
+    groups: dict = {}
+    for i, t in enumerate(tests):
+        groups.setdefault((t.system.model.spec, t.numerics.chunk), []).append(i)
+    for (_, chunk), members in groups.items():
+        for i, r in zip(members, _run_batch([tests[i] for i in members], chunk)):
+            results[i] = r
+        if progress:
+            progress(len([r for r in results if r is not None]), len(tests))
+    return results
+
+
+def _run_batch(tests: list, chunk: int) -> list:
+    batch = Batch([t.system for t in tests])
+    out: list = [None] * len(tests)
+    for h, t in enumerate(tests):
+        if t.done:  # nothing to step (a zero time limit)
+            out[h] = t.result()
+            batch.stop(h)
+    while any(r is None for r in out):
+        status = batch.advance(chunk)
+        batch.pull()
+        for h, t in enumerate(tests):
+            if out[h] is not None:
+                continue
+            if status[h] != OK:
+                what = "overlap above the limit" if status[h] == OVERLAP else "a speed above the limit (or NaN)"
+                out[h] = t.result(f"unstable run: {what} in the GPU chunk ending at t = {t.system.t:.4g} s; "
+                                  "lower the time step or raise the shear modulus")
+                continue
+            t.advanced()
+            if t.done:
+                out[h] = t.result()
+                batch.stop(h)
+        batch.push_walls()
+    return out

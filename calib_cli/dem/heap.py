@@ -256,33 +256,111 @@ class DriftMeter:
 
 def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None, numerics: Numerics | None = None,
              seed: int = 0, progress: Callable[[float, float, str], None] | None = None) -> HeapResult:
-    """Simulate one heap test and measure its angle from the particle coordinates.
+    """Simulate one heap test on the CPU kernel and measure its angle from the particle coordinates.
 
     ``progress(t, t_max, phase)`` is called after each chunk. A run whose integration blows up
     (:class:`UnstableError`) comes back with status ``unstable`` and no angle, so a campaign records
     it and goes on; a time step that cannot be stable is refused before any step (a :class:`CalibError`).
     """
-    cond = condition or PRESETS["default"].condition
-    num = numerics or PRESETS["default"].numerics
-    cond.validate()
-    pp, pf, pc = interactions(params, cond)
-    t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    parts = fill_cylinder(cond, num.packing_fraction, rng)
-    Rc = cond.cylinder_diameter_mm * 0.5e-3
-    sysm = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
-                  wall_material=Material(num.wall_shear_modulus, num.poisson, num.density),
-                  pp=pp, floor=pf, cylinder=pc, walls=Walls(True, Rc, cond.lift_speed_mm_s * 1e-3, np.inf),
-                  safety=num.safety)
-    energy: list = []
+    test = HeapTest(params, condition, numerics, seed, progress)
     try:
-        t_settled, t_lift_end, fill_top, drift = _phases(sysm, cond, num, energy, progress)
+        while not test.done:
+            test.system.advance(test.numerics.chunk)
+            test.advanced()
     except UnstableError as e:
-        return HeapResult(sysm, "unstable", str(e), no_angle(), np.nan, np.nan, sysm.t, time.perf_counter() - t0,
-                          dict(params), cond, num, seed, energy)
-    status, message, ang = _verdict(sysm, cond, num, fill_top, t_lift_end)
-    return HeapResult(sysm, status, message, ang, t_settled, t_lift_end, sysm.t, time.perf_counter() - t0,
-                      dict(params), cond, num, seed, energy, drift.rate())
+        return test.result(str(e))
+    return test.result()
+
+
+def heap_system(params: Mapping[str, float], cond: HeapCondition, num: Numerics, seed: int) -> System:
+    """The heap test's system before its first step: the fill (seeded) in the cylinder on the floor."""
+    pp, pf, pc = interactions(params, cond)
+    parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(seed))
+    return System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
+                  wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pf,
+                  cylinder=pc, walls=Walls(True, cond.cylinder_diameter_mm * 0.5e-3, cond.lift_speed_mm_s * 1e-3,
+                                            np.inf), safety=num.safety)
+
+
+class HeapTest:
+    """One heap test (paper section 2.2: settle, lift, rest) on its system, for whoever advances it:
+    while not :attr:`done`, advance :attr:`system` by ``numerics.chunk`` steps and call :meth:`advanced`;
+    then :meth:`result`. The CPU engine (:func:`run_heap`) steps one system; the GPU engine steps many
+    together (:func:`calib_cli.dem.gpu.run_heaps`); both follow this one protocol."""
+
+    def __init__(self, params: Mapping[str, float], condition: HeapCondition | None = None,
+                 numerics: Numerics | None = None, seed: int = 0, progress: Callable | None = None):
+        self.params, self.seed, self.progress = dict(params), seed, progress
+        self.condition = condition or PRESETS["default"].condition
+        self.numerics = numerics or PRESETS["default"].numerics
+        self.condition.validate()
+        self.t0 = time.perf_counter()
+        self.system = heap_system(params, self.condition, self.numerics, seed)
+        self.energy: list = []
+        self.t_settled = self.t_lift_end = self.fill_top = np.nan
+        self.drift: DriftMeter | None = None
+        self._steps = self._protocol()
+        self.phase: str | None = next(self._steps, None)  # the phase the next chunk belongs to
+
+    @property
+    def done(self) -> bool:
+        return self.phase is None
+
+    def advanced(self) -> None:
+        """The system has been advanced by one chunk: on to the protocol's next decision."""
+        self.phase = next(self._steps, None)
+
+    def result(self, unstable: str | None = None) -> HeapResult:
+        """The finished test's result; ``unstable``: the integration blew up, with this message."""
+        sysm, cond, num = self.system, self.condition, self.numerics
+        wall = time.perf_counter() - self.t0
+        if unstable is not None:
+            return HeapResult(sysm, "unstable", unstable, no_angle(), np.nan, np.nan, sysm.t, wall, self.params,
+                              cond, num, self.seed, self.energy)
+        status, message, ang = _verdict(sysm, cond, num, self.fill_top, self.t_lift_end)
+        return HeapResult(sysm, status, message, ang, self.t_settled, self.t_lift_end, sysm.t, wall, self.params,
+                          cond, num, self.seed, self.energy, self.drift.rate())
+
+    def _chunk(self, phase: str):
+        yield phase  # the driver advances the system here
+        sysm = self.system
+        self.energy.append((sysm.t, sysm.kinetic_energy(), sysm.rim_height))
+        if self.progress:
+            self.progress(sysm.t, self.numerics.time_max, phase)
+
+    def _protocol(self):
+        """Settle, lift, rest; yields before each chunk. ``t_lift_end`` stays NaN when the cylinder never
+        cleared the grains."""
+        sysm, cond, num = self.system, self.condition, self.numerics
+        parts, Rc, d_max = sysm.particles, cond.cylinder_diameter_mm * 0.5e-3, cond.particle_d_max_mm * 1e-3
+        # 1. settle inside the cylinder, with a background drag that only this phase has
+        sysm.drag = num.settle_drag
+        while sysm.t < num.settle_time_max:
+            yield from self._chunk("settle")
+            if _rms_speed(sysm) < num.settle_speed and sysm.t > 0.05:
+                break
+        sysm.drag = 0.0
+        self.t_settled = sysm.t
+        self.fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
+        # 2. lift until the rim clears the settled fill, then remove the cylinder
+        sysm.walls.lift_start = self.t_settled
+        sysm.geo[2] = cond.lift_speed_mm_s * 1e-3
+        while sysm.t < num.time_max:
+            yield from self._chunk("lift")
+            # the cylinder is done once its rim clears every grain still inside it: a fill that
+            # collapses meets the rising rim long before the rim reaches the settled fill's top
+            if sysm.rim_height > min(self.fill_top, _top_inside(parts, Rc)) + d_max:
+                self.t_lift_end = sysm.t
+                break
+        sysm.geo[3] = 0.0
+        sysm.geo[2] = 0.0
+        # 3. rest: at least rest_time_min, then until the rms speed is below rest_speed
+        self.drift = DriftMeter(self.t_lift_end if np.isfinite(self.t_lift_end) else sysm.t, num.rest_time_min)
+        while sysm.t < num.time_max:
+            self.drift.sample(sysm.t, parts.pos, parts.rad)
+            if _rms_speed(sysm) < num.rest_speed and self.drift.done(sysm.t):
+                break
+            yield from self._chunk("rest")
 
 
 def _rms_speed(sysm: System) -> float:
@@ -290,52 +368,11 @@ def _rms_speed(sysm: System) -> float:
     return float(np.sqrt(np.sum(sysm.mass * np.sum(v * v, axis=1)) / np.sum(sysm.mass)))
 
 
-def _phases(sysm: System, cond: HeapCondition, num: Numerics, energy: list, progress) -> tuple:
-    """Settle, lift, rest (paper section 2.2); returns (t_settled, t_lift_end, fill_top, drift meter).
-    ``t_lift_end`` is NaN when the cylinder never cleared the grains."""
-    parts, Rc, d_max = sysm.particles, cond.cylinder_diameter_mm * 0.5e-3, cond.particle_d_max_mm * 1e-3
-
-    def top_inside():
-        p = parts.pos
-        inside = p[:, 0] ** 2 + p[:, 1] ** 2 < Rc * Rc
-        return float(np.max(p[inside, 2] + parts.rad[inside])) if inside.any() else 0.0
-
-    def chunk(phase):
-        sysm.advance(num.chunk)
-        energy.append((sysm.t, sysm.kinetic_energy(), sysm.rim_height))
-        if progress:
-            progress(sysm.t, num.time_max, phase)
-
-    # 1. settle inside the cylinder, with a background drag that only this phase has
-    sysm.drag = num.settle_drag
-    while sysm.t < num.settle_time_max:
-        chunk("settle")
-        if _rms_speed(sysm) < num.settle_speed and sysm.t > 0.05:
-            break
-    sysm.drag = 0.0
-    t_settled = sysm.t
-    fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
-    # 2. lift until the rim clears the settled fill, then remove the cylinder
-    sysm.walls.lift_start = t_settled
-    sysm.geo[2] = cond.lift_speed_mm_s * 1e-3
-    t_lift_end = np.nan
-    while sysm.t < num.time_max:
-        chunk("lift")
-        # the cylinder is done once its rim clears every grain still inside it: a fill that
-        # collapses meets the rising rim long before the rim reaches the settled fill's top
-        if sysm.rim_height > min(fill_top, top_inside()) + d_max:
-            t_lift_end = sysm.t
-            break
-    sysm.geo[3] = 0.0
-    sysm.geo[2] = 0.0
-    # 3. rest: at least rest_time_min, then until the rms speed is below rest_speed
-    drift = DriftMeter(t_lift_end if np.isfinite(t_lift_end) else sysm.t, num.rest_time_min)
-    while sysm.t < num.time_max:
-        drift.sample(sysm.t, parts.pos, parts.rad)
-        if _rms_speed(sysm) < num.rest_speed and drift.done(sysm.t):
-            break
-        chunk("rest")
-    return t_settled, t_lift_end, fill_top, drift
+def _top_inside(parts: Particles, Rc: float) -> float:
+    """The top of the grains still inside the cylinder's radius (0 when none is)."""
+    p = parts.pos
+    inside = p[:, 0] ** 2 + p[:, 1] ** 2 < Rc * Rc
+    return float(np.max(p[inside, 2] + parts.rad[inside])) if inside.any() else 0.0
 
 
 def _verdict(sysm: System, cond: HeapCondition, num: Numerics, fill_top: float, t_lift_end: float) -> tuple:

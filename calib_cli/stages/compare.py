@@ -20,8 +20,8 @@ from ..dem.heap import LAWS  # noqa: E402
 from ..discrepancy.stats import per_condition, residual_table, summary  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..model import EFFECTS, Model, load_model  # noqa: E402
-from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, modulus_settings,  # noqa: E402
-                        parse_params, table_conditions)
+from ..requests import (COND_VARS, build_requests, engine_settings, heap_engine, heap_preset, heap_setup,  # noqa: E402
+                        modulus_settings, parse_params, table_conditions)
 from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
                      warn_other_modulus, writes_run)
 from .simulate import Pairs, pairs  # noqa: E402
@@ -82,10 +82,11 @@ def _check_given(model: Model, given: dict[str, float]) -> None:
 
 
 def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
-    """Mean, sd, n of the simulated angle per condition at parameters theta."""
+    """Mean, sd, n of the simulated angle per condition at parameters theta, on the run's engine."""
     pre = heap_preset(preset, shear_modulus)
     reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
-                          repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True)
+                          repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True,
+                          engine=heap_engine(resolve_settings(run, None, None)))
     rows = run_campaign(reqs, run, workers)
     return per_condition(rows, conds["condition_id"]), rows
 
@@ -157,7 +158,8 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     st = stage(run, "compare", f"rev{model.revision}",
                    inputs={"conditions": run / "measure" / "conditions.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+                             "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
+                             **engine_settings(resolve_settings(run, None, None))})
     hist_path = run / "compare" / "history.parquet"
     hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
     if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():

@@ -16,7 +16,7 @@ from ..campaign import CACHE_SOURCE
 from ..discrepancy.stats import at_bounds, confound, confounded, difference_se, score_effects, signature_noise, trends
 from ..errors import CalibError
 from ..model import EFFECTS, Model
-from ..requests import COND_VARS, heap_setup, modulus_settings
+from ..requests import COND_VARS, engine_settings, heap_setup, modulus_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
                      warn_other_modulus, writes_run)
 from .compare import measured_conditions, model_and_theta, simulate_at
@@ -219,7 +219,8 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
     st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
-                             "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus)})
+                             "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
+                             **engine_settings(resolve_settings(run, None, None))})
     if st.up_to_date() and not force:
         return DiagnoseResult(st, True)
     cands = model.candidates

@@ -20,8 +20,8 @@ from ..campaign import run_campaign  # noqa: E402
 from ..dem.heap import PARAMETERS  # noqa: E402
 from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa: E402
 from ..errors import CalibError  # noqa: E402
-from ..requests import (COND_VARS, build_requests, heap_preset, heap_setup, make_condition,  # noqa: E402
-                        modulus_settings, table_conditions)
+from ..requests import (COND_VARS, build_requests, engine_settings, heap_engine, heap_preset, heap_setup,  # noqa: E402
+                        make_condition, modulus_settings, table_conditions)
 from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
@@ -192,7 +192,7 @@ def _validate(run: Path, cfg: dict, prob: Problem, start: np.ndarray, validate: 
         # correction round draws fresh ones
         reqs = build_requests([(0, vparams)], vconds, pre.numerics, seed=int(iv["seed"]), repeats=validate,
                               first_repeat=k * validate, from_table=len(vconds) > 1, preset=preset,
-                              design="validate", label_by_condition=True)
+                              design="validate", label_by_condition=True, engine=heap_engine(cfg))
         rows = run_campaign(reqs, run, workers).copy()
         rows.insert(0, "round", k)
         rounds.append(rows)
@@ -251,7 +251,7 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     st = stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
                              "preset": preset,
-                             **modulus_settings(shear_modulus),
+                             **modulus_settings(shear_modulus), **(engine_settings(cfg) if validate else {}),
                              "condition": condition_items})
     if st.up_to_date() and not force:
         return InvertResult(st, True)

@@ -15,7 +15,8 @@ from .. import artifacts as art
 from ..campaign import RUNS, run_campaign
 from ..dem.heap import FLOOR_VARIABLES, HeapCondition
 from ..errors import CalibError
-from ..requests import COND_VARS, build_requests, heap_preset, make_condition, modulus_settings, parse_params
+from ..requests import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
+                        parse_params)
 from .simulate import Pairs, pairs
 
 
@@ -67,7 +68,8 @@ class LabResult:
 def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: str = "5-6,6-8,8-10",
               cylinders: str = "50", fill_ratio: float = 1.0, fills: Optional[str] = None, repeats: int = 3,
               preset: str = "smoke", workers: int = 1, shear_modulus: Optional[float] = None,
-              floor: Optional[list[str]] = None, noise: float = 6.0, seed: int = 7) -> LabResult:
+              floor: Optional[list[str]] = None, noise: float = 6.0, seed: int = 7,
+              engine: str = "builtin") -> LabResult:
     """Synthetic measurements with a hidden effect: DEM heaps at the true parameters ``set_`` under every
     condition (sizes x cylinders x fills x floors), rendered as photographs with image noise, a
     conditions.csv and truth.toml (which no stage reads) in ``out``."""
@@ -80,8 +82,14 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     pre = heap_preset(preset, shear_modulus)
     floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]
     conds = _lab_conditions(floors, sizes, cylinders, fills, fill_ratio, bool(floor))
+    if engine not in RUN_ENGINES:
+        raise CalibError(f"unknown engine {engine!r}: {' or '.join(RUN_ENGINES)}")
+    if engine == "gpu":
+        from ..dem.gpu import cuda_module
+
+        cuda_module()  # fail now: no GPU, or no CUDA driver
     reqs = build_requests([(0, truth)], conds, pre.numerics, seed=seed, repeats=repeats, preset=preset, design="lab",
-                          model="truth", label_by_condition=True)
+                          model="truth", label_by_condition=True, engine=engine)
     for _, c in conds:
         c.validate()
     out = Path(out)

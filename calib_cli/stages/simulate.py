@@ -14,7 +14,7 @@ from .. import artifacts as art
 from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
 from ..dem.heap import PARAMETERS, Preset, interactions
 from ..errors import CalibError
-from ..requests import (build_requests, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
+from ..requests import (build_requests, heap_engine, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
                         parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
@@ -110,21 +110,25 @@ class SimulateResult:
 
 def _engine(engine: str, mpi: int, shape: str) -> tuple[str, ...]:
     """The grain shapes, after checking that the engine can run them."""
-    if engine not in ("builtin", "lammps"):
-        raise CalibError(f"unknown engine {engine!r}: builtin or lammps")
+    if engine not in ("builtin", "lammps", "gpu"):
+        raise CalibError(f"unknown engine {engine!r}: builtin, lammps or gpu")
     if mpi > 1 and engine != "lammps":
         raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
     from ..engines.clumps import SPHERES, parse_shapes
 
     shapes = parse_shapes(shape)
     if shapes != SPHERES and engine != "lammps":
-        raise CalibError("--shape needs --engine lammps: the built-in kernel has spheres only")
+        raise CalibError("--shape needs --engine lammps: the built-in kernel and the GPU engine have spheres only")
     if shapes != SPHERES and mpi > 1:
         raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
     if engine == "lammps":
         from ..engines.lammps import open_lammps
 
         open_lammps().close()  # fail now, with the extra named, not after the first run
+    if engine == "gpu":
+        from ..dem.gpu import cuda_module
+
+        cuda_module()  # fail now: no GPU, or no CUDA driver
     return shapes
 
 
@@ -176,17 +180,20 @@ def read_conditions_table(path: Path) -> pd.DataFrame:
 
 def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = None, repeats: int = 1, seed: int = 0,
                     preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
-                    conditions: Optional[Path] = None, engine: str = "builtin", mpi: int = 1, shape: str = "sphere",
+                    conditions: Optional[Path] = None, engine: Optional[str] = None, mpi: int = 1,
+                    shape: str = "sphere",
                     force: bool = False, say: Optional[Say] = None) -> Plan:
     """Check everything and build the requests (nothing runs yet): every row of ``design`` (else one
     point) with ``params`` for what it lacks, under the preset's rig changed by ``condition`` or every
     condition of the ``conditions`` table, ``repeats`` seeds each. Says how many are cached, and notes
     a floor that follows the grains and cohesive grains at a reduced modulus. ``force``: recompute the
-    cached heaps (each replaced only when its new result is complete)."""
+    cached heaps (each replaced only when its new result is complete). ``engine``: else the run's."""
     say = say or plain
     run = check_run_dir(run)
+    cfg = resolve_settings(run, None, None)
+    engine = heap_engine(cfg, engine)
     shapes = _engine(engine, mpi, shape)
-    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
+    preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus)
     cond = make_condition(pre.condition, pairs(condition, "condition"))
     points, dname, mhash = _points(run, design, parse_params(pairs(params, "--set")))
