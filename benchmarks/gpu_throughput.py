@@ -1,0 +1,82 @@
+"""GPU engine throughput against batch size, beside the CPU kernel on every core of the same machine,
+in one run (issue: a GPU engine that runs a whole design at once).
+
+Each batch is B heaps of the preset's fill (seeds 0..B-1, the paper's Table 6 centre point), settled
+for a warm-up (and the kernels' compilation), then timed over --steps steps; the CPU kernel steps the
+same fills one after another with all its threads. Prints particle-steps per second and the ratio.
+
+    python benchmarks/gpu_throughput.py                       # 1, 4, 16, 64 default heaps; 1, 4 paper
+    NUMBA_ENABLE_CUDASIM=1 python benchmarks/gpu_throughput.py --preset smoke --batches 1,2 --steps 20 \\
+        --paper-batches "" --cpu-heaps 1                      # the simulator: checks the script, not a speed
+"""
+import argparse
+import os
+import platform
+import time
+
+import numba
+import numpy as np
+
+from calib_cli.dem import gpu
+from calib_cli.dem.heap import PRESETS, heap_system
+
+PARAMS = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6}
+
+
+def systems(preset: str, count: int):
+    pre = PRESETS[preset]
+    return [heap_system(PARAMS, pre.condition, pre.numerics, seed) for seed in range(count)]
+
+
+def gpu_rate(preset: str, count: int, steps: int, warmup: int) -> tuple[float, int]:
+    batch = gpu.Batch(systems(preset, count))
+    batch.advance(warmup)
+    t = time.perf_counter()
+    status = batch.advance(steps)
+    dt = time.perf_counter() - t
+    n = len(batch.host["heap"])
+    assert (status == gpu.OK).all(), status
+    return n * steps / dt, n
+
+
+def cpu_rate(preset: str, count: int, steps: int, warmup: int) -> float:
+    total, dt = 0, 0.0
+    for s in systems(preset, count):
+        s.advance(warmup)
+        t = time.perf_counter()
+        s.advance(steps)
+        dt += time.perf_counter() - t
+        total += s.n * steps
+    return total / dt
+
+
+def device_name() -> str:
+    if gpu.SIMULATOR:
+        return "numba CUDA simulator (on the CPU)"
+    d = gpu.cuda_module().get_current_device()
+    name = d.name.decode() if isinstance(d.name, bytes) else d.name
+    return f"{name} (compute capability {d.compute_capability[0]}.{d.compute_capability[1]})"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--preset", default="default")
+    ap.add_argument("--batches", default="1,4,16,64")
+    ap.add_argument("--paper-batches", default="1,4")
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--warmup", type=int, default=200)
+    ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
+    a = ap.parse_args()
+    print(f"GPU: {device_name()}; CPU: {platform.processor() or platform.machine()}, "
+          f"{numba.config.NUMBA_NUM_THREADS} numba threads; {a.steps} timed steps after {a.warmup}")
+    cpu = {p: cpu_rate(p, a.cpu_heaps, a.steps, a.warmup) for p in {a.preset, *(["paper"] if a.paper_batches else [])}}
+    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'GPU p-steps/s':>14} {'CPU p-steps/s':>14} {'GPU/CPU':>8}")
+    runs = [(a.preset, int(b)) for b in a.batches.split(",") if b] + \
+           [("paper", int(b)) for b in a.paper_batches.split(",") if b]
+    for preset, count in runs:
+        rate, n = gpu_rate(preset, count, a.steps, a.warmup)
+        print(f"{preset:8} {count:5d} {n:9d} {rate:14.3g} {cpu[preset]:14.3g} {rate / cpu[preset]:8.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
