@@ -83,6 +83,32 @@ def contact(spec, nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
     return fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, delta
 
 
+@nb.njit(cache=True, inline="always")
+def cylinder_overlap(x, y, z, Ri, Rc, zedge):
+    """(overlap, unit normal towards the grain) of a grain of radius Ri at (x, y, z) on the cylinder of
+    radius Rc, axis through the origin, open below its rim at height zedge: its inner or outer wall
+    above the rim, the rim's edge (a circle) below it. Overlap -1 where neither can be touched."""
+    r = math.sqrt(x * x + y * y)
+    delta = -1.0
+    nx = ny = nz = 0.0
+    if r > 1e-12:
+        if z >= zedge:
+            if r <= Rc:
+                delta = Ri - (Rc - r)
+                nx, ny = -x / r, -y / r
+            else:
+                delta = Ri - (r - Rc)
+                nx, ny = x / r, y / r
+        else:
+            qx, qy = Rc * x / r, Rc * y / r
+            ex, ey, ez = x - qx, y - qy, z - zedge
+            dd = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if dd > 1e-15:
+                delta = Ri - dd
+                nx, ny, nz = ex / dd, ey / dd, ez / dd
+    return delta, nx, ny, nz
+
+
 @nb.njit(cache=True, parallel=True)
 def compute_forces(spec, pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, ht, hf, hc,
                    prm, gap, geo, gravity, dt, force, torque, ncont, cnew, pf):
@@ -200,25 +226,7 @@ def compute_forces(spec, pos, vel, omg, rad, mass, inv_inertia, pi, pj, npairs, 
                         hf[i, c] = 0.0
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if cyl_on > 0.0:
-            x, y, z = pos[i, 0], pos[i, 1], pos[i, 2]
-            r = math.sqrt(x * x + y * y)
-            delta = -1.0
-            nx = ny = nz = 0.0
-            if r > 1e-12:
-                if z >= zedge:
-                    if r <= Rc:
-                        delta = Ri - (Rc - r)
-                        nx, ny = -x / r, -y / r
-                    else:
-                        delta = Ri - (r - Rc)
-                        nx, ny = x / r, y / r
-                else:
-                    qx, qy = Rc * x / r, Rc * y / r
-                    ex, ey, ez = x - qx, y - qy, z - zedge
-                    dd = math.sqrt(ex * ex + ey * ey + ez * ez)
-                    if dd > 1e-15:
-                        delta = Ri - dd
-                        nx, ny, nz = ex / dd, ey / dd, ez / dd
+            delta, nx, ny, nz = cylinder_overlap(pos[i, 0], pos[i, 1], pos[i, 2], Ri, Rc, zedge)
             if delta > dcc:
                 fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
                     spec, nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
