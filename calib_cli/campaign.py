@@ -28,7 +28,8 @@ from . import __version__
 from . import artifacts as art
 from .dem import GPU_VERSION, KERNEL_VERSION
 from .dem.laws import REGISTRY, ContactModel
-from .dem.heap import FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, Numerics, condition_dict, heap_model, run_heap, run_key
+from .dem.heap import (FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, HeapTest, Numerics, condition_dict,
+                       heap_model, resume, run_heap, run_key)
 from .dem.render import render_side_view
 from .errors import CalibError
 from .engines.clumps import SPHERES
@@ -197,12 +198,15 @@ def _row(req: Request, res, img) -> dict:
 
 
 def execute(req: Request, run_dir: str, progress: Callable | None = None, force: bool = False) -> dict:
-    """Run one request (or load its cached result, unless ``force``) and write its artefacts."""
+    """Run one request (or load its cached result, unless ``force``) and write its artefacts. A heap
+    on the built-in or GPU engine goes on from its checkpoint, if a stopped run left one."""
     out = Path(run_dir) / RUNS / req.hash
     _restore(out)
     done = out / "result.json"
     if done.is_file() and not force:
         return art.read_json(done)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ck = checkpoint_path(Path(run_dir), req, fresh=force)
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
 
@@ -210,12 +214,23 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None, force:
                               shapes=tuple(req.shapes))
     elif req.engine == "gpu":
         from .dem.gpu import run_heaps
-        from .dem.heap import HeapTest
 
-        res = run_heaps([HeapTest(req.params, req.condition, req.numerics, req.seed, progress)])[0]
+        res = run_heaps([resume(HeapTest(req.params, req.condition, req.numerics, req.seed, progress), ck)],
+                        checkpoints=[ck])[0]
     else:
-        res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress)
-    return _store(req, res, Path(run_dir))
+        res = run_heap(req.params, req.condition, req.numerics, req.seed, progress=progress, checkpoint=ck)
+    row = _store(req, res, Path(run_dir))
+    ck.unlink(missing_ok=True)
+    return row
+
+
+def checkpoint_path(run_dir: Path, req: Request, fresh: bool = False) -> Path:
+    """Where a stopped heap keeps its state (``RUN/simulate/runs/.<hash>.checkpoint.npz``); ``fresh``
+    (``--force``) deletes it: the heap starts again from its fill."""
+    ck = Path(run_dir) / RUNS / f".{req.hash}.checkpoint.npz"
+    if fresh:
+        ck.unlink(missing_ok=True)
+    return ck
 
 
 def _write_run(out: Path, req: Request, res) -> dict:
@@ -428,7 +443,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
             on_done(requests[i], rows[i])
     on_gpu = [i for i in todo if requests[i].engine == "gpu"]
     if on_gpu:  # together, in batches: not one heap per worker
-        for i, row in _execute_on_gpu([requests[i] for i in on_gpu], on_gpu, run_dir):
+        for i, row in _execute_on_gpu([requests[i] for i in on_gpu], on_gpu, run_dir, force):
             finish(i, row)
         todo = [i for i in todo if requests[i].engine != "gpu"]
     if dask and todo:
@@ -475,17 +490,20 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
 GPU_BATCH = 128
 
 
-def _execute_on_gpu(reqs: list[Request], labels: list[int], run_dir: Path):
-    """Run requests on the GPU engine, :data:`GPU_BATCH` heaps at a time (calib_cli.dem.gpu); yields
-    (label, results row) as each batch's heaps are written, as :func:`execute` writes one."""
+def _execute_on_gpu(reqs: list[Request], labels: list[int], run_dir: Path, force: bool = False):
+    """Run requests on the GPU engine, :data:`GPU_BATCH` heaps at a time (calib_cli.dem.gpu), each from its
+    checkpoint where a stopped run left one; yields (label, results row) as each batch's heaps are
+    written, as :func:`execute` writes one."""
     from .dem.gpu import run_heaps
-    from .dem.heap import HeapTest
 
+    (Path(run_dir) / RUNS).mkdir(parents=True, exist_ok=True)
     for a in range(0, len(reqs), GPU_BATCH):
         part = reqs[a:a + GPU_BATCH]
-        results = run_heaps([HeapTest(r.params, r.condition, r.numerics, r.seed) for r in part])
-        for req, res, label in zip(part, results, labels[a:a + GPU_BATCH]):
+        cks = [checkpoint_path(run_dir, r, fresh=force) for r in part]
+        tests = [resume(HeapTest(r.params, r.condition, r.numerics, r.seed), ck) for r, ck in zip(part, cks)]
+        for req, res, label, ck in zip(part, run_heaps(tests, checkpoints=cks), labels[a:a + GPU_BATCH], cks):
             yield label, _store(req, res, run_dir)
+            ck.unlink(missing_ok=True)
 
 
 def _store(req: Request, res, run_dir: Path) -> dict:

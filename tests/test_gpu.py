@@ -72,10 +72,10 @@ def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma):
     the batch as the CPU kernel steps it alone, with its own friction."""
     cpu = [column(0, 0.3, gamma), column(1, 0.7, gamma)]
     on_gpu = [column(0, 0.3, gamma), column(1, 0.7, gamma)]
-    status = run_both(cpu, on_gpu, 400, 100)
+    status = run_both(cpu, on_gpu, 300, 100)
     assert list(status) == [gpu.OK, gpu.OK]
     for a, b in zip(cpu, on_gpu):
-        assert a.n_rebuilds >= 5 and a.rim_height > 0  # the lists were rebuilt and the rim rose
+        assert a.n_rebuilds >= 4 and a.rim_height > 0  # the lists were rebuilt and the rim rose
         same_state(a, b, 1e-9)
         assert b.max_overlap == pytest.approx(a.max_overlap, rel=1e-12)
 
@@ -227,3 +227,23 @@ def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_pa
         heap_engine({"heap": {"engine": "cuda"}})
     r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "lab"), "--engine", "cuda"])
     assert r.exit_code == 2 and "unknown engine 'cuda'" in r.output
+
+
+def test_a_gpu_batch_checkpoints_its_heaps_and_goes_on_from_them(tmp_path):
+    """run_heaps saves each unfinished heap's state (its slots turned back into the CPU kernel's pair
+    list and histories); a test resumed from the last one ends where the uninterrupted one did, and
+    where the CPU engine does."""
+    from calib_cli.dem.heap import HeapCondition, HeapTest, Numerics, resume, run_heap
+
+    params = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.3}
+    cond = HeapCondition(6.0, 8.0, 32.0, 16.0, 3000.0)
+    num = Numerics(time_max=0.014, settle_time_max=0.006, rest_time_min=0.005, chunk=100)  # 3 chunks
+    ck = tmp_path / "heap.npz"
+    whole = gpu.run_heaps([HeapTest(params, cond, num, 3)], checkpoints=[ck], every=0.0)[0]
+    assert ck.is_file()  # the state after the last chunk but one
+    again = gpu.run_heaps([resume(HeapTest(params, cond, num, 3), ck)])[0]
+    cpu = run_heap(params, cond, num, 3)
+    for r in (again, cpu):
+        assert np.max(np.abs(r.system.particles.pos - whole.system.particles.pos)) < 1e-12
+        assert (r.status, r.system.n_steps, r.t_settled, len(r.energy)) == \
+               (whole.status, whole.system.n_steps, whole.t_settled, len(whole.energy))

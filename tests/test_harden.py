@@ -384,7 +384,7 @@ def test_a_campaign_records_an_unstable_heap_and_goes_on(tmp_path, monkeypatch):
     from calib_cli.dem.angle import no_angle
     from calib_cli.stages.simulate import plan_simulation, run_simulation
 
-    def heaps(params, condition, numerics, seed, progress=None):
+    def heaps(params, condition, numerics, seed, progress=None, checkpoint=None):
         if seed != plan.requests[1].seed:
             return _fake_heap(30.0 + seed % 7)
         res = _fake_heap(0.0)
@@ -427,3 +427,65 @@ def test_a_command_sweeps_what_a_killed_writer_staged(tmp_path):
     with art.run_lock(run):
         assert not any(p.exists() for p in left)
     assert all(p.exists() for p in kept)  # deeper than a run's folders reach: not swept
+
+
+# ------------------------------------------------------------------ a stopped heap goes on from its checkpoint
+def _short_heap():
+    from calib_cli.dem.heap import HeapCondition, Numerics
+
+    # ~40 grains lifted fast: settle, lift and rest within 0.03 s (640 steps)
+    return ({"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.3},
+            HeapCondition(6.0, 8.0, 32.0, 16.0, 3000.0),
+            Numerics(time_max=0.03, settle_time_max=0.006, rest_time_min=0.005, chunk=100))
+
+
+def test_a_heap_stopped_in_any_phase_goes_on_from_its_checkpoint_as_if_it_had_not_stopped(tmp_path):
+    import numpy as np
+
+    from calib_cli.dem.heap import HeapTest, run_heap, save_checkpoint
+
+    params, cond, num = _short_heap()
+    whole = run_heap(params, cond, num, 3)
+    stages = set()
+    for stop in (1, 3, 6):  # in the settle, lift and rest phases (7 chunks in all)
+        test = HeapTest(params, cond, num, 3)
+        for _ in range(stop):
+            test.system.advance(num.chunk)
+            test.advanced()
+        stages.add(test.stage)
+        ck = tmp_path / f"stop{stop}.npz"
+        save_checkpoint(ck, test.state())
+        again = run_heap(params, cond, num, 3, checkpoint=ck, every=0.0)  # saves after every chunk too
+        assert np.array_equal(again.system.particles.pos, whole.system.particles.pos)
+        assert np.array_equal(again.system.particles.omg, whole.system.particles.omg)
+        assert (again.status, again.system.n_steps, again.t_settled, len(again.energy)) == \
+               (whole.status, whole.system.n_steps, whole.t_settled, len(whole.energy))
+        assert again.t_lift_end == whole.t_lift_end
+    assert stages == {"settle", "lift", "rest"}
+    ck.write_bytes(b"not a checkpoint")  # a corrupt one: deleted, and the heap starts afresh
+    fresh = run_heap(params, cond, num, 3, checkpoint=ck)
+    assert not ck.exists() and np.array_equal(fresh.system.particles.pos, whole.system.particles.pos)
+
+
+def test_a_campaign_heap_resumes_from_its_checkpoint_and_then_deletes_it(tmp_path, monkeypatch):
+    from calib_cli import campaign
+    from calib_cli.campaign import Request, checkpoint_path
+
+    params, cond, num = _short_heap()
+    req = Request(params, cond, num, 3)
+    seen = []
+
+    def heap(*a, checkpoint=None, **k):
+        seen.append(checkpoint)
+        assert checkpoint.read_bytes() == b"state"
+        return _fake_heap(30.0)
+
+    monkeypatch.setattr(campaign, "run_heap", heap)
+    (tmp_path / campaign.RUNS).mkdir(parents=True)
+    ck = checkpoint_path(tmp_path, req)
+    ck.write_bytes(b"state")
+    campaign.execute(req, str(tmp_path))
+    assert seen == [ck] and not ck.exists()
+    ck.write_bytes(b"state")
+    checkpoint_path(tmp_path, req, fresh=True)  # --force: the heap starts again from its fill
+    assert not ck.exists()

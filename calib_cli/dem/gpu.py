@@ -11,8 +11,7 @@ run's spec), the same compiled function the CPU kernel calls, compiled here for 
 module's own is the bookkeeping around it: per-particle neighbour slots (pairs i < j, their contact
 history carried over a rebuild by looking j up in i's old slots), a cell grid per heap, and atomic
 accumulation of pair forces (so, unlike the CPU kernel, the sum's order and its last bits vary from
-run to run). The floor and cylinder contacts' geometry is :func:`.forces.compute_forces`'s, written
-again for one grain per thread.
+run to run). The cylinder's geometry is the CPU kernel's too (:func:`.forces.cylinder_overlap`).
 
 Without a GPU it runs under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``: every thread in
 Python), which is how ``make test`` checks it against the CPU kernel on a few grains.
@@ -24,6 +23,7 @@ import functools
 import inspect
 import math
 import os
+import time
 from dataclasses import dataclass
 
 import numba as nb
@@ -31,7 +31,7 @@ import numpy as np
 from numba import cuda  # a module global: the simulator swaps it for its own in each kernel
 
 from ..errors import CalibError
-from .forces import contact_of
+from .forces import contact_of, cylinder_overlap
 from .laws.columns import A_OLD, CYL, FLOOR, HIST, PP, R13
 
 SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
@@ -74,9 +74,10 @@ class Grid:
     side: float
 
     @classmethod
-    def around(cls, pos: np.ndarray, side: float, spread: float = 3.0) -> "Grid":
-        """A box ``spread`` times the grains' horizontal extent (a heap spreads as the cylinder lifts),
-        from the floor to 1.5 times the top, at least 3 cells a side."""
+    def around(cls, pos: np.ndarray, side: float, spread: float = 4.5) -> "Grid":
+        """A box ``spread`` times the grains' horizontal extent (a heap spreads as the cylinder lifts: a
+        `default` fill of 25 mm radius ends as a 15-20 deg cone of 85-95 mm), from the floor to 1.5 times
+        the top, at least 3 cells a side."""
         r = max(float(np.abs(pos[:, :2]).max()) * spread, 2 * side)
         lo = np.array([-r, -r, min(float(pos[:, 2].min()), 0.0) - side])
         hi = np.array([r, r, float(pos[:, 2].max()) * 1.5 + side])
@@ -84,21 +85,11 @@ class Grid:
         return cls(lo, dims, side)
 
 
-def kernels(spec: str):
+@functools.cache
+def kernels(spec: str) -> dict:
     """The step's kernels for one composition of laws (``spec``), compiled once per process."""
-    return _kernels(spec)
-
-
-_CACHE: dict = {}
-
-
-def _kernels(spec: str):
-    if spec in _CACHE:
-        return _CACHE[spec]
     cuda_module()
-    ks = _build(contact_of(spec))
-    _CACHE[spec] = ks
-    return ks
+    return _build(contact_of(spec))
 
 
 def _build(contact):  # noqa: C901 - the kernels, one closure each over the composed contact
@@ -317,26 +308,7 @@ def _build(contact):  # noqa: C901 - the kernels, one closure each over the comp
                         hf[i, c] = 0.0
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if geo[h, 3] > 0.0:
-            Rc, zedge = geo[h, 0], geo[h, 1]
-            x, y, z = pos[i, 0], pos[i, 1], pos[i, 2]
-            r = math.sqrt(x * x + y * y)
-            delta = -1.0
-            nx = ny = nz = 0.0
-            if r > 1e-12:
-                if z >= zedge:
-                    if r <= Rc:
-                        delta = Ri - (Rc - r)
-                        nx, ny = -x / r, -y / r
-                    else:
-                        delta = Ri - (r - Rc)
-                        nx, ny = x / r, y / r
-                else:
-                    qx, qy = Rc * x / r, Rc * y / r
-                    ex, ey, ez = x - qx, y - qy, z - zedge
-                    dd = math.sqrt(ex * ex + ey * ey + ez * ez)
-                    if dd > 1e-15:
-                        delta = Ri - dd
-                        nx, ny, nz = ex / dd, ey / dd, ez / dd
+            delta, nx, ny, nz = cylinder_overlap(pos[i, 0], pos[i, 1], pos[i, 2], Ri, geo[h, 0], geo[h, 1])
             if delta > -gap[h, CYL]:
                 fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
                     nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
@@ -437,6 +409,18 @@ def _grids(systems: list, cell_cap: int) -> dict:
             "side": np.array([g.side for g in grids]), "cell0": cell0,
             "cell_heap": np.repeat(np.arange(len(grids)), sizes).astype(np.int64),
             "count": np.zeros(cell0[-1], np.int64), "slots": np.zeros((cell0[-1], cell_cap), np.int64)}
+
+
+def _to_pairs(s, nnb: np.ndarray, nbr: np.ndarray, hist: np.ndarray) -> None:
+    """A system's pair list (sorted by i, then j, as the CPU kernel keeps it) from one heap's slots."""
+    i = np.repeat(np.arange(len(nnb)), nnb)
+    slot = np.arange(len(i)) - np.repeat(np.cumsum(nnb) - nnb, nnb)
+    j, h = nbr[i, slot], hist[i, slot]
+    order = np.lexsort((j, i))
+    if len(order) > len(s.pi):
+        s._alloc(2 * len(order))
+    s.pi[:len(order)], s.pj[:len(order)], s.ht[:len(order)] = i[order], j[order], h[order]
+    s.npairs[0] = len(order)
 
 
 @functools.cache
@@ -563,14 +547,22 @@ class Batch:
             self.d[name] = self.cuda.to_device(v)
 
     # -------------------------------------------------------------- exchange with the systems
-    def pull(self) -> None:
-        """Positions, velocities, spins, forces and wall settings back into each system."""
-        got = {k: self.d[k].copy_to_host() for k in ("pos", "vel", "omg", "force", "torque", "geo")}
+    def pull(self, lists: bool = False) -> None:
+        """Positions, velocities, spins, forces and wall settings back into each system; with ``lists``
+        also its neighbour list, contact histories and contact counts (all a checkpoint needs)."""
+        names = ["pos", "vel", "omg", "force", "torque", "geo"]
+        if lists:
+            names += ["ref_pos", "hf", "hc", "ncont", "cnew", "nnb", "nbr", "hist"]
+        got = {k: self.d[k].copy_to_host() for k in names}
         for h, (s, a, b) in enumerate(zip(self.systems, self.first[:-1], self.first[1:])):
             p = s.particles
             p.pos[:], p.vel[:], p.omg[:] = got["pos"][a:b], got["vel"][a:b], got["omg"][a:b]
             s.force[:], s.torque[:] = got["force"][a:b], got["torque"][a:b]
             s.geo[:] = got["geo"][h]
+            if lists:
+                for k in ("ref_pos", "hf", "hc", "ncont", "cnew"):
+                    getattr(s, k)[:] = got[k][a:b]
+                _to_pairs(s, got["nnb"][a:b], got["nbr"][a:b] - a, got["hist"][a:b])
 
     def push_walls(self) -> None:
         """The systems' wall settings (``geo``: lift speed, cylinder on, drag) and lift start to the device."""
@@ -585,44 +577,68 @@ class Batch:
         self.d["active"] = self.cuda.to_device(self.host["active"])
 
 
-def run_heaps(tests: list, progress=None) -> list:
+def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every: float | None = None) -> list:
     """Run heap tests (:class:`.heap.HeapTest`) together on the GPU, one batch per composition of laws
     and chunk length; returns their :class:`.heap.HeapResult`, in order. Each test follows the CPU
     engine's protocol: every active heap advances one chunk, then each test decides its next phase (its
-    walls change on the device before the next chunk); a finished or blown-up heap leaves the batch."""
+    walls change on the device before the next chunk); a finished or blown-up heap leaves the batch.
+    ``checkpoints`` (a file per test, or None): each unfinished test's state is saved there every
+    ``every`` seconds (:func:`.heap.save_checkpoint`), to go on from with :func:`.heap.resume`."""
+    from .heap import CHECKPOINT_EVERY
+
     results: list = [None] * len(tests)
+    files = list(checkpoints) if checkpoints is not None else [None] * len(tests)
     groups: dict = {}
     for i, t in enumerate(tests):
         groups.setdefault((t.system.model.spec, t.numerics.chunk), []).append(i)
     for (_, chunk), members in groups.items():
-        for i, r in zip(members, _run_batch([tests[i] for i in members], chunk)):
+        done = _run_batch([tests[i] for i in members], chunk, [files[i] for i in members],
+                          CHECKPOINT_EVERY if every is None else every)
+        for i, r in zip(members, done):
             results[i] = r
         if progress:
             progress(len([r for r in results if r is not None]), len(tests))
     return results
 
 
-def _run_batch(tests: list, chunk: int) -> list:
+def _run_batch(tests: list, chunk: int, files: list, every: float) -> list:
     batch = Batch([t.system for t in tests])
     out: list = [None] * len(tests)
     for h, t in enumerate(tests):
         if t.done:  # nothing to step (a zero time limit)
             out[h] = t.result()
             batch.stop(h)
+    last = time.monotonic()
     while any(r is None for r in out):
         status = batch.advance(chunk)
-        batch.pull()
+        save = any(files) and time.monotonic() - last > every
+        batch.pull(lists=save)
         for h, t in enumerate(tests):
-            if out[h] is not None:
-                continue
-            if status[h] != OK:
-                what = "overlap above the limit" if status[h] == OVERLAP else "a speed above the limit (or NaN)"
-                out[h] = t.result(f"unstable run: {what} in the GPU chunk ending at t = {t.system.t:.4g} s; "
-                                  "lower the time step or raise the shear modulus")
-                continue
-            t.advanced()
-            if t.done:
-                out[h] = t.result()
-                batch.stop(h)
+            if out[h] is None:
+                out[h] = _decide(batch, h, t, status[h])
         batch.push_walls()
+        if save:
+            _save(tests, out, files)
+            last = time.monotonic()
     return out
+
+
+def _decide(batch: Batch, h: int, t, status: int):
+    """One heap's next step after a chunk: its result if it blew up or is done (it leaves the batch), else None."""
+    if status != OK:
+        what = "overlap above the limit" if status == OVERLAP else "a speed above the limit (or NaN)"
+        return t.result(f"unstable run: {what} in the GPU chunk ending at t = {t.system.t:.4g} s; "
+                        "lower the time step or raise the shear modulus")
+    t.advanced()
+    if not t.done:
+        return None
+    batch.stop(h)
+    return t.result()
+
+
+def _save(tests: list, out: list, files: list) -> None:
+    from .heap import save_checkpoint
+
+    for t, r, f in zip(tests, out, files):
+        if r is None and f is not None:
+            save_checkpoint(f, t.state())

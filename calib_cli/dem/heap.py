@@ -10,8 +10,11 @@ down for speed (see docs/physics.md for the ranges each preset is valid for).
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 import time
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Callable, Mapping
 
 import numpy as np
@@ -239,6 +242,8 @@ class DriftMeter:
         return t >= self.t_done
 
     def sample(self, t: float, pos: np.ndarray, rad: np.ndarray) -> None:
+        if self.samples and self.samples[-1][0] == t:  # a test resumed from a checkpoint samples its last t again
+            return
         if t >= self.t_done - DRIFT_WINDOW:
             a = repose_angle_coords(pos, rad).angle
             if np.isfinite(a):
@@ -254,22 +259,59 @@ class DriftMeter:
         return line_fit(t, a)[1]  # not np.polyfit: its LAPACK solve differs by CPU in the last place
 
 
+#: wall seconds between two checkpoints of a heap (run_heap's ``every``)
+CHECKPOINT_EVERY = 300.0
+
+
 def run_heap(params: Mapping[str, float], condition: HeapCondition | None = None, numerics: Numerics | None = None,
-             seed: int = 0, progress: Callable[[float, float, str], None] | None = None) -> HeapResult:
+             seed: int = 0, progress: Callable[[float, float, str], None] | None = None,
+             checkpoint: Path | None = None, every: float = CHECKPOINT_EVERY) -> HeapResult:
     """Simulate one heap test on the CPU kernel and measure its angle from the particle coordinates.
 
     ``progress(t, t_max, phase)`` is called after each chunk. A run whose integration blows up
     (:class:`UnstableError`) comes back with status ``unstable`` and no angle, so a campaign records
     it and goes on; a time step that cannot be stable is refused before any step (a :class:`CalibError`).
+    With ``checkpoint`` (a file), the test goes on from it where one exists and saves its state there
+    every ``every`` seconds, so that a stopped heap (hours at the ``paper`` preset) loses at most that.
     """
-    test = HeapTest(params, condition, numerics, seed, progress)
+    test = resume(HeapTest(params, condition, numerics, seed, progress), checkpoint)
+    last = time.monotonic()
     try:
         while not test.done:
             test.system.advance(test.numerics.chunk)
             test.advanced()
+            if checkpoint is not None and not test.done and time.monotonic() - last > every:
+                save_checkpoint(checkpoint, test.state())
+                last = time.monotonic()
     except UnstableError as e:
         return test.result(str(e))
     return test.result()
+
+
+def resume(test: "HeapTest", checkpoint: Path | None) -> "HeapTest":
+    """``test`` restored from ``checkpoint`` where that file exists and reads; else as it is (an
+    unreadable checkpoint is deleted: the test starts afresh)."""
+    if checkpoint is None or not Path(checkpoint).is_file():
+        return test
+    try:
+        with np.load(checkpoint, allow_pickle=False) as z:
+            return test.restore({k: z[k] for k in z.files})
+    except (OSError, ValueError, KeyError, CalibError):
+        Path(checkpoint).unlink(missing_ok=True)
+        return test
+
+
+def save_checkpoint(path: Path, state: Mapping[str, np.ndarray]) -> None:
+    """``state`` to ``path`` in one step (written beside it, then renamed): never half a checkpoint."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **state)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def heap_system(params: Mapping[str, float], cond: HeapCondition, num: Numerics, seed: int) -> System:
@@ -299,6 +341,7 @@ class HeapTest:
         self.energy: list = []
         self.t_settled = self.t_lift_end = self.fill_top = np.nan
         self.drift: DriftMeter | None = None
+        self.stage = "settle"  # where the protocol stands: settle, lift or rest
         self._steps = self._protocol()
         self.phase: str | None = next(self._steps, None)  # the phase the next chunk belongs to
 
@@ -329,38 +372,88 @@ class HeapTest:
             self.progress(sysm.t, self.numerics.time_max, phase)
 
     def _protocol(self):
-        """Settle, lift, rest; yields before each chunk. ``t_lift_end`` stays NaN when the cylinder never
+        """Settle, lift, rest; yields before each chunk, and starts in the stage it stopped in (a test
+        restored from a checkpoint, :meth:`restore`). ``t_lift_end`` stays NaN when the cylinder never
         cleared the grains."""
         sysm, cond, num = self.system, self.condition, self.numerics
         parts, Rc, d_max = sysm.particles, cond.cylinder_diameter_mm * 0.5e-3, cond.particle_d_max_mm * 1e-3
-        # 1. settle inside the cylinder, with a background drag that only this phase has
-        sysm.drag = num.settle_drag
-        while sysm.t < num.settle_time_max:
-            yield from self._chunk("settle")
-            if _rms_speed(sysm) < num.settle_speed and sysm.t > 0.05:
-                break
-        sysm.drag = 0.0
-        self.t_settled = sysm.t
-        self.fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
-        # 2. lift until the rim clears the settled fill, then remove the cylinder
-        sysm.walls.lift_start = self.t_settled
-        sysm.geo[2] = cond.lift_speed_mm_s * 1e-3
-        while sysm.t < num.time_max:
-            yield from self._chunk("lift")
-            # the cylinder is done once its rim clears every grain still inside it: a fill that
-            # collapses meets the rising rim long before the rim reaches the settled fill's top
-            if sysm.rim_height > min(self.fill_top, _top_inside(parts, Rc)) + d_max:
-                self.t_lift_end = sysm.t
-                break
-        sysm.geo[3] = 0.0
-        sysm.geo[2] = 0.0
-        # 3. rest: at least rest_time_min, then until the rms speed is below rest_speed
-        self.drift = DriftMeter(self.t_lift_end if np.isfinite(self.t_lift_end) else sysm.t, num.rest_time_min)
+        if self.stage == "settle":
+            # 1. settle inside the cylinder, with a background drag that only this phase has
+            sysm.drag = num.settle_drag
+            while sysm.t < num.settle_time_max:
+                yield from self._chunk("settle")
+                if _rms_speed(sysm) < num.settle_speed and sysm.t > 0.05:
+                    break
+            sysm.drag = 0.0
+            self.t_settled = sysm.t
+            self.fill_top = float(np.max(parts.pos[:, 2] + parts.rad))
+            # 2. lift until the rim clears the settled fill, then remove the cylinder
+            sysm.walls.lift_start = self.t_settled
+            sysm.geo[2] = cond.lift_speed_mm_s * 1e-3
+            self.stage = "lift"
+        if self.stage == "lift":
+            while sysm.t < num.time_max:
+                yield from self._chunk("lift")
+                # the cylinder is done once its rim clears every grain still inside it: a fill that
+                # collapses meets the rising rim long before the rim reaches the settled fill's top
+                if sysm.rim_height > min(self.fill_top, _top_inside(parts, Rc)) + d_max:
+                    self.t_lift_end = sysm.t
+                    break
+            sysm.geo[3] = 0.0
+            sysm.geo[2] = 0.0
+            # 3. rest: at least rest_time_min, then until the rms speed is below rest_speed
+            self.drift = DriftMeter(self.t_lift_end if np.isfinite(self.t_lift_end) else sysm.t, num.rest_time_min)
+            self.stage = "rest"
         while sysm.t < num.time_max:
             self.drift.sample(sysm.t, parts.pos, parts.rad)
             if _rms_speed(sysm) < num.rest_speed and self.drift.done(sysm.t):
                 break
             yield from self._chunk("rest")
+
+    # -------------------------------------------------------------- checkpoints
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything a stopped test needs to go on exactly as if it had not stopped (taken between chunks):
+        the system's state, neighbour list and contact history, and where the protocol stands."""
+        s, p = self.system, self.system.particles
+        n = int(s.npairs[0])  # the list's used part: its arrays' spare room is most of them
+        arrays = {k: getattr(s, k)[:n] if k in PAIR_STATE else getattr(s, k) for k in SYSTEM_STATE}
+        return {**{k: np.array(v) for k, v in arrays.items()}, "pos": p.pos, "vel": p.vel, "omg": p.omg,
+                "scalars": np.array([s.t, s.n_steps, s.n_rebuilds, s.max_overlap, s.walls.lift_start,
+                                     self.t_settled, self.t_lift_end, self.fill_top,
+                                     self.drift.t_done if self.drift else np.nan]),
+                "stage": np.array(self.stage), "phase": np.array(self.phase or ""),
+                "energy": np.array(self.energy, dtype=float).reshape(-1, 3),
+                "drift": np.array(self.drift.samples if self.drift else [], dtype=float).reshape(-1, 2)}
+
+    def restore(self, state: Mapping[str, np.ndarray]) -> "HeapTest":
+        """Go on from :meth:`state` (of a test of the same parameters, condition, numerics and seed)."""
+        s, p = self.system, self.system.particles
+        n = len(state["pi"])
+        if n > len(s.pi):
+            s._alloc(2 * n)
+        for k in SYSTEM_STATE:
+            if k in PAIR_STATE:
+                getattr(s, k)[:n] = state[k]
+            else:
+                getattr(s, k)[...] = state[k]
+        p.pos[...], p.vel[...], p.omg[...] = state["pos"], state["vel"], state["omg"]
+        t, steps, rebuilds, worst, lift_start, self.t_settled, self.t_lift_end, self.fill_top, t_done = state["scalars"]
+        s.t, s.n_steps, s.n_rebuilds, s.max_overlap, s.walls.lift_start = t, int(steps), int(rebuilds), worst, lift_start
+        self.energy = [tuple(r) for r in state["energy"]]
+        self.stage = str(state["stage"])
+        if self.stage == "rest":
+            self.drift = DriftMeter(0.0, 0.0)
+            self.drift.t_done, self.drift.samples = float(t_done), [tuple(r) for r in state["drift"]]
+        self._steps = self._protocol()
+        self.phase = next(self._steps, None)
+        if self.phase != (str(state["phase"]) or None):
+            raise CalibError("a heap's checkpoint does not resume where it stopped: delete it to start afresh")
+        return self
+
+
+#: the System arrays a checkpoint keeps (besides the grains' positions, velocities and spins)
+SYSTEM_STATE = ("force", "torque", "pi", "pj", "ht", "npairs", "ref_pos", "hf", "hc", "ncont", "cnew", "geo")
+PAIR_STATE = ("pi", "pj", "ht")
 
 
 def _rms_speed(sysm: System) -> float:
