@@ -126,6 +126,10 @@ def calibrate_posterior(
     prior: Annotated[str, typer.Option("--prior", help="The uniform prior's ranges: effects (each effect's "
                                        "own, `calib model show`) or heaps (what the model's simulated heaps "
                                        "cover; beyond them the surrogate knows nothing).")] = "effects",
+    design: Annotated[int, typer.Option("--design", min=0, help="Also write RUN/posterior/design.parquet: this "
+                                        "many points spread over the 90 % intervals (a Latin hypercube), to "
+                                        "simulate at the measured conditions with simulate-heap --design, so "
+                                        "the surrogate learns where the posterior lies; then run this again.")] = 0,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
@@ -138,9 +142,10 @@ def calibrate_posterior(
 
     Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet and RUN/model.toml. Writes
     RUN/posterior/summary.parquet, samples.parquet, surrogates.parquet (held-out RMSE of the GP,
-    RSM and BP network) and corner.png. Skipped when its inputs and options are unchanged.
+    RSM and BP network) and corner.png (with --design, design.parquet). Skipped when its inputs and
+    options are unchanged.
     """
-    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say)
+    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
@@ -150,3 +155,8 @@ def calibrate_posterior(
                   f"{cv['folds'].iloc[0]} times; noise_sd is the piles' own scatter, the floor")
     for line in r.conclusion():
         console.print(line)
+    if design:
+        d = r.stage.dir / "design.parquet"
+        console.print(f"wrote {d}: {design} points over the 90 % intervals; simulate them at the measured conditions "
+                      f"(calib simulate-heap --run {run} --design {d} --conditions {run}/measure/conditions.parquet), "
+                      "then run calibrate-posterior again")

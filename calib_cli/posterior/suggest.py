@@ -240,3 +240,20 @@ def explain(ev: Evidence, row: pd.Series, effect: str, variables, words: dict[st
     return (f"a {name} of {row[var]:g} separates {effect.replace('_', ' ')} from {param.replace('_', ' ')} "
             f"(signatures {corr:.0%} alike on the measured conditions): the effect's sensitivity {te} with {name}, "
             f"{param.replace('_', ' ')}'s {tp}")
+
+
+def region_design(summary: pd.DataFrame, points: int, seed: int = 0, first_id: int = 1) -> pd.DataFrame:
+    """``points`` parameter points spread over the posterior's 90 % box (each parameter's q05 to q95 in
+    ``summary``): a Latin hypercube (scipy's, seeded), so that every interval is cut into ``points``
+    slices each sampled once. Where the posterior lies is where the surrogate must be sure; heaps
+    simulated there, at the measured conditions, teach it (docs/tutorial-hidden-effect.md, section 10).
+    Columns ``run_id`` (from ``first_id``) and one per parameter, as ``simulate-heap --design`` reads."""
+    from scipy.stats import qmc
+
+    if points < 2:
+        raise CalibError(f"a posterior-region design needs at least 2 points, got {points}")
+    lo, hi = summary["q05"].to_numpy(float), summary["q95"].to_numpy(float)
+    u = qmc.LatinHypercube(d=len(summary), seed=seed).random(points)
+    x = lo + u * (hi - lo)
+    return pd.DataFrame({"run_id": np.arange(first_id, first_id + points),
+                         **{p: x[:, k] for k, p in enumerate(summary["parameter"])}})

@@ -22,6 +22,7 @@ from ..errors import CalibError  # noqa: E402
 from ..model import DEFAULT_EFFECTS, EFFECTS, MODEL_FILE, Model, load_model  # noqa: E402
 from ..posterior.calibrate import PosteriorResult, calibrate_posterior, savage_dickey  # noqa: E402
 from ..posterior.gp import GPSurrogate, holdout_rmse, informative_conditions  # noqa: E402
+from ..posterior.suggest import region_design  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from .common import Result, Say, check_run_dir, plain, stage, writes_run  # noqa: E402
 from .compare import measured_conditions  # noqa: E402
@@ -215,12 +216,13 @@ def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0) -> GPSurrog
 
 @writes_run
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
-              force: bool = False, say: Optional[Say] = None) -> PosteriorStageResult:
+              force: bool = False, say: Optional[Say] = None, design: int = 0) -> PosteriorStageResult:
     """Sample the posterior of the current model's parameters given every measured condition, through a
     Gaussian process trained on the run's simulated heaps of the model; the prior is uniform over each
     effect's range (``prior="effects"``) or over the range the heaps cover (``"heaps"``). Writes
     RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP, RSM
-    and BP network) and corner.png."""
+    and BP network) and corner.png; with ``design`` N, also design.parquet: N points over the 90 % box
+    (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``."""
     say = say or plain
     run = check_run_dir(run)
     if prior not in PRIORS:
@@ -240,7 +242,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     st = stage(run, "posterior", "sample",
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
                        "model": mfile if mfile.is_file() else None},
-               settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds})
+               settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds,
+                         **({"design": design} if design else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
     if prior == "effects":
@@ -260,4 +263,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         out.figure("corner.png", fig)
         out.table("summary.parquet", table, model_revision=model.revision, model=list(model.effects),
                   noise_sd=gp.noise_sd_, length_scales=gp.length_scales_.to_dict(), heaps=len(rows))
+        if design:  # run ids after those of the run's earlier posterior designs: each round its own labels
+            done = rows.loc[rows["design"] == "posterior", "run_id"] if "design" in rows.columns else []
+            first = int(max(done, default=100)) + 1
+            out.table("design.parquet", region_design(table, design, seed, first), model_revision=model.revision)
     return PosteriorStageResult(st, False, table, held, samples, model.revision)
