@@ -271,6 +271,29 @@ def _build(contact):  # noqa: C901 - the kernels, one closure each over the comp
                 cuda.atomic.add(cnew, j, 1.0)
             cuda.atomic.max(worst, h, ov / min(Ri, Rj))
 
+    @cuda.jit(device=True)
+    def on_wall(i, h, nx, ny, nz, delta, gap, wall_vz, ht, row, Ri, vel, omg, mass, inv_inertia, ncont, p, dt,
+                force, torque, cnew, worst):
+        """Grain i on a wall moving up at ``wall_vz`` (the CPU kernel's wall block): its contact with history
+        ``ht[i]`` and interaction ``row`` added to its force and torque, or, out of reach, its history cleared."""
+        if not delta > -gap:
+            for c in range(ht.shape[1]):
+                if c != R13:
+                    ht[i, c] = 0.0
+            return
+        fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
+            nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
+            vel[i, 0], vel[i, 1], vel[i, 2] - wall_vz, omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
+            _raw(ht), i, p, row, dt)
+        force[i, 0] += fx
+        force[i, 1] += fy
+        force[i, 2] += fz
+        torque[i, 0] += tix
+        torque[i, 1] += tiy
+        torque[i, 2] += tiz
+        cnew[i] += 1.0
+        cuda.atomic.max(worst, h, ov / Ri)
+
     @cuda.jit
     def walls(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, hf, hc, prm, gap, geo, dt, force,
               torque, ncont, cnew, worst):
@@ -288,44 +311,13 @@ def _build(contact):  # noqa: C901 - the kernels, one closure each over the comp
                 force[i, d] -= drag * mass[i] * vel[i, d]
         # floor z = 0, normal +z
         if geo[h, 4] > 0.0:
-            delta = Ri - pos[i, 2]
-            if delta > -gap[h, FLOOR]:
-                fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
-                    0.0, 0.0, 1.0, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
-                    vel[i, 0], vel[i, 1], vel[i, 2], omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
-                    _raw(hf), i, p, FLOOR, dt[h])
-                force[i, 0] += fx
-                force[i, 1] += fy
-                force[i, 2] += fz
-                torque[i, 0] += tix
-                torque[i, 1] += tiy
-                torque[i, 2] += tiz
-                cnew[i] += 1.0
-                cuda.atomic.max(worst, h, ov / Ri)
-            else:
-                for c in range(hf.shape[1]):
-                    if c != R13:
-                        hf[i, c] = 0.0
+            on_wall(i, h, 0.0, 0.0, 1.0, Ri - pos[i, 2], gap[h, FLOOR], 0.0, hf, FLOOR, Ri, vel, omg, mass,
+                    inv_inertia, ncont, p, dt[h], force, torque, cnew, worst)
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if geo[h, 3] > 0.0:
             delta, nx, ny, nz = cylinder_overlap(pos[i, 0], pos[i, 1], pos[i, 2], Ri, geo[h, 0], geo[h, 1])
-            if delta > -gap[h, CYL]:
-                fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
-                    nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
-                    vel[i, 0], vel[i, 1], vel[i, 2] - geo[h, 2], omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
-                    _raw(hc), i, p, CYL, dt[h])
-                force[i, 0] += fx
-                force[i, 1] += fy
-                force[i, 2] += fz
-                torque[i, 0] += tix
-                torque[i, 1] += tiy
-                torque[i, 2] += tiz
-                cnew[i] += 1.0
-                cuda.atomic.max(worst, h, ov / Ri)
-            else:
-                for c in range(hc.shape[1]):
-                    if c != R13:
-                        hc[i, c] = 0.0
+            on_wall(i, h, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass, inv_inertia,
+                    ncont, p, dt[h], force, torque, cnew, worst)
 
     @cuda.jit
     def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew, overlap_limit,
@@ -470,12 +462,12 @@ class Batch:
     Starts from each system's own state, neighbour list and contact history, so that a batch and the
     CPU kernel step from the same point."""
 
-    def __init__(self, systems: list, width: int = 32, cell_cap: int = 48, block: int = 128):
+    def __init__(self, systems: list, width: int = 16, cell_cap: int = 48, block: int = 128):
         specs = {s.model.spec for s in systems}
         if len(specs) != 1:
             raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
-        # the simulator starts a Python thread per GPU thread: few of them
         self.systems, self.spec = list(systems), specs.pop()
+        # the simulator starts a Python thread per GPU thread: few of them
         self.block = min(block, 32) if SIMULATOR else block
         self.cuda = cuda_module()
         self.k = kernels(self.spec)
@@ -485,9 +477,9 @@ class Batch:
         self.width = self.host["nbr"].shape[1]
         self.d = {k: self.cuda.to_device(v) for k, v in self.host.items()}
 
-    def _launch(self, name: str, threads: int, **scalars) -> None:
-        """Kernel ``name`` on ``threads`` threads, its arguments taken by parameter name."""
-        args = {**_scalars(self.host, self.systems, self.cell_cap), **scalars}
+    def _launch(self, name: str, threads: int, args: dict) -> None:
+        """Kernel ``name`` on ``threads`` threads, its arguments taken by parameter name from ``args`` (the
+        scalars) and the device arrays."""
         kernel = self.k[name]
         b = min(self.block, max(threads, 1)) if SIMULATOR else self.block  # no idle simulated threads
         kernel[(threads + b - 1) // b, b](*[args[p] if p in args else self.d[p] for p in _params(kernel)])
@@ -497,12 +489,11 @@ class Batch:
         """``nsteps`` steps of every active heap; returns each heap's status (:data:`OK`, :data:`OVERLAP`,
         :data:`SPEED`). A chunk whose neighbour slots or cells overflowed is run again with more room."""
         while True:
-            saved = {k: self.d[k].copy_to_host() for k in STATE}
+            saved = {k: self._copy(self.d[k]) for k in STATE}  # on the device: a host copy would move GBs
             self._chunk(nsteps)
             if not self.d["overflow"].copy_to_host()[0]:
                 break
-            for k, v in saved.items():
-                self.d[k] = self.cuda.to_device(v)
+            self.d.update(saved)
             self._grow()
         status = self.d["status"].copy_to_host()
         worst = self.d["worst"].copy_to_host()
@@ -519,16 +510,23 @@ class Batch:
         self.d["worst"] = self.cuda.to_device(np.zeros(nh))
         self.d["overflow"] = self.cuda.to_device(np.zeros(1, np.int64))
         self.d["t0"] = self.cuda.to_device(np.array([s.t for s in self.systems]))
+        args = _scalars(self.host, self.systems, self.cell_cap)
         for step in range(nsteps):
-            self._launch("kick_drift", n)
+            args["step"] = step
+            self._launch("kick_drift", n, args)
             # the simulator's launches cost milliseconds: it skips a rebuild no heap asked for (same result)
             if not SIMULATOR or self.d["rebuild"].copy_to_host().any():
                 for name, threads in (("clear_cells", len(self.host["count"])), ("bin_grains", n),
                                       ("find_neighbours", n), ("adopt", n)):
-                    self._launch(name, threads)
+                    self._launch(name, threads, args)
             for name, threads in (("heap_step", nh), ("gravity", n), ("pairs", n), ("walls", n), ("kick", n)):
-                self._launch(name, threads, step=step)
+                self._launch(name, threads, args)
         self.cuda.synchronize()
+
+    def _copy(self, a):
+        b = self.cuda.device_array_like(a)
+        b.copy_to_device(a)
+        return b
 
     def _grow(self) -> None:
         """Twice the neighbour slots and cell room, the lists rebuilt from the current positions."""
