@@ -20,6 +20,9 @@ from calib_cli.errors import CalibError
 
 R = 1.5e-3
 MAT = Material(5e6, 0.25, 2600)
+#: on a GPU the tolerances widen by this factor (atomic sums in varying order, fused multiply-adds): the
+#: simulator checks the arithmetic, a GPU that the engine runs the same heap
+LOOSE = 1.0 if gpu.SIMULATOR else 1e4
 
 
 def pair():
@@ -62,7 +65,7 @@ def test_a_collision_matches_the_cpu_kernel_to_the_last_bit():
     cpu, on_gpu = pair(), pair()
     status = run_both([cpu], [on_gpu], 300, 300)
     assert list(status) == [gpu.OK]
-    same_state(cpu, on_gpu, 1e-12)
+    same_state(cpu, on_gpu, 1e-12 * LOOSE)
     assert np.abs(cpu.particles.omg).max() > 1.0  # the grains spun: tangential and rolling laws took part
 
 
@@ -76,8 +79,8 @@ def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma):
     assert list(status) == [gpu.OK, gpu.OK]
     for a, b in zip(cpu, on_gpu):
         assert a.n_rebuilds >= 4 and a.rim_height > 0  # the lists were rebuilt and the rim rose
-        same_state(a, b, 1e-9)
-        assert b.max_overlap == pytest.approx(a.max_overlap, rel=1e-12)
+        same_state(a, b, 1e-9 * LOOSE)
+        assert b.max_overlap == pytest.approx(a.max_overlap, rel=1e-12 * LOOSE)
 
 
 def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun():
@@ -88,7 +91,7 @@ def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun():
         b.advance(100)
     b.pull()
     assert b.width > 1 and b.cell_cap > 1
-    same_state(cpu[0], on_gpu[0], 1e-9)
+    same_state(cpu[0], on_gpu[0], 1e-9 * LOOSE)
 
 
 def test_a_heap_that_blows_up_stops_alone():
@@ -99,7 +102,7 @@ def test_a_heap_that_blows_up_stops_alone():
     calm_cpu.advance(50)
     b.pull()
     assert list(status) == [gpu.SPEED, gpu.OK] and list(b.host["active"]) == [0, 1]
-    same_state(calm_cpu, calm, 1e-9)
+    same_state(calm_cpu, calm, 1e-9 * LOOSE)
 
 
 def test_one_composition_a_batch():
@@ -140,7 +143,7 @@ def heap_tests_both_ways(num):
         assert (a.status, a.message, a.system.n_steps, a.t_settled, len(a.energy)) == \
                (b.status, b.message, b.system.n_steps, b.t_settled, len(b.energy))
         assert a.t_lift_end == b.t_lift_end or (np.isnan(a.t_lift_end) and np.isnan(b.t_lift_end))
-        assert np.max(np.abs(a.system.particles.pos - b.system.particles.pos)) < 1e-9
+        assert np.max(np.abs(a.system.particles.pos - b.system.particles.pos)) < 1e-9 * LOOSE
     return cpu, on_gpu
 
 
@@ -161,7 +164,7 @@ def test_a_whole_short_heap_test_on_the_gpu_engine_as_on_the_cpu():
 
     cpu, on_gpu = heap_tests_both_ways(Numerics(time_max=0.1, settle_time_max=0.02, rest_time_min=0.02, chunk=200))
     assert all(np.isfinite(r.t_lift_end) for r in cpu)
-    assert on_gpu[1].angle.angle == pytest.approx(cpu[1].angle.angle, abs=1e-9)
+    assert on_gpu[1].angle.angle == pytest.approx(cpu[1].angle.angle, abs=1e-9 * LOOSE)
 
 
 def test_a_campaign_on_the_gpu_engine_writes_the_rows_and_cache_the_cpu_engine_writes(tmp_path, monkeypatch):
@@ -186,7 +189,7 @@ def test_a_campaign_on_the_gpu_engine_writes_the_rows_and_cache_the_cpu_engine_w
     _, cpu = run("builtin")
     plan, rows = run("gpu")
     assert list(rows["engine"]) == ["gpu", "gpu"] and list(rows["status"]) == list(cpu["status"])
-    assert np.allclose(rows["angle_coords"], cpu["angle_coords"], atol=1e-9, equal_nan=True)
+    assert np.allclose(rows["angle_coords"], cpu["angle_coords"], atol=1e-9 * LOOSE, equal_nan=True)
     assert set(rows["run_hash"]).isdisjoint(cpu["run_hash"])  # its own cache keys
     monkeypatch.setattr(campaign, "_execute_on_gpu", lambda *a: pytest.fail("a cached GPU heap ran again"))
     again = run_simulation(plan).rows.sort_values("repeat")
@@ -244,6 +247,6 @@ def test_a_gpu_batch_checkpoints_its_heaps_and_goes_on_from_them(tmp_path):
     again = gpu.run_heaps([resume(HeapTest(params, cond, num, 3), ck)])[0]
     cpu = run_heap(params, cond, num, 3)
     for r in (again, cpu):
-        assert np.max(np.abs(r.system.particles.pos - whole.system.particles.pos)) < 1e-12
+        assert np.max(np.abs(r.system.particles.pos - whole.system.particles.pos)) < 1e-12 * LOOSE
         assert (r.status, r.system.n_steps, r.t_settled, len(r.energy)) == \
                (whole.status, whole.system.n_steps, whole.t_settled, len(whole.energy))
