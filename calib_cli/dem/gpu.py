@@ -92,133 +92,174 @@ def kernels(spec: str) -> dict:
     return _build(contact_of(spec))
 
 
-def _build(contact):  # noqa: C901 - the kernels, one closure each over the composed contact
-    """Compile the kernels of one step around ``contact`` (kernels are compiled code: long on purpose)."""
+def _build(contact) -> dict:
+    """The step's kernels: the ones that call the composed ``contact`` (pair and wall forces), compiled
+    around it, and the ones that do not (integration, neighbour lists, per-heap bookkeeping)."""
+    return {**STEP_KERNELS, **_force_kernels(contact)}
 
-    @cuda.jit
-    def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
-                   rebuild):
-        i = cuda.grid(1)
-        if i >= n:
-            return
-        h = heap[i]
-        if active[h] == 0:
-            return
-        half = 0.5 * dt[h]
-        im = 1.0 / mass[i]
-        for d in range(3):
-            vel[i, d] += half * force[i, d] * im
-            omg[i, d] += half * torque[i, d] * inv_inertia[i]
-            pos[i, d] += dt[h] * vel[i, d]
-        dx = pos[i, 0] - ref_pos[i, 0]
-        dy = pos[i, 1] - ref_pos[i, 1]
-        dz = pos[i, 2] - ref_pos[i, 2]
-        if dx * dx + dy * dy + dz * dz > limit2[h]:
-            rebuild[h] = 1
 
-    @cuda.jit
-    def clear_cells(ncells, cell_heap, rebuild, count):
-        c = cuda.grid(1)
-        if c < ncells and rebuild[cell_heap[c]] != 0:
-            count[c] = 0
+@cuda.jit
+def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+               rebuild):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    h = heap[i]
+    if active[h] == 0:
+        return
+    half = 0.5 * dt[h]
+    im = 1.0 / mass[i]
+    for d in range(3):
+        vel[i, d] += half * force[i, d] * im
+        omg[i, d] += half * torque[i, d] * inv_inertia[i]
+        pos[i, d] += dt[h] * vel[i, d]
+    dx = pos[i, 0] - ref_pos[i, 0]
+    dy = pos[i, 1] - ref_pos[i, 1]
+    dz = pos[i, 2] - ref_pos[i, 2]
+    if dx * dx + dy * dy + dz * dz > limit2[h]:
+        rebuild[h] = 1
 
-    @cuda.jit(device=True)
-    def cell_of(pos, i, lo, dims, side, h, d):
-        c = int(math.floor((pos[i, d] - lo[h, d]) / side[h]))
-        return min(max(c, 0), dims[h, d] - 1)
+@cuda.jit
+def clear_cells(ncells, cell_heap, rebuild, count):
+    c = cuda.grid(1)
+    if c < ncells and rebuild[cell_heap[c]] != 0:
+        count[c] = 0
 
-    @cuda.jit
-    def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
-        i = cuda.grid(1)
-        if i >= n:
-            return
-        h = heap[i]
-        if rebuild[h] == 0:
-            return
-        cx = cell_of(pos, i, lo, dims, side, h, 0)
-        cy = cell_of(pos, i, lo, dims, side, h, 1)
-        cz = cell_of(pos, i, lo, dims, side, h, 2)
-        c = cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
-        s = cuda.atomic.add(count, c, 1)
-        if s < cap:
-            slots[c, s] = i
-        else:
-            overflow[0] = 1
+@cuda.jit(device=True)
+def cell_of(pos, i, lo, dims, side, h, d):
+    c = int(math.floor((pos[i, d] - lo[h, d]) / side[h]))
+    return min(max(c, 0), dims[h, d] - 1)
 
-    @cuda.jit
-    def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
-                        nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
-        i = cuda.grid(1)
-        if i >= n:
-            return
-        h = heap[i]
-        if rebuild[h] == 0:
-            return
-        cx = cell_of(pos, i, lo, dims, side, h, 0)
-        cy = cell_of(pos, i, lo, dims, side, h, 1)
-        cz = cell_of(pos, i, lo, dims, side, h, 2)
-        m = 0
-        width = nbr.shape[1]
-        for x in range(max(cx - 1, 0), min(cx + 2, dims[h, 0])):
-            for y in range(max(cy - 1, 0), min(cy + 2, dims[h, 1])):
-                for z in range(max(cz - 1, 0), min(cz + 2, dims[h, 2])):
-                    c = cell0[h] + (x * dims[h, 1] + y) * dims[h, 2] + z
-                    for q in range(min(count[c], cap)):
-                        j = slots[c, q]
-                        if j <= i:
-                            continue
-                        dx = pos[i, 0] - pos[j, 0]
-                        dy = pos[i, 1] - pos[j, 1]
-                        dz = pos[i, 2] - pos[j, 2]
-                        r = rad[i] + rad[j] + reach[h]
-                        if dx * dx + dy * dy + dz * dz >= r * r:
-                            continue
-                        if m >= width:
-                            overflow[0] = 1
-                            continue
-                        new_nbr[i, m] = j
-                        old = -1
-                        for s in range(nnb[i]):  # carry the contact's history (springs, contact radius)
-                            if nbr[i, s] == j:
-                                old = s
-                        for col in range(hist.shape[2]):
-                            new_hist[i, m, col] = hist[i, old, col] if old >= 0 else 0.0
-                        m += 1
-        new_nnb[i] = m
+@cuda.jit
+def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    h = heap[i]
+    if rebuild[h] == 0:
+        return
+    cx = cell_of(pos, i, lo, dims, side, h, 0)
+    cy = cell_of(pos, i, lo, dims, side, h, 1)
+    cz = cell_of(pos, i, lo, dims, side, h, 2)
+    c = cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
+    s = cuda.atomic.add(count, c, 1)
+    if s < cap:
+        slots[c, s] = i
+    else:
+        overflow[0] = 1
 
-    @cuda.jit
-    def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
-        i = cuda.grid(1)
-        if i >= n or rebuild[heap[i]] == 0:
-            return
-        nnb[i] = new_nnb[i]
-        for s in range(new_nnb[i]):
-            nbr[i, s] = new_nbr[i, s]
-            for col in range(hist.shape[2]):
-                hist[i, s, col] = new_hist[i, s, col]
-        for d in range(3):
-            ref_pos[i, d] = pos[i, d]
+@cuda.jit
+def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+                    nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    h = heap[i]
+    if rebuild[h] == 0:
+        return
+    cx = cell_of(pos, i, lo, dims, side, h, 0)
+    cy = cell_of(pos, i, lo, dims, side, h, 1)
+    cz = cell_of(pos, i, lo, dims, side, h, 2)
+    m = 0
+    width = nbr.shape[1]
+    for x in range(max(cx - 1, 0), min(cx + 2, dims[h, 0])):
+        for y in range(max(cy - 1, 0), min(cy + 2, dims[h, 1])):
+            for z in range(max(cz - 1, 0), min(cz + 2, dims[h, 2])):
+                c = cell0[h] + (x * dims[h, 1] + y) * dims[h, 2] + z
+                for q in range(min(count[c], cap)):
+                    j = slots[c, q]
+                    if j <= i:
+                        continue
+                    dx = pos[i, 0] - pos[j, 0]
+                    dy = pos[i, 1] - pos[j, 1]
+                    dz = pos[i, 2] - pos[j, 2]
+                    r = rad[i] + rad[j] + reach[h]
+                    if dx * dx + dy * dy + dz * dz >= r * r:
+                        continue
+                    if m >= width:
+                        overflow[0] = 1
+                        continue
+                    new_nbr[i, m] = j
+                    old = -1
+                    for s in range(nnb[i]):  # carry the contact's history (springs, contact radius)
+                        if nbr[i, s] == j:
+                            old = s
+                    for col in range(hist.shape[2]):
+                        new_hist[i, m, col] = hist[i, old, col] if old >= 0 else 0.0
+                    m += 1
+    new_nnb[i] = m
 
-    @cuda.jit
-    def heap_step(nheaps, active, rebuild, step, t0, dt, lift_start, geo):
-        """Per heap: the rebuild flags reset, the rim's height at the step's end."""
-        h = cuda.grid(1)
-        if h >= nheaps or active[h] == 0:
-            return
-        rebuild[h] = 0
-        if geo[h, 2] != 0.0:  # as the CPU kernel rounds it: t = t0 + s dt, then t + dt
-            t = t0[h] + step * dt[h]
-            geo[h, 1] = geo[h, 2] * max(0.0, t + dt[h] - lift_start[h])
+@cuda.jit
+def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
+    i = cuda.grid(1)
+    if i >= n or rebuild[heap[i]] == 0:
+        return
+    nnb[i] = new_nnb[i]
+    for s in range(new_nnb[i]):
+        nbr[i, s] = new_nbr[i, s]
+        for col in range(hist.shape[2]):
+            hist[i, s, col] = new_hist[i, s, col]
+    for d in range(3):
+        ref_pos[i, d] = pos[i, d]
 
-    @cuda.jit
-    def gravity(n, active, heap, mass, grav, force, torque, cnew):
-        i = cuda.grid(1)
-        if i >= n or active[heap[i]] == 0:
-            return
-        for d in range(3):
-            force[i, d] = mass[i] * grav[d]
-            torque[i, d] = 0.0
-        cnew[i] = 0.0
+@cuda.jit
+def heap_step(nheaps, active, rebuild, step, t0, dt, lift_start, geo):
+    """Per heap: the rebuild flags reset, the rim's height at the step's end."""
+    h = cuda.grid(1)
+    if h >= nheaps or active[h] == 0:
+        return
+    rebuild[h] = 0
+    if geo[h, 2] != 0.0:  # as the CPU kernel rounds it: t = t0 + s dt, then t + dt
+        t = t0[h] + step * dt[h]
+        geo[h, 1] = geo[h, 2] * max(0.0, t + dt[h] - lift_start[h])
+
+@cuda.jit
+def gravity(n, active, heap, mass, grav, force, torque, cnew):
+    i = cuda.grid(1)
+    if i >= n or active[heap[i]] == 0:
+        return
+    for d in range(3):
+        force[i, d] = mass[i] * grav[d]
+        torque[i, d] = 0.0
+    cnew[i] = 0.0
+
+
+@cuda.jit
+def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew, overlap_limit,
+         speed_limit, worst, status):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    h = heap[i]
+    if active[h] == 0:
+        return
+    half = 0.5 * dt[h]
+    im = 1.0 / mass[i]
+    for d in range(3):
+        vel[i, d] += half * force[i, d] * im
+        omg[i, d] += half * torque[i, d] * inv_inertia[i]
+    ncont[i] = cnew[i]
+    v2 = vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2
+    if not v2 <= speed_limit * speed_limit:  # NaN fails too
+        status[h] = SPEED
+    if worst[h] > overlap_limit and status[h] == OK:
+        status[h] = OVERLAP
+    if status[h] != OK:  # a heap that blew up stops where it is (the others go on)
+        active[h] = 0
+
+
+#: the kernels that take no contact law (one set for every composition)
+STEP_KERNELS = dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
+                    find_neighbours=find_neighbours, adopt=adopt, heap_step=heap_step, gravity=gravity, kick=kick)
+
+
+def _force_kernels(contact) -> dict:
+    """Pair and wall forces around the composed ``contact`` (a compiled function of :mod:`.forces`)."""
+    return {"pairs": _pair_kernel(contact), "walls": _wall_kernel(contact)}
+
+
+def _pair_kernel(contact):
+    """Every grain's pairs (its slots, j > i): their contacts, added to both grains atomically."""
 
     @cuda.jit
     def pairs(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, prm, gap, dt, force,
@@ -271,6 +312,12 @@ def _build(contact):  # noqa: C901 - the kernels, one closure each over the comp
                 cuda.atomic.add(cnew, j, 1.0)
             cuda.atomic.max(worst, h, ov / min(Ri, Rj))
 
+    return pairs
+
+
+def _wall_kernel(contact):
+    """Every grain's floor and cylinder contacts and the settling drag."""
+
     @cuda.jit(device=True)
     def on_wall(i, h, nx, ny, nz, delta, gap, wall_vz, ht, row, Ri, vel, omg, mass, inv_inertia, ncont, p, dt,
                 force, torque, cnew, worst):
@@ -319,32 +366,7 @@ def _build(contact):  # noqa: C901 - the kernels, one closure each over the comp
             on_wall(i, h, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass, inv_inertia,
                     ncont, p, dt[h], force, torque, cnew, worst)
 
-    @cuda.jit
-    def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew, overlap_limit,
-             speed_limit, worst, status):
-        i = cuda.grid(1)
-        if i >= n:
-            return
-        h = heap[i]
-        if active[h] == 0:
-            return
-        half = 0.5 * dt[h]
-        im = 1.0 / mass[i]
-        for d in range(3):
-            vel[i, d] += half * force[i, d] * im
-            omg[i, d] += half * torque[i, d] * inv_inertia[i]
-        ncont[i] = cnew[i]
-        v2 = vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2
-        if not v2 <= speed_limit * speed_limit:  # NaN fails too
-            status[h] = SPEED
-        if worst[h] > overlap_limit and status[h] == OK:
-            status[h] = OVERLAP
-        if status[h] != OK:  # a heap that blew up stops where it is (the others go on)
-            active[h] = 0
-
-    return dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
-                find_neighbours=find_neighbours, adopt=adopt, heap_step=heap_step, gravity=gravity, pairs=pairs,
-                walls=walls, kick=kick)
+    return walls
 
 
 #: the per-grain and per-heap arrays a batch keeps on the device, and the ones a chunk may leave half-done
