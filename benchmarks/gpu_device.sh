@@ -1,8 +1,13 @@
 #!/bin/bash
 # One prepared call on a lent GPU machine (the device tool's `run`, with carry [".whl"]): the GPU
 # engine's tests on the hardware, then its throughput against batch size beside the CPU kernel.
-# Everything it prints also goes under $OUT. About 6-8 minutes; give it timeout_s 540.
-#   .whl holds what the machine's image lacks (tomli-w): see docs/performance.md, "GPU engine".
+# Everything it prints also goes under $OUT. Never run yet: its time is a guess (the two steps are capped at
+# 200 s and 300 s); give it timeout_s 540.
+# .whl holds what the machine's image lacks, tomli-w (the image has numba-cuda and the rest); make it here,
+# once, in the repository's root (it is not committed):
+#   echo /.whl/ >> .git/info/exclude
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#     --platform manylinux_2_28_x86_64 -d .whl tomli-w==1.2.0
 set -o pipefail
 export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
