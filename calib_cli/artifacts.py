@@ -276,9 +276,13 @@ def write_json(path: Path, obj: Mapping) -> None:
     atomic_write_bytes(path, json.dumps(_canonical(dict(obj)), indent=2, default=str).encode())
 
 
-def read_json(path: Path) -> dict:
+def read_json(path: Path, what: str = "artefact") -> dict:
+    """A JSON file; a stage output is checked against its stage's lock first, as :func:`read_table` does."""
+    path = Path(path)
+    if path.is_file():
+        check_committed(path, what)
     try:
-        return json.loads(Path(path).read_text())
+        return json.loads(path.read_text())
     except (OSError, ValueError):
         raise CalibError(f"{path} is missing or not valid JSON") from None
 

@@ -2,6 +2,7 @@
 model refuses values it would drop, diagnose refuses stale residuals, --force keeps the cache until
 each heap is replaced, one writer per run directory, and stage commits are all-or-nothing."""
 
+import json
 import sys
 from pathlib import Path
 
@@ -209,6 +210,20 @@ def test_an_output_changed_behind_its_lock_is_refused_and_unlisted_files_are_not
         art.read_table(tmp_path / "g" / "a.parquet")
     art.write_table(tmp_path / "g" / "history.parquet", pd.DataFrame({"a": [5]}))  # no lock lists it
     assert art.read_table(tmp_path / "g" / "history.parquet")["a"].tolist() == [5]
+
+
+def test_a_json_output_changed_behind_its_lock_is_refused_too(tmp_path):
+    """A stage's JSON outputs (invert's best.json, the networks' states) are read through the lock as its
+    tables are: a best.json from one run beside the tables of another is refused, not read."""
+    st = art.Stage(tmp_path, "g", "t", settings={})
+    with st.commit() as out:
+        out.text("best.json", json.dumps({"best": "rsm"}))
+    assert art.read_json(tmp_path / "g" / "best.json") == {"best": "rsm"}
+    art.write_json(tmp_path / "g" / "best.json", {"best": "bp"})
+    with pytest.raises(CalibError, match="rerun the stage"):
+        art.read_json(tmp_path / "g" / "best.json")
+    art.write_json(tmp_path / "g" / "notes.json", {"a": 1})  # no lock lists it
+    assert art.read_json(tmp_path / "g" / "notes.json") == {"a": 1}
 
 
 def test_committed_sample_runs_read_through_their_locks():
