@@ -205,7 +205,6 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None, force:
     done = out / "result.json"
     if done.is_file() and not force:
         return art.read_json(done)
-    out.parent.mkdir(parents=True, exist_ok=True)
     ck = checkpoint_path(Path(run_dir), req, fresh=force)
     if req.engine == "lammps":
         from .engines.lammps import run_heap_lammps
@@ -496,7 +495,6 @@ def _execute_on_gpu(reqs: list[Request], labels: list[int], run_dir: Path, force
     written, as :func:`execute` writes one."""
     from .dem.gpu import run_heaps
 
-    (Path(run_dir) / RUNS).mkdir(parents=True, exist_ok=True)
     for a in range(0, len(reqs), GPU_BATCH):
         part = reqs[a:a + GPU_BATCH]
         cks = [checkpoint_path(run_dir, r, fresh=force) for r in part]

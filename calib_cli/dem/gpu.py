@@ -374,7 +374,7 @@ STATE = ("pos", "vel", "omg", "force", "torque", "ref_pos", "ncont", "cnew", "hf
          "geo", "active", "status")
 
 
-def pack(systems: list, width: int = 32, cell_cap: int = 48) -> dict:
+def pack(systems: list, width: int = 16, cell_cap: int = 48) -> dict:
     """Every heap's arrays, heap after heap, as the kernels take them (host numpy arrays, named as the
     kernels' parameters). Starts from each system's own state, neighbour list and contact history."""
     ss = list(systems)

@@ -10,8 +10,6 @@ down for speed (see docs/physics.md for the ranges each preset is valid for).
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -302,16 +300,14 @@ def resume(test: "HeapTest", checkpoint: Path | None) -> "HeapTest":
 
 
 def save_checkpoint(path: Path, state: Mapping[str, np.ndarray]) -> None:
-    """``state`` to ``path`` in one step (written beside it, then renamed): never half a checkpoint."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **state)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``state`` to ``path`` in one step (artifacts' atomic write): never half a checkpoint."""
+    import io
+
+    from ..artifacts import atomic_write_bytes
+
+    buf = io.BytesIO()
+    np.savez(buf, **state)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def heap_system(params: Mapping[str, float], cond: HeapCondition, num: Numerics, seed: int) -> System:
