@@ -58,6 +58,30 @@ def test_the_gp_recovers_a_smooth_function_and_its_white_noise(gp):
     assert np.allclose(gp.predict(X.to_numpy()), mean)  # an array in inputs_ order is the same
 
 
+def _repeated(scatter, seed: int, points: int = 30, repeats: int = 4) -> pd.DataFrame:
+    """``repeats`` piles at each of ``points`` parameter points and three fills, with scatter(a, b)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for a, b in zip(rng.random(points), 2 * rng.random(points)):
+        for h in HEIGHTS:
+            rows += [{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _smooth(a, b, h) + rng.normal(0, scatter(a, b))}
+                     for _ in range(repeats)]
+    return pd.DataFrame(rows)
+
+
+def test_a_scatter_that_grows_over_an_input_is_modelled_and_one_that_does_not_is_left_alone():
+    """Repeated piles whose sd grows from 1 to 4 deg with b (as cohesive heaps scatter more than dry
+    ones): the surrogate's pile sd follows it; with one sd of 2 deg it keeps one scatter."""
+    grows = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(_repeated(lambda a, b: 1.0 + 1.5 * b, 3))
+    assert grows.scatter_coef_ is not None
+    X = pd.DataFrame({"a": [0.5, 0.5], "b": [0.05, 1.95], "fill_height_mm": [75.0, 75.0]})
+    low, high = grows.pile_sd(X)
+    assert low == pytest.approx(1.075, rel=0.3) and high == pytest.approx(3.925, rel=0.3), (low, high)
+    flat = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(_repeated(lambda a, b: 2.0, 4))
+    assert flat.scatter_coef_ is None and flat.noise_sd_ == pytest.approx(2.0, rel=0.15)
+    assert flat.pile_sd(X) == pytest.approx([flat.noise_sd_] * 2)
+
+
 def test_the_joint_prediction_is_scikit_learns_covariance_without_the_piles_scatter(gp):
     X = np.random.default_rng(0).random((4, 3, 3)) * [1, 2, 50] + [0, 0, 50]
     mean, cov = gp.predict_joint(X)

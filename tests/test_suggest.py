@@ -165,3 +165,106 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     assert "<h3>Posterior</h3>" in page or ">Posterior<" in page
     assert "90 % interval" in page and "Measure next" in page
     assert r.table["condition_id"].iloc[0] in page
+
+
+def _evidence_for_ranking():
+    """Two measured fills; cohesion's signature falls with the fill, rolling friction's does not."""
+    from calib_cli.posterior.suggest import Evidence
+
+    measured = pd.DataFrame({"condition_id": ["H50", "H100"], "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
+                             "fill_height_mm": [50.0, 100.0]})
+    J = pd.DataFrame({"rolling_friction": [30.0, 30.0]})
+    G = pd.DataFrame({"cohesion": [12.0, 6.0]})
+    draws = np.random.default_rng(0).random((200, 1))
+    return Evidence(measured, J, G, np.array([0.5, 0.5]), 1.5, ["rolling_friction"], draws, {"cohesion": 0.5})
+
+
+def test_a_separation_carried_beyond_the_measured_range_is_shown_but_not_ranked_until_simulated():
+    """H150 lies beyond the measured fills: its straight-line separation is large but a guess, so the
+    interpolated H75 ranks first; simulated at H150 (the effect vanishing there), its own numbers rank."""
+    from calib_cli.posterior.suggest import explain, rank_conditions
+
+    ev = _evidence_for_ranking()
+    cand = pd.DataFrame({"condition_id": ["H75", "H150"], "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
+                         "fill_height_mm": [75.0, 150.0]})
+    mu = np.tile(30.0 + 10.0 * ev.draws[:, 0], (2, 1))  # equal information at both
+    t = rank_conditions(ev, cand, mu, np.ones(2), 10, VARS).set_index("condition_id")
+    assert t.loc["H150", "extrapolated"] and not t.loc["H150", "simulated"]
+    assert t.loc["H150", "separation_cohesion"] > t.loc["H75", "separation_cohesion"]  # the line goes on falling
+    assert t.index[0] == "H75"  # ranked on what is not a guess
+    assert t.loc["H150", "candidate_cohesion"] == pytest.approx(0.0)  # 12 - 6 per 50 mm, carried to 150
+    sims = pd.DataFrame({"d_rolling_friction": [np.nan, 30.0], "candidate_cohesion": [np.nan, 24.0]})
+    s = rank_conditions(ev, cand, mu, np.ones(2), 10, VARS, sims).set_index("condition_id")
+    assert s.loc["H150", "simulated"] and not s.loc["H150", "extrapolated"]
+    assert s.loc["H150", "candidate_cohesion"] == 24.0 and s.index[0] == "H150"
+    assert s.loc["H75", "separation_cohesion"] == pytest.approx(t.loc["H75", "separation_cohesion"])
+    why = explain(ev, s.loc["H150"], "cohesion", VARS)
+    assert "2.7x its mean" in why and "rolling friction's 1x" in why and "simulated there" in why
+
+
+def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, tmp_path, monkeypatch):
+    """--simulate: diagnose's finite differences at the named candidates (a stand-in here records what it
+    was asked), at the parameters diagnose's table names; they are ranked and written out."""
+    import shutil
+
+    from calib_cli import artifacts as art
+    from calib_cli.stages import suggest as st
+
+    run, rig, _ = ranked
+    mine = tmp_path / "run"
+    shutil.copytree(run, mine)
+    sens = mine / "diagnose" / "sensitivities.parquet"
+    theta = {"static_friction": 0.4, "rolling_friction": 0.2, "restitution": 0.3}
+    art.write_table(sens, art.read_table(sens), {"theta": theta})
+    asked = {}
+
+    def fake(run_, model, theta_, conds, preset, repeats, workers, shear_modulus, cands):
+        assert cands == ["cohesion"]  # the effects diagnose tested, not every one the model lacks
+        asked.update(theta=theta_, ids=conds["condition_id"].tolist(), repeats=repeats)
+        n = len(conds)
+        return (np.zeros(n), [np.full(n, 20.0), np.full(n, 40.0), np.full(n, -2.0)], {"cohesion": np.full(n, 1.0)},
+                {"cohesion": np.full(n, 0.1)}, {})
+
+    monkeypatch.setattr(st, "_signatures", fake)
+    quiet = {"say": lambda *a, **k: None}
+    r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], repeats=2, **quiet)
+    assert asked == {"theta": {**asked["theta"], **theta}, "ids": ["d4-5_D60_H75"], "repeats": 2}
+    t = r.table.set_index("condition_id")
+    assert t.loc["d4-5_D60_H75", "simulated"] and t.loc["d4-5_D60_H75", "candidate_cohesion"] == 1.0
+    assert np.isfinite(t.loc["d4-5_D60_H75", "separation_cohesion"])  # was unknown: no 60 mm measurement
+    out = art.read_table(mine / "suggest" / "sensitivities.parquet")
+    assert out["condition_id"].tolist() == ["d4-5_D60_H75"] and out["d_rolling_friction"].tolist() == [40.0]
+    assert "sensitivities" in r.summary().columns
+    with pytest.raises(CalibError, match="the candidates are"):
+        st.suggest_conditions(mine, rig, simulate=["d4-5_D40_H50"], **quiet)  # measured already
+
+
+def test_each_candidate_effect_is_given_the_condition_that_best_separates_it(ranked):
+    run, rig, r = ranked
+    lines = r.per_effect()
+    assert len(lines) == 1 and lines[0].startswith("cohesion: best told apart at [bold]d4-5_D40_H75[/]")
+    assert "interpolated" in lines[0]
+
+
+def test_a_simulated_separation_is_weighed_as_diagnose_will_and_its_own_noise_taken_off():
+    """The new residual's variance counts the simulated mean's share (compare's u), and a simulated
+    signature's expected noise D^2 se^2 / u^2 is not a separation."""
+    from dataclasses import replace
+
+    from calib_cli.posterior.suggest import rank_conditions
+
+    ev = _evidence_for_ranking()
+    ev = replace(ev, J=pd.DataFrame({"rolling_friction": [30.0, 10.0]}), u=np.array([1.0, 1.0]))
+    cand = pd.DataFrame({"condition_id": ["H150"], "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
+                         "fill_height_mm": [150.0]})
+    mu = (30.0 + 10.0 * ev.draws[:, 0])[None, :]
+    sims = pd.DataFrame({"d_rolling_friction": [20.0], "candidate_cohesion": [24.0], "se_candidate_cohesion": [0.0]})
+
+    def sep(sim_var, se=0.0):
+        e = replace(ev, sim_var=sim_var)
+        return rank_conditions(e, cand, mu, np.ones(1), 10, VARS, sims.assign(se_candidate_cohesion=se))[
+            "separation_cohesion"].iloc[0]
+
+    # measured alone the new mean's variance is 1.5^2 / 10 = 0.225; with the simulated share 0.225 + 0.775 = 1
+    assert sep(0.775) < 0.5 * sep(0.0)
+    assert sep(0.775, se=4.0) == pytest.approx(max(sep(0.775) - 0.25 * 16.0 / 1.0, 0.0))

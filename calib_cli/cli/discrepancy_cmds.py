@@ -124,6 +124,11 @@ def suggest_conditions(
     piles: Annotated[Optional[int], typer.Option(min=1, help="Piles to measure a condition with (default: the "
                                                  "rig file's piles, else 10).")] = None,
     top: Annotated[int, typer.Option(min=1, help="Conditions to write into RUN/suggest/conditions.csv.")] = 5,
+    simulate: Annotated[Optional[str], typer.Option(help="Candidate condition ids, comma-separated (from a first "
+                                                    "ranking), at which to simulate diagnose's sensitivities "
+                                                    "instead of carrying them from the measured conditions.")] = None,
+    set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3, workers: WorkersOpt = 1,
+    shear_modulus: ShearModulusOpt = None,
     force: ForceOpt = False,
 ):
     """Rank the conditions the rig can make by what measuring them would teach: the expected
@@ -135,8 +140,15 @@ def suggest_conditions(
     RUN/diagnose/sensitivities.parquet when diagnose has run. Writes RUN/suggest/ranking.parquet and
     RUN/suggest/conditions.csv: the top conditions, one row per pile, in measure-angle's
     --conditions format, to go and measure.
+
+    A separation at a condition beyond the measured ones' range is a straight line carried out from
+    them: shown, not ranked. --simulate ID,... simulates diagnose's finite differences there
+    (--repeats heaps a step, at the parameters diagnose used, or --set), into
+    RUN/suggest/sensitivities.parquet, and ranks them.
     """
-    r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say)
+    ids = [i.strip() for i in simulate.split(",") if i.strip()] if simulate else []
+    r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say, simulate=ids, set_=set_, preset=preset,
+                                         repeats=repeats, workers=workers, shear_modulus=shear_modulus)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), "the next conditions to measure, best first"))

@@ -6,8 +6,10 @@ conditions, trained on every simulated pile (one row each):
 x holds each input scaled to [0, 1] (a parameter by its bounds, the prior range; a condition variable
 by its simulated range), one length scale l per input; y is standardised by its training mean m and
 sd. s, l and sigma maximise the marginal likelihood (scikit-learn). sigma is the pile-to-pile scatter
-of the simulated heaps (``noise_sd_``, deg). :meth:`GPSurrogate.predict` gives the latent f, without
-the scatter of a pile:
+of the simulated heaps (``noise_sd_``, deg). Where the repeated piles (rows with equal inputs) show
+that the scatter changes over the inputs (cohesive heaps scatter about twice as much as dry ones),
+each pile's variance is sigma^2(x) = exp(b0 + b'x) + w instead (:func:`scatter_model`).
+:meth:`GPSurrogate.predict` gives the latent f, without the scatter of a pile:
 
     mean = m + k*' (K + sigma^2 I)^-1 y,   var = s^2 - k*' (K + sigma^2 I)^-1 k*
 """
@@ -15,7 +17,7 @@ the scatter of a pile:
 from __future__ import annotations
 
 import warnings
-from typing import Mapping, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
@@ -33,6 +35,44 @@ LENGTH_BOUNDS = (0.1, 100.0)
 #: hidden-effect 5.02 and 5.23 deg against 5.61 and 5.33 for 5/2 and 6.32 and 5.53 for the RBF;
 #: control-lab 2.12 and 1.88 against 2.13 and 1.92 and 2.39 and 1.98)
 NU = 1.5
+
+
+#: the scatter is modelled as changing over the inputs only when a likelihood-ratio test against one
+#: scatter rejects at this level, on at least this many groups of repeated piles
+HETERO_P, HETERO_GROUPS = 0.01, 20
+
+
+def scatter_model(X: np.ndarray, y: np.ndarray) -> Optional[np.ndarray]:
+    """The pile-to-pile variance as a function of the scaled inputs, log sigma^2(x) = b0 + b'x, fitted by
+    maximum likelihood to the groups of repeated piles (rows of X alike): each group's sum of squares
+    about its mean is sigma_j^2 chi^2(n_j - 1), i.e. its variance s_j^2 is gamma with mean sigma_j^2 and
+    dispersion 2 / (n_j - 1) (a gamma GLM with log link, statsmodels, dispersion fixed at 2 with
+    weights n_j - 1). Returns (log lower clip, log upper clip, b0, b) when the likelihood-ratio test
+    against b = 0 rejects at HETERO_P (chi-square, one degree of freedom per input) on at least
+    HETERO_GROUPS groups; else None (one sigma, learned with the GP)."""
+    import statsmodels.api as sm
+    from scipy.stats import chi2
+
+    keys, inv = np.unique(np.round(X, 9), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    n = np.bincount(inv)
+    mean = np.bincount(inv, weights=y) / n
+    ss = np.bincount(inv, weights=(y - mean[inv]) ** 2)
+    rep = (n > 1) & (ss > 0)
+    if rep.sum() < max(HETERO_GROUPS, 3 * (X.shape[1] + 1)):
+        return None
+    dof, s2 = n[rep] - 1.0, ss[rep] / (n[rep] - 1.0)
+    family = sm.families.Gamma(sm.families.links.Log())
+    designs = (np.ones((rep.sum(), 1)), sm.add_constant(keys[rep], has_constant="add"))
+    with warnings.catch_warnings():  # inputs collinear among the repeated groups: any solution fits alike
+        warnings.simplefilter("ignore")
+        fits = [sm.GLM(s2, exog, family=family, var_weights=dof).fit(scale=2.0) for exog in designs]
+    lr = 2.0 * (fits[1].llf - fits[0].llf)
+    if not chi2.sf(lr, X.shape[1]) < HETERO_P:
+        return None
+    # beyond the groups, a log-linear trend is a guess: sigma^2 is held within half and twice its range there
+    at = fits[1].fittedvalues
+    return np.concatenate([[np.log(at.min() / 2), np.log(at.max() * 2)], fits[1].params])
 
 
 def informative_conditions(rows: pd.DataFrame, candidates: Sequence[str]) -> list[str]:
@@ -53,7 +93,8 @@ class GPSurrogate:
     """The angle's Gaussian process over ``parameters`` (scaled by ``bounds``: name -> (low, high);
     a parameter without bounds by its training range) and the ``conditions`` among the candidates
     that vary in the training rows. Learned attributes end in ``_``: ``inputs_``, ``lows_``,
-    ``highs_``, ``constants_`` (the candidate conditions every row shares), ``noise_sd_``,
+    ``highs_``, ``constants_`` (the candidate conditions every row shares), ``noise_sd_`` (the piles'
+    rms scatter), ``scatter_coef_`` (:func:`scatter_model`'s, or None: one scatter), ``white_sd_``,
     ``signal_sd_``, ``length_scales_`` (scaled units, per input), ``n_train_``."""
 
     def __init__(self, parameters: Sequence[str], conditions: Sequence[str] = (),
@@ -87,23 +128,42 @@ class GPSurrogate:
         self.lows_, self.highs_ = self._ranges(rows)
         y = rows[self.response].to_numpy(float)
         self.y_mean_, self.y_sd_ = float(y.mean()), float(y.std()) or 1.0
+        X = self._scale(rows)
+        self.scatter_coef_ = scatter_model(X, y)
         kernel = (ConstantKernel(1.0, (1e-3, 1e3))
                   * Matern(np.full(len(self.inputs_), 0.5), LENGTH_BOUNDS, nu=self.nu)
                   + WhiteKernel(0.1, (1e-6, 1.0)))
-        gp = GaussianProcessRegressor(kernel, n_restarts_optimizer=self.restarts, random_state=self.seed)
+        # the scatter the repeated piles show, on each pile's diagonal; the white kernel adds what is left
+        alpha = 1e-10 if self.scatter_coef_ is None else self._modelled_variance(X) / self.y_sd_ ** 2
+        gp = GaussianProcessRegressor(kernel, alpha=alpha, n_restarts_optimizer=self.restarts, random_state=self.seed)
         # one BLAS thread: the matrices are a few hundred heaps a side, which threads speed up little, and on
         # a busy two-core machine the pool's waiting made hidden-effect's fit take 81 s instead of 4 s
         with warnings.catch_warnings(), threadpool_limits(1, user_api="blas"):
             # a length scale at its upper bound is an input that does not matter, not a failed fit
             warnings.simplefilter("ignore", ConvergenceWarning)
-            self.gp_ = gp.fit(self._scale(rows), (y - self.y_mean_) / self.y_sd_)
+            self.gp_ = gp.fit(X, (y - self.y_mean_) / self.y_sd_)
         k = self.gp_.kernel_
         self.latent_ = k.k1  # s^2 Matern: the kernel of f, without the piles' scatter
-        self.noise_sd_ = float(np.sqrt(k.k2.noise_level)) * self.y_sd_
+        self.white_sd_ = float(np.sqrt(k.k2.noise_level)) * self.y_sd_
+        self.noise_sd_ = float(np.sqrt(np.mean(self.pile_sd(X, scaled=True) ** 2)))
         self.signal_sd_ = float(np.sqrt(k.k1.k1.constant_value)) * self.y_sd_
         self.length_scales_ = pd.Series(np.atleast_1d(k.k1.k2.length_scale), index=self.inputs_)
         self.n_train_ = len(y)
         return self
+
+    def _modelled_variance(self, Xs: np.ndarray) -> np.ndarray:
+        """sigma^2(x) of :func:`scatter_model` at scaled inputs, held within the inputs' box (x in [0, 1])."""
+        lo, hi, b = self.scatter_coef_[0], self.scatter_coef_[1], self.scatter_coef_[2:]
+        return np.exp(np.clip(b[0] + np.clip(Xs, 0.0, 1.0) @ b[1:], lo, hi))
+
+    def pile_sd(self, X, scaled: bool = False) -> np.ndarray:
+        """The pile-to-pile sd (deg) at X: one value everywhere, or sigma(x) where the repeated piles
+        showed the scatter to change (``scatter_coef_``), plus what the GP's white kernel learned."""
+        Xs = np.atleast_2d(np.asarray(X, float)) if scaled else self._scale(X)
+        var = np.full(len(Xs), self.white_sd_ ** 2)
+        if self.scatter_coef_ is not None:
+            var = var + self._modelled_variance(Xs)
+        return np.sqrt(var)
 
     def _scale(self, X) -> np.ndarray:
         if isinstance(X, pd.DataFrame):

@@ -21,9 +21,10 @@ and adding c raises it by d lambda: how much more clearly the effect stands apar
 parameters absorb. A confound is a pair (effect, parameter) whose signatures are collinear on the
 measured conditions (|weighted correlation| near 1); the condition that lowers it most breaks it.
 
-Sensitivities at an unmeasured condition come from the measured ones (a linear fit in the
-condition variables that vary among them) when the condition lies within their range; elsewhere
-they are unknown until simulated (``simulate``: diagnose's own finite differences at c).
+Sensitivities at an unmeasured condition are simulated there when asked (diagnose's own finite
+differences at c, ``suggest-conditions --simulate``); else they come from the measured ones (a linear
+fit in the condition variables that vary among them): interpolated within their range, extrapolated
+beyond it (shown, not ranked), and unknown along a variable the measurements never varied.
 """
 
 from __future__ import annotations
@@ -179,18 +180,27 @@ class Evidence:
     params: list[str]  # the posterior's parameters, the columns of draws
     draws: np.ndarray  # posterior draws (S, k)
     steps: dict[str, float]  # each effect's probe step (Effect.step)
+    #: the variance of the simulated mean a residual is also uncertain by (compare's share of u^2):
+    #: the score test's weights count it, so a new condition's separation must too
+    sim_var: float = 0.0
 
     def draws_frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.draws, columns=self.params)
 
 
 def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: np.ndarray, piles: int,
-                    variables) -> pd.DataFrame:
+                    variables, simulated: pd.DataFrame | None = None) -> pd.DataFrame:
     """One row per candidate (not yet measured): the expected information gain about the parameters
     (nats) and each one's interval shrinkage, from the surrogate's angle at every posterior draw
     ``mu`` (candidates, draws) and its own variance ``vp`` at the candidates; each candidate effect's
-    separation gain, from diagnose's sensitivities carried to the candidates (:func:`extrapolate`;
-    NaN where they cannot be). Sorted by the sum of the two ranks (information, best separation)."""
+    separation gain, from diagnose's sensitivities simulated at the candidate (``simulated``: rows as
+    ``candidates``, diagnose's columns d_<parameter> and candidate_<effect>, and se_candidate_<effect>
+    the signature's standard error, whose expected share D^2 se^2 / u^2 is taken off; NaN where not
+    simulated)
+    or else carried from the measured conditions (:func:`extrapolate`; NaN where they cannot be). The
+    sensitivities used are columns too (``d_*``, ``candidate_*``). Sorted by the sum of the two ranks
+    (information, best separation); a separation extrapolated beyond the measured range is shown but
+    not ranked (a straight line through a few noisy sensitivities is a guess out there)."""
     u2 = np.full(len(candidates), ev.scatter**2 / piles)
     pairs = [parameter_gain(m, ev.draws, v) for m, v in zip(mu, u2)]
     gains = np.array([g for g, _ in pairs])
@@ -200,46 +210,73 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
         out[f"shrink_{p}"] = shrink[:, k]
     Jc, known, extrapolated = extrapolate(ev.measured, ev.J, candidates, variables)
     Gc, _, _ = extrapolate(ev.measured, ev.G, candidates, variables)
-    out = out.assign(known=known, extrapolated=extrapolated)
+    sim = np.zeros(len(candidates), bool)
+    if simulated is not None and len(ev.J.columns):
+        cols = [f"d_{p}" for p in ev.J.columns] + [f"candidate_{e}" for e in ev.G.columns]
+        sim = simulated.reindex(columns=cols).notna().all(axis=1).to_numpy()
+        Jc.loc[sim, :] = simulated.loc[sim, cols[:len(ev.J.columns)]].to_numpy()
+        Gc.loc[sim, :] = simulated.loc[sim, cols[len(ev.J.columns):]].to_numpy()
+    known, extrapolated = known | sim, extrapolated & ~sim
+    out = out.assign(known=known, extrapolated=extrapolated, simulated=sim)
+    for p in ev.J.columns:
+        out[f"d_{p}"] = np.where(known, Jc[p].to_numpy(float), np.nan)
+    for e in ev.G.columns:
+        out[f"candidate_{e}"] = np.where(known, Gc[e].to_numpy(float), np.nan)
     J0, u0 = ev.J.to_numpy(float), np.asarray(ev.u, float)
     for e in ev.G.columns:
         g0 = ev.G[e].to_numpy(float)
         base = separation(J0, g0, u0, ev.steps[e])
+        # a simulated signature's own scatter adds se^2 to its square on average: taken off, so that a
+        # noisy finite difference does not pass for a separation (all of it: the projection keeps less)
+        se = simulated[f"se_candidate_{e}"].to_numpy(float) if simulated is not None and \
+            f"se_candidate_{e}" in simulated else np.zeros(len(candidates))
+        w2 = u2 + ev.sim_var  # the new residual's variance, as diagnose's test will weigh it
+        noise = np.where(sim, ev.steps[e] ** 2 * np.nan_to_num(se) ** 2 / w2, 0.0)
         out[f"separation_{e}"] = [
-            separation(np.vstack([J0, Jc.iloc[i].to_numpy()]), np.append(g0, Gc[e].iloc[i]),
-                       np.append(u0, math.sqrt(u2[i])), ev.steps[e]) - base if known[i] else np.nan
-            for i in range(len(candidates))]
+            max(separation(np.vstack([J0, Jc.iloc[i].to_numpy(float)]), np.append(g0, Gc[e].iloc[i]),
+                           np.append(u0, math.sqrt(w2[i])), ev.steps[e]) - base - noise[i], 0.0) if known[i]
+            else np.nan for i in range(len(candidates))]
     seps = out[[f"separation_{e}" for e in ev.G.columns]]
     top = seps.fillna(-np.inf).to_numpy().argmax(axis=1) if len(seps.columns) else np.zeros(len(out), int)
     out["best_separation"] = seps.max(axis=1) if len(seps.columns) else np.nan
     out["best_effect"] = [list(ev.G.columns)[k] if np.isfinite(b) else ""
                           for k, b in zip(top, out["best_separation"])]
-    order = out["info_gain_nats"].rank(ascending=False, na_option="bottom") + out["best_separation"].rank(
+    ranked_sep = out["best_separation"].where(~out["extrapolated"])
+    order = out["info_gain_nats"].rank(ascending=False, na_option="bottom") + ranked_sep.rank(
         ascending=False, na_option="bottom")
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
 
 
 def explain(ev: Evidence, row: pd.Series, effect: str, variables, words: dict[str, str] | None = None) -> str:
     """A plain-language reason for a candidate: the variable it moves furthest from the measured
-    conditions, and how the effect's and its most confounded parameter's sensitivities change along it."""
+    conditions, the parameter the effect is most confounded with there, and how each one's
+    sensitivity at the candidate (``row``'s d_<parameter>, candidate_<effect>) compares with its mean
+    over the measured conditions: what breaks the confound is that the two do not scale alike."""
     vary = varying(ev.measured, variables)
     if not vary:
         return "the measured conditions vary no variable: any new condition adds a first contrast"
     span = {v: (row[v] - ev.measured[v].mean()) / (ev.measured[v].max() - ev.measured[v].min()) for v in vary}
     var = max(span, key=lambda k: abs(span[k]))
     param, corr = confound(ev.J.to_numpy(float), ev.G[effect].to_numpy(float), ev.u, list(ev.J.columns))
-
-    def trend(y):
-        x = ev.measured[var].to_numpy(float)
-        s = np.polyfit(x, np.asarray(y, float), 1)[0] * (x.max() - x.min())
-        scale = max(float(np.mean(np.abs(y))), 1e-12)
-        return "does not change" if abs(s) < 0.2 * scale else ("rises" if s > 0 else "falls")
-
     name = (words or {}).get(var, var.replace("_", " "))
-    te, tp = trend(ev.G[effect]), trend(ev.J[param]) if param else "does not change"
-    return (f"a {name} of {row[var]:g} separates {effect.replace('_', ' ')} from {param.replace('_', ' ')} "
-            f"(signatures {corr:.0%} alike on the measured conditions): the effect's sensitivity {te} with {name}, "
-            f"{param.replace('_', ' ')}'s {tp}")
+    head = (f"a {name} of {row[var]:g} separates {effect.replace('_', ' ')} from "
+            f"{param.replace('_', ' ') if param else 'the parameters'}")
+    if not param:
+        return head
+    ratios = [_ratio(row.get(f"candidate_{effect}"), ev.G[effect]), _ratio(row.get(f"d_{param}"), ev.J[param])]
+    how = ("simulated there" if row.get("simulated") else
+           "extrapolated from the measured conditions" if row.get("extrapolated") else
+           "interpolated between the measured conditions")
+    return (f"{head} (signatures {corr:.0%} alike on the measured conditions): there the effect's sensitivity is "
+            f"{ratios[0]} its mean on the measured conditions, {param.replace('_', ' ')}'s {ratios[1]} ({how})")
+
+
+def _ratio(value, measured: pd.Series) -> str:
+    """``value`` as a multiple of the measured conditions' mean sensitivity ("1.8x"), or "unknown"."""
+    m = float(np.mean(measured))
+    if value is None or not np.isfinite(value) or abs(m) < 1e-12:
+        return "unknown against"
+    return f"{value / m:.2g}x"
 
 
 def region_design(summary: pd.DataFrame, points: int, seed: int = 0, first_id: int = 1) -> pd.DataFrame:

@@ -80,10 +80,11 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFr
 
 
 def _signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, preset: str, repeats: int, workers: int,
-                shear_modulus: Optional[float]):
+                shear_modulus: Optional[float], cands: Optional[list[str]] = None):
     """Simulated sensitivities: J (angle per unit of each calibrated parameter, per condition), G (per
-    unit of each candidate effect's parameter) with its standard error, and each candidate's start."""
-    cands = model.candidates
+    unit of each candidate effect's parameter; every one the model lacks, or ``cands``) with its
+    standard error, and each candidate's start."""
+    cands = model.candidates if cands is None else cands
     base, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
     b = base["mean"].to_numpy()
     J, G = [], {}
@@ -245,6 +246,6 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
         out.table("ranking.parquet", ranking[["effect", "score", "p_value", "explained_fraction", "signature_p",
                                               "confounded_with", "confound", "verdict", "evidence"]],
                   model_revision=model.revision)
-        out.table("sensitivities.parquet", sens)
+        out.table("sensitivities.parquet", sens, theta=theta)  # suggest-conditions simulates at the same point
         out.table("trends.parquet", tr)
     return DiagnoseResult(st, False, ranking, model.revision, bar)

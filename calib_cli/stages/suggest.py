@@ -20,9 +20,12 @@ from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, explain, parse_rig, rank_conditions
-from .common import Result, Say, check_run_dir, plain, stage, writes_run
-from .compare import measured_conditions
+from ..requests import engine_settings, heap_setup, modulus_settings
+from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
+from .compare import measured_conditions, model_and_theta
+from .diagnose import _signatures
 from .posterior import RESPONSE, _check_rows, model_rows, model_surrogate
+from .simulate import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
 DRAWS = 2000
@@ -118,12 +121,93 @@ class SuggestResult(Result):
             self.table = art.read_table(self.dir / "ranking.parquet")
 
     def summary(self) -> pd.DataFrame:
-        cols = ["condition_id", "info_gain_nats", "best_effect", "best_separation", "surrogate_sd"]
-        return self.table[[c for c in cols if c in self.table]].head(self.top)
+        cols = ["condition_id", "info_gain_nats", "best_effect", "best_separation", "sensitivities", "surrogate_sd"]
+        t = self.table.head(self.top)
+        if "simulated" in t and any(c.startswith("separation_") for c in t):  # where they come from
+            t = t.assign(sensitivities=np.select([t["simulated"], ~t["known"], t["extrapolated"]],
+                                                 ["simulated", "unknown", "extrapolated"], "interpolated"))
+        return t[[c for c in cols if c in t]]
 
     def conclusion(self) -> list[str]:
-        return [f"[bold]{r.condition_id}[/]: {r.reason}" for r in self.table.head(self.top).itertuples()] + list(
-            self.notes)
+        return [f"[bold]{r.condition_id}[/]: {r.reason}" for r in self.table.head(self.top).itertuples()] + \
+            self.per_effect() + list(self.notes)
+
+    def per_effect(self) -> list[str]:
+        """For each candidate effect, the condition that would best tell it from what the parameters
+        absorb (among those whose sensitivities are simulated or interpolated), whether or not it ranks
+        in the top: what to measure to settle that one effect."""
+        t, out = self.table, []
+        for col in (c for c in t.columns if c.startswith("separation_")):
+            ok = t[col].where(~t["extrapolated"]) if "extrapolated" in t else t[col]
+            if not ok.notna().any():
+                continue
+            best = t.loc[ok.idxmax()]
+            how = "simulated" if best.get("simulated", False) else "interpolated"
+            effect = col.removeprefix("separation_").replace("_", " ")
+            out.append(f"{effect}: best told apart at [bold]{best['condition_id']}[/] ({ok.max():.2g} chi-square units, "
+                       f"sensitivities {how})" + ("" if ok.max() >= SEPARATES else ": below one unit, so no condition "
+                                                   "the rig offers is expected to settle it"))
+        return out
+
+
+def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
+    """The parameters diagnose's sensitivities were simulated at (their table's provenance), so that
+    a candidate's are taken at the same point; ``--set`` or, for a table that does not say, the
+    calibrated values (as diagnose takes them)."""
+    path = run / "diagnose" / "sensitivities.parquet"
+    said = art.read_provenance(path).get("theta") if not set_ and path.is_file() else None
+    model = load_model(run)
+    if said and all(p in said for p in model.parameters):
+        return model, {k: float(v) for k, v in said.items()}
+    return model_and_theta(run, set_)
+
+
+def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
+                         workers: int, shear_modulus: Optional[float], say: Say) -> pd.DataFrame:
+    """diagnose's sensitivities simulated at the candidates ``ids``: one row per candidate (NaN where not
+    simulated), columns d_<parameter> and candidate_<effect> as in diagnose/sensitivities.parquet, and
+    se_candidate_<effect>, the signature's standard error from the heaps' scatter."""
+    known = cand["condition_id"].astype(str).tolist()
+    wrong = [i for i in ids if i not in known]
+    if wrong:
+        raise CalibError(f"--simulate names {', '.join(wrong)}, which the rig cannot make or which is measured "
+                         f"already; the candidates are {', '.join(known)}")
+    if not (run / "diagnose" / "sensitivities.parquet").is_file():
+        raise CalibError(f"--simulate needs diagnose's sensitivities at the measured conditions: run "
+                         f"`calib diagnose --run {run}` first")
+    preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
+    model, theta = _theta(run, set_)
+    picks = cand[cand["condition_id"].astype(str).isin(ids)].reset_index()
+    # the effects diagnose tested: only theirs can be set against the measured conditions' signatures
+    tested = [c.removeprefix("candidate_") for c in art.read_table(run / "diagnose" / "sensitivities.parquet").columns
+              if c.startswith("candidate_") and c.removeprefix("candidate_") in model.candidates]
+    two_sided = sum(EFFECTS[e].two_sided for e in tested)
+    n = (1 + len(model.parameters) + len(tested) + two_sided) * len(picks) * repeats
+    say(f"simulating diagnose's sensitivities at {len(picks)} candidate condition(s): {n} heaps at most "
+        "(cached ones are reused)")
+    _, J, G, G_se, _ = _signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested)
+    out = pd.DataFrame(index=cand.index)
+    for k, e in enumerate(model.effects):
+        out.loc[picks["index"], f"d_{EFFECTS[e].parameter}"] = J[k]
+    for e, g in G.items():
+        out.loc[picks["index"], f"candidate_{e}"] = g
+        out.loc[picks["index"], f"se_candidate_{e}"] = G_se[e]
+    return out
+
+
+def _residual_uncertainty(run: Path, measured: pd.DataFrame, u: np.ndarray) -> tuple[np.ndarray, float]:
+    """The uncertainty of each measured condition's residual as diagnose's test weighs it (compare's:
+    measured and simulated means together) and the simulated mean's share of its variance; the
+    measured mean's alone (``u``) and no share where compare has not run on these conditions."""
+    path = run / "compare" / "residuals.parquet"
+    if not path.is_file():
+        return u, 0.0
+    res = art.read_table(path).set_index("condition_id")
+    ids = measured["condition_id"].astype(str)
+    if not ids.isin(res.index.astype(str)).all():
+        return u, 0.0
+    uc = res.set_axis(res.index.astype(str)).loc[ids, "uncertainty"].to_numpy(float)
+    return uc, float(np.nanmean(np.clip(uc**2 - u**2, 0.0, None)))
 
 
 def _evidence(run: Path, model: Model, measured: pd.DataFrame, samples: pd.DataFrame) -> tuple[Evidence, list[str]]:
@@ -137,10 +221,11 @@ def _evidence(run: Path, model: Model, measured: pd.DataFrame, samples: pd.DataF
     sd = measured["sd"].to_numpy(float)
     scatter = float(np.sqrt(np.nanmean(sd**2)))
     u = np.where(np.isfinite(sd), sd, scatter) / np.sqrt(measured["n"].to_numpy(float))
+    u, sim_var = _residual_uncertainty(run, measured, u)
     # a thinned subset of the draws: the preposterior reweights them once per simulated outcome
     sub = samples[params].iloc[:: max(1, len(samples) // DRAWS)].to_numpy(float)
     ev = Evidence(measured.reset_index(drop=True), J, G, u, scatter, params, sub,
-                  {e: EFFECTS[e].step for e in G.columns})
+                  {e: EFFECTS[e].step for e in G.columns}, sim_var)
     return ev, notes
 
 
@@ -163,6 +248,9 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
         ranked = sorted((p for p in shr if np.isfinite(shr[p])), key=lambda k: -shr[k])
         if row["best_effect"] and row["best_separation"] >= SEPARATES:
             why = explain(ev, row, row["best_effect"], SUGGEST_VARS, WORDS)
+            if row["extrapolated"]:
+                why = (f"may separate, by a straight line carried beyond the measured conditions (not ranked; "
+                       f"`--simulate {row['condition_id']}` simulates it): " + why)
         elif ranked:
             why = "narrows " + ", ".join(f"{p.replace('_', ' ')}'s interval by {shr[p]:.0%}" for p in ranked[:2])
             if row["best_effect"]:
@@ -188,37 +276,48 @@ def _conditions_csv(table: pd.DataFrame, top: int, piles: int) -> str:
 
 @writes_run
 def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: int = 5, force: bool = False,
-                       say: Optional[Say] = None) -> SuggestResult:
+                       say: Optional[Say] = None, simulate=(), set_: Pairs = None, preset: Optional[str] = None,
+                       repeats: int = 3, workers: int = 1, shear_modulus: Optional[float] = None) -> SuggestResult:
     """Rank the conditions a rig can make (``rig``: a TOML file) by the expected information about the
     current model's parameters and the expected separation of each missing effect; writes
-    RUN/suggest/ranking.parquet and conditions.csv (the ``top`` ones, ``piles`` rows each)."""
+    RUN/suggest/ranking.parquet and conditions.csv (the ``top`` ones, ``piles`` rows each). The
+    candidates named in ``simulate`` get diagnose's sensitivities simulated there (``repeats`` heaps a
+    step, at the parameters diagnose used or ``set_``) instead of extrapolated, in
+    RUN/suggest/sensitivities.parquet."""
     say = say or plain
     run = check_run_dir(run)
     the_rig = load_rig(rig)
     piles = int(piles or the_rig.piles)
-    if piles < 1 or top < 1:
-        raise CalibError("--piles and --top must be at least 1")
+    if piles < 1 or top < 1 or repeats < 1:
+        raise CalibError("--piles, --top and --repeats must be at least 1")
     model = load_model(run)
     measured = measured_conditions(run)
     if measured.empty:
         raise CalibError(f"no measured condition in {run}: run `calib measure-angle` first")
     samples = _posterior(run, model)
+    cand = _candidates(the_rig, measured)
+    if cand.empty:
+        raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
+    simulate = sorted(set(simulate))
+    # simulated first (a rerun finds them cached): the heaps join what the surrogate and the lock read
+    sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say) \
+        if simulate else None
     rows = model_rows(run, model)
     cond_vars = _check_rows(run, rows, model)
-    sens = run / "diagnose" / "sensitivities.parquet"
+    sens, res = run / "diagnose" / "sensitivities.parquet", run / "compare" / "residuals.parquet"
     mfile = run / MODEL_FILE
     # the heaps the surrogate learns from are an input too: more of them change the gains
     st = stage(run, "suggest", "rank",
                inputs={"posterior": run / "posterior" / "samples.parquet", "conditions": run / "measure" /
                        "conditions.parquet", "sensitivities": sens if sens.is_file() else None,
+                       "residuals": res if res.is_file() else None,
                        "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                        "model": mfile if mfile.is_file() else None, "rig": Path(rig)},
-               settings={"piles": piles, "top": top})
+               settings={"piles": piles, "top": top, **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
+                         "preset": preset, **modulus_settings(shear_modulus),
+                         **engine_settings(resolve_settings(run, None, None))} if simulate else {})})
     if st.up_to_date() and not force:
         return SuggestResult(st, True, top=top)
-    cand = _candidates(the_rig, measured)
-    if cand.empty:
-        raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     ev, notes = _evidence(run, model, measured, samples)
     gp = model_surrogate(rows, model)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
@@ -227,7 +326,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     mu, vp = _surrogate_at(gp, draws, cand)
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
-    table = rank_conditions(ev, cand, mu, vp, piles, SUGGEST_VARS)
+    table = rank_conditions(ev, cand, mu, vp, piles, SUGGEST_VARS, sims)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
@@ -235,7 +334,12 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                      f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
                      "heaps where the posterior lies (a design over its 90 % intervals) will teach more than any new "
                      "condition until it falls")
+    if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
+        notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
+                     "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter)
+        if sims is not None:
+            out.table("sensitivities.parquet", cand[["condition_id"]].join(sims).dropna().reset_index(drop=True))
     return SuggestResult(st, False, table, top, tuple(notes))
