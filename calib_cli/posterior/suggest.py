@@ -247,6 +247,20 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
 
 
+def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:
+    """For each candidate effect of a ranking, (effect, condition_id, separation, "simulated" or
+    "interpolated"): the condition that would best tell it from what the parameters absorb, among those
+    whose sensitivities are not extrapolated, whether or not it ranks in the top."""
+    out = []
+    for col in (c for c in table.columns if c.startswith("separation_")):
+        sep = table[col].where(~table["extrapolated"]) if "extrapolated" in table else table[col]
+        if sep.notna().any():
+            best = table.loc[sep.idxmax()]
+            out.append((col.removeprefix("separation_"), str(best["condition_id"]), float(sep.max()),
+                        "simulated" if best.get("simulated", False) else "interpolated"))
+    return out
+
+
 def explain(ev: Evidence, row: pd.Series, effect: str, variables, words: dict[str, str] | None = None) -> str:
     """A plain-language reason for a candidate: the variable it moves furthest from the measured
     conditions, the parameter the effect is most confounded with there, and how each one's

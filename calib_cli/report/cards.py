@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ..posterior.suggest import best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
 from .summary import PINNED, Fit, solution_params
@@ -129,4 +130,7 @@ def posterior_card(f: RunFiles) -> str:
     if nxt is not None and not nxt.empty:
         body += "<h3>Measure next</h3>" + "".join(
             f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
+        body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
+                        f"({sep:.2g} chi-square units, sensitivities {how})</p>"
+                        for e, cid, sep, how in best_per_effect(nxt))
     return card("Posterior", body)

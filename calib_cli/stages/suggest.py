@@ -19,7 +19,7 @@ from ..campaign import RESULTS
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
-from ..posterior.suggest import Evidence, Rig, explain, parse_rig, rank_conditions
+from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_rig, rank_conditions
 from ..requests import engine_settings, heap_setup, modulus_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from .compare import measured_conditions, model_and_theta
@@ -133,21 +133,12 @@ class SuggestResult(Result):
             self.per_effect() + list(self.notes)
 
     def per_effect(self) -> list[str]:
-        """For each candidate effect, the condition that would best tell it from what the parameters
-        absorb (among those whose sensitivities are simulated or interpolated), whether or not it ranks
-        in the top: what to measure to settle that one effect."""
-        t, out = self.table, []
-        for col in (c for c in t.columns if c.startswith("separation_")):
-            ok = t[col].where(~t["extrapolated"]) if "extrapolated" in t else t[col]
-            if not ok.notna().any():
-                continue
-            best = t.loc[ok.idxmax()]
-            how = "simulated" if best.get("simulated", False) else "interpolated"
-            effect = col.removeprefix("separation_").replace("_", " ")
-            out.append(f"{effect}: best told apart at [bold]{best['condition_id']}[/] ({ok.max():.2g} chi-square units, "
-                       f"sensitivities {how})" + ("" if ok.max() >= SEPARATES else ": below one unit, so no condition "
-                                                   "the rig offers is expected to settle it"))
-        return out
+        """For each candidate effect, the condition that would best tell it apart (:func:`best_per_effect`):
+        what to measure to settle that one effect."""
+        return [f"{e.replace('_', ' ')}: best told apart at [bold]{cid}[/] ({sep:.2g} chi-square units, "
+                f"sensitivities {how})" + ("" if sep >= SEPARATES else ": below one unit, so no condition the rig "
+                                           "offers is expected to settle it")
+                for e, cid, sep, how in best_per_effect(self.table)]
 
 
 def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
