@@ -196,9 +196,9 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     separation gain, from diagnose's sensitivities simulated at the candidate (``simulated``: rows as
     ``candidates``, diagnose's columns d_<parameter> and candidate_<effect>, and se_candidate_<effect>
     the signature's standard error, whose expected share D^2 se^2 / u^2 is taken off; NaN where not
-    simulated)
-    or else carried from the measured conditions (:func:`extrapolate`; NaN where they cannot be). The
-    sensitivities used are columns too (``d_*``, ``candidate_*``). Sorted by the sum of the two ranks
+    simulated) or else carried from the measured conditions (:func:`extrapolate`; NaN where they
+    cannot be), each weighed with the new residual's variance as diagnose will weigh it (the measured
+    mean's plus ``ev.sim_var``). The sensitivities used are columns too (``d_*``, ``candidate_*``). Sorted by the sum of the two ranks
     (information, best separation); a separation extrapolated beyond the measured range is shown but
     not ranked (a straight line through a few noisy sensitivities is a guess out there)."""
     u2 = np.full(len(candidates), ev.scatter**2 / piles)
