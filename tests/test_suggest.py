@@ -268,3 +268,25 @@ def test_a_simulated_separation_is_weighed_as_diagnose_will_and_its_own_noise_ta
     # measured alone the new mean's variance is 1.5^2 / 10 = 0.225; with the simulated share 0.225 + 0.775 = 1
     assert sep(0.775) < 0.5 * sep(0.0)
     assert sep(0.775, se=4.0) == pytest.approx(max(sep(0.775) - 0.25 * 16.0 / 1.0, 0.0))
+
+
+def test_the_residuals_uncertainty_is_compares_when_compare_ran_on_these_conditions(ranked, tmp_path):
+    import shutil
+
+    from calib_cli import artifacts as art
+    from calib_cli.stages.compare import measured_conditions
+    from calib_cli.stages.suggest import _residual_uncertainty
+
+    run = tmp_path / "run"
+    shutil.copytree(ranked[0], run)
+    meas = measured_conditions(run)
+    u = np.array([0.3, 0.4])
+    assert _residual_uncertainty(run, meas, u) == (pytest.approx(u), 0.0)  # compare has not run
+    art.write_table(run / "compare" / "residuals.parquet",
+                    pd.DataFrame({"condition_id": meas["condition_id"][::-1], "uncertainty": [1.0, 0.5]}))
+    uc, sim_var = _residual_uncertainty(run, meas, u)  # matched by condition_id, not by row
+    by_id = dict(zip(meas["condition_id"][::-1], [1.0, 0.5]))
+    assert uc.tolist() == [by_id[c] for c in meas["condition_id"]]
+    assert sim_var == pytest.approx(np.mean(np.clip(uc ** 2 - u ** 2, 0, None)))
+    art.write_table(run / "compare" / "residuals.parquet", pd.DataFrame({"condition_id": ["other"], "uncertainty": [1.0]}))
+    assert _residual_uncertainty(run, meas, u)[1] == 0.0  # another set of conditions: not these residuals
