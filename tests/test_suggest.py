@@ -290,3 +290,17 @@ def test_the_residuals_uncertainty_is_compares_when_compare_ran_on_these_conditi
     assert sim_var == pytest.approx(np.mean(np.clip(uc ** 2 - u ** 2, 0, None)))
     art.write_table(run / "compare" / "residuals.parquet", pd.DataFrame({"condition_id": ["other"], "uncertainty": [1.0]}))
     assert _residual_uncertainty(run, meas, u)[1] == 0.0  # another set of conditions: not these residuals
+
+
+def test_a_gain_where_the_surrogate_extrapolates_says_so(ranked):
+    """The tiny run's heaps have fills 50 and 100 mm and one cylinder: a 75 mm fill is inside them."""
+    from calib_cli.posterior.gp import GPSurrogate
+    from calib_cli.stages.suggest import _beyond_heaps
+
+    run, rig, r = ranked
+    assert r.table.set_index("condition_id").loc["d4-5_D40_H75", "beyond_heaps"] == ""
+    rows = pd.DataFrame({"a": np.linspace(0, 1, 12), "fill_height_mm": np.tile([50.0, 100.0], 6),
+                         "repose_angle": np.linspace(20, 30, 12)})
+    gp = GPSurrogate(["a"], ["fill_height_mm"], {"a": (0.0, 1.0)}).fit(rows)
+    cand = pd.DataFrame({"fill_height_mm": [75.0, 150.0]})
+    assert _beyond_heaps(gp, cand) == ["", "fill height 150 beyond the heaps' 50-100"]

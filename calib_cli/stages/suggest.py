@@ -248,11 +248,26 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
                 why += f"; separates no missing effect (at most {row['best_separation']:.2g} chi-square units)"
         else:
             why = "unknown: it sets a variable no simulated heap varied; simulate heaps there first"
+        if row.get("beyond_heaps") and np.isfinite(row["info_gain_nats"]):
+            why += f"; the surrogate extrapolates here ({row['beyond_heaps']})"
         sd = row["surrogate_sd"]
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
                     f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain")
         out.append(why)
+    return out
+
+
+def _beyond_heaps(gp: GPSurrogate, cand: pd.DataFrame) -> list[str]:
+    """Per candidate, the condition variables it sets beyond the range of the heaps the surrogate learnt
+    from ("fill height 150 beyond the heaps' 50-100"), or "": there its gain is the surrogate's guess."""
+    k0 = len(gp.parameters)
+    out = []
+    for _, row in cand.iterrows():
+        far = [f"{WORDS.get(c, c)} {row[c]:g} beyond the heaps' {lo:g}-{hi:g}"
+               for c, lo, hi in zip(gp.inputs_[k0:], gp.lows_[k0:], gp.highs_[k0:])
+               if c in row and not lo - 1e-9 <= row[c] <= hi + 1e-9]
+        out.append("; ".join(far))
     return out
 
 
@@ -317,7 +332,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     mu, vp = _surrogate_at(gp, draws, cand)
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
-    table = rank_conditions(ev, cand, mu, vp, piles, SUGGEST_VARS, sims)
+    table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
