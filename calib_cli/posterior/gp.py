@@ -151,6 +151,12 @@ class GPSurrogate:
         self.n_train_ = len(y)
         return self
 
+    def condition_ranges(self) -> dict[str, tuple[float, float]]:
+        """The condition variables the surrogate learnt, each with the range its heaps covered: beyond
+        it the surrogate extrapolates."""
+        k0 = len(self.parameters)
+        return {c: (float(lo), float(hi)) for c, lo, hi in zip(self.inputs_[k0:], self.lows_[k0:], self.highs_[k0:])}
+
     def _modelled_variance(self, Xs: np.ndarray) -> np.ndarray:
         """sigma^2(x) of :func:`scatter_model` at scaled inputs, held within the inputs' box (x in [0, 1])."""
         lo, hi, b = self.scatter_coef_[0], self.scatter_coef_[1], self.scatter_coef_[2:]

@@ -86,11 +86,10 @@ def _check_measured(conds: pd.DataFrame, gp: GPSurrogate, path: Path) -> None:
     """Refuse a measured condition the surrogate would extrapolate to: outside the simulated range of
     a condition variable it learnt, or off the value every simulated heap shared."""
     ids = conds["condition_id"].astype(str)
-    for k, c in enumerate(gp.inputs_[len(gp.parameters):]):
+    for c, (lo, hi) in gp.condition_ranges().items():
         if c not in conds.columns:
             raise CalibError(f"{path} has no {c} column, which the simulated heaps vary: measure-angle's "
                              "conditions table must give it")
-        lo, hi = gp.lows_[len(gp.parameters) + k], gp.highs_[len(gp.parameters) + k]
         out = ~conds[c].between(lo, hi)
         if out.any():
             raise CalibError(f"condition(s) {', '.join(ids[out])} have {c} outside the simulated heaps' "

@@ -261,12 +261,11 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
 def _beyond_heaps(gp: GPSurrogate, cand: pd.DataFrame) -> list[str]:
     """Per candidate, the condition variables it sets beyond the range of the heaps the surrogate learnt
     from ("fill height 150 beyond the heaps' 50-100"), or "": there its gain is the surrogate's guess."""
-    k0 = len(gp.parameters)
+    ranges = gp.condition_ranges()
     out = []
     for _, row in cand.iterrows():
         far = [f"{WORDS.get(c, c)} {row[c]:g} beyond the heaps' {lo:g}-{hi:g}"
-               for c, lo, hi in zip(gp.inputs_[k0:], gp.lows_[k0:], gp.highs_[k0:])
-               if c in row and not lo - 1e-9 <= row[c] <= hi + 1e-9]
+               for c, (lo, hi) in ranges.items() if c in row and not lo - 1e-9 <= row[c] <= hi + 1e-9]
         out.append("; ".join(far))
     return out
 
