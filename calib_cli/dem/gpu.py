@@ -98,6 +98,15 @@ def _build(contact) -> dict:
     return {**STEP_KERNELS, **_force_kernels(contact)}
 
 
+@cuda.jit(device=True)
+def _half_kick(i, half, vel, omg, force, torque, mass, inv_inertia):
+    """Grain i's half step of velocity Verlet: v += (dt/2) F/m, w += (dt/2) T/I (both kernels below)."""
+    im = 1.0 / mass[i]
+    for d in range(3):
+        vel[i, d] += half * force[i, d] * im
+        omg[i, d] += half * torque[i, d] * inv_inertia[i]
+
+
 @cuda.jit
 def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
                rebuild):
@@ -107,11 +116,8 @@ def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_iner
     h = heap[i]
     if active[h] == 0:
         return
-    half = 0.5 * dt[h]
-    im = 1.0 / mass[i]
+    _half_kick(i, 0.5 * dt[h], vel, omg, force, torque, mass, inv_inertia)
     for d in range(3):
-        vel[i, d] += half * force[i, d] * im
-        omg[i, d] += half * torque[i, d] * inv_inertia[i]
         pos[i, d] += dt[h] * vel[i, d]
     dx = pos[i, 0] - ref_pos[i, 0]
     dy = pos[i, 1] - ref_pos[i, 1]
@@ -233,11 +239,7 @@ def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont,
     h = heap[i]
     if active[h] == 0:
         return
-    half = 0.5 * dt[h]
-    im = 1.0 / mass[i]
-    for d in range(3):
-        vel[i, d] += half * force[i, d] * im
-        omg[i, d] += half * torque[i, d] * inv_inertia[i]
+    _half_kick(i, 0.5 * dt[h], vel, omg, force, torque, mass, inv_inertia)
     ncont[i] = cnew[i]
     v2 = vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2
     if not v2 <= speed_limit * speed_limit:  # NaN fails too
