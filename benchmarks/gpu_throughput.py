@@ -3,11 +3,12 @@ in one run (issue: a GPU engine that runs a whole design at once).
 
 Each batch is B heaps of the preset's fill (seeds 0..B-1, the paper's Table 6 centre point), settled
 for a warm-up (and the kernels' compilation), then timed over --steps steps; the CPU kernel steps the
-same fills one after another with all its threads. Prints particle-steps per second and the ratio.
+same fills two ways: one after another on all its threads, and a heap per core at once (one thread each,
+as a campaign's --workers run). Prints particle-steps per second and the ratios.
 
-    python benchmarks/gpu_throughput.py                       # 1, 4, 16, 64 default heaps; 1, 4 paper
+    python benchmarks/gpu_throughput.py                       # 1, 4, 16, 64, 256 default heaps; 1, 4 paper
     NUMBA_ENABLE_CUDASIM=1 python benchmarks/gpu_throughput.py --preset smoke --batches 1,2 --steps 20 \\
-        --paper-batches "" --cpu-heaps 1                      # the simulator: checks the script, not a speed
+        --paper-batches "" --cpu-heaps 1 --cpu-workers 2      # the simulator: checks the script, not a speed
 """
 import argparse
 import os
@@ -50,6 +51,30 @@ def cpu_rate(preset: str, count: int, steps: int, warmup: int) -> float:
     return total / dt
 
 
+def _one_core(preset: str, seed: int, steps: int, warmup: int) -> float:
+    pre = PRESETS[preset]
+    s = heap_system(PARAMS, pre.condition, pre.numerics, seed)
+    s.advance(warmup)
+    t = time.perf_counter()
+    s.advance(steps)
+    return s.n * steps / (time.perf_counter() - t)
+
+
+def cpu_pool_rate(preset: str, workers: int, steps: int, warmup: int) -> float:
+    """A heap per core, one thread each, all at once (how a campaign's --workers use a machine): the sum
+    of their rates."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    os.environ["NUMBA_NUM_THREADS"] = "1"  # read by each worker's numba as it starts
+    try:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
+            ex.submit(_one_core, "smoke", 0, 1, 1).result()  # not timed: the workers start and compile
+            return sum(ex.map(_one_core, [preset] * workers, range(workers), [steps] * workers, [warmup] * workers))
+    finally:
+        os.environ.pop("NUMBA_NUM_THREADS")
+
+
 def device_name() -> str:
     if gpu.SIMULATOR:
         return "numba CUDA simulator (on the CPU)"
@@ -61,21 +86,28 @@ def device_name() -> str:
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="default")
-    ap.add_argument("--batches", default="1,4,16,64")
+    ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
+    ap.add_argument("--cpu-workers", type=int, default=os.cpu_count(), help="heaps at once, a core each, for the "
+                    "CPU's campaign rate (0: not measured)")
     a = ap.parse_args()
-    print(f"GPU: {device_name()}; CPU: {platform.processor() or platform.machine()}, "
+    print(f"GPU: {device_name()}; CPU: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"{numba.config.NUMBA_NUM_THREADS} numba threads; {a.steps} timed steps after {a.warmup}")
-    cpu = {p: cpu_rate(p, a.cpu_heaps, a.steps, a.warmup) for p in {a.preset, *(["paper"] if a.paper_batches else [])}}
-    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'GPU p-steps/s':>14} {'CPU p-steps/s':>14} {'GPU/CPU':>8}")
+    presets = {a.preset, *(["paper"] if a.paper_batches else [])}
+    cpu = {p: cpu_rate(p, a.cpu_heaps, a.steps, a.warmup) for p in presets}
+    pool = {p: cpu_pool_rate(p, a.cpu_workers, a.steps, a.warmup) if a.cpu_workers else np.nan for p in presets}
+    print("CPU 1 heap: one heap at a time on every thread; CPU per core: a heap per core at once (a campaign)")
+    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'GPU p-steps/s':>14} {'CPU 1 heap':>11} {'GPU/that':>8} "
+          f"{'CPU per core':>12} {'GPU/that':>8}")
     runs = [(a.preset, int(b)) for b in a.batches.split(",") if b] + \
            [("paper", int(b)) for b in a.paper_batches.split(",") if b]
     for preset, count in runs:
         rate, n = gpu_rate(preset, count, a.steps, a.warmup)
-        print(f"{preset:8} {count:5d} {n:9d} {rate:14.3g} {cpu[preset]:14.3g} {rate / cpu[preset]:8.1f}", flush=True)
+        print(f"{preset:8} {count:5d} {n:9d} {rate:14.3g} {cpu[preset]:11.3g} {rate / cpu[preset]:8.1f} "
+              f"{pool[preset]:12.3g} {rate / pool[preset]:8.1f}", flush=True)
 
 
 if __name__ == "__main__":

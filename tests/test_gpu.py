@@ -48,7 +48,9 @@ def same_state(a: System, b: System, tol: float) -> None:
     for x, y in ((a.particles.pos, b.particles.pos), (a.particles.vel, b.particles.vel),
                  (a.particles.omg, b.particles.omg)):
         assert np.max(np.abs(x - y)) <= tol * np.max(np.abs(x)), np.max(np.abs(x - y))
-    assert a.t == b.t and a.n_steps == b.n_steps and a.rim_height == b.rim_height
+    assert a.t == b.t and a.n_steps == b.n_steps
+    # the rim is the highest grain under the cylinder: on a GPU its last bits follow the positions' (fused multiply-adds)
+    assert abs(a.rim_height - b.rim_height) <= (0.0 if gpu.SIMULATOR else 1e-8) * abs(a.rim_height)
 
 
 def run_both(cpu: list[System], on_gpu: list[System], steps: int, chunk: int, **batch) -> np.ndarray:

@@ -28,7 +28,13 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from numba import cuda  # a module global: the simulator swaps it for its own in each kernel
+
+# numba-cuda 0.30 registers a GPU overload for np.row_stack when it compiles its first kernel, and numpy 2.5
+# removed that name: seen on an H200 machine with numpy 2.5.2, where no kernel compiled without this alias
+if not hasattr(np, "row_stack"):
+    np.row_stack = np.vstack
+
+from numba import cuda  # noqa: E402  (a module global: the simulator swaps it for its own in each kernel)
 
 from ..errors import CalibError
 from .forces import contact_of, cylinder_overlap
