@@ -485,8 +485,9 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     return pd.DataFrame([r for r in rows if r is not None])
 
 
-#: heaps a GPU batch holds at most: each finished batch is written to the cache, so a stop loses one
-GPU_BATCH = 128
+#: heaps a GPU batch holds at most: a step costs about the same from 1 to 256 `default` heaps on an H200
+#: (docs/performance.md), and each finished batch is written to the cache, so a stop loses one
+GPU_BATCH = 256
 
 
 def _execute_on_gpu(reqs: list[Request], labels: list[int], run_dir: Path, force: bool = False):

@@ -544,8 +544,9 @@ class Batch:
         for step in range(nsteps):
             args["step"] = step
             self._launch("kick_drift", n, args)
-            # the simulator's launches cost milliseconds: it skips a rebuild no heap asked for (same result)
-            if not SIMULATOR or self.d["rebuild"].copy_to_host().any():
+            # skip a rebuild no heap asked for (same result): a step is bound by its launches (~70 us each on an
+            # H200, docs/performance.md), and reading one flag per heap costs less than four launches
+            if self.d["rebuild"].copy_to_host().any():
                 for name, threads in (("clear_cells", len(self.host["count"])), ("bin_grains", n),
                                       ("find_neighbours", n), ("adopt", n)):
                     self._launch(name, threads, args)
