@@ -4,7 +4,9 @@ A batch holds every heap's grains in one set of arrays, heap by heap (``first[h]
 heap with its own time step, parameter rows, walls, neighbour grid and state; one launch sequence
 per step advances them all, and a heap whose work is done is switched off (``active``). A step is the
 CPU kernel's (:func:`.integrate.run_steps`): half kick and drift, a Verlet-list rebuild where a grain
-moved half the skin, the rim's height, forces, half kick, the overlap and speed checks.
+moved half the skin, the rim's height, forces, half kick, the overlap and speed checks. A step is bound
+by its launches from Python (~70 us each on an H200, docs/performance.md), so it is three of them
+(``kick_drift``, ``forces``, ``kick``), and the rebuild's four only where a heap asks for one.
 
 One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
 run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
@@ -114,8 +116,10 @@ def _half_kick(i, half, vel, omg, force, torque, mass, inv_inertia):
 
 
 @cuda.jit
-def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
-               rebuild):
+def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+               rebuild, grav, cnew, step, t0, lift_start, geo):
+    """The step's first half: half kick and drift, the rebuild flag where a grain moved half the skin,
+    the force reset to gravity for the step's contacts; a heap's first grain moves its cylinder."""
     i = cuda.grid(1)
     if i >= n:
         return
@@ -130,6 +134,12 @@ def kick_drift(n, active, heap, dt, pos, vel, omg, force, torque, mass, inv_iner
     dz = pos[i, 2] - ref_pos[i, 2]
     if dx * dx + dy * dy + dz * dz > limit2[h]:
         rebuild[h] = 1
+    for d in range(3):
+        force[i, d] = mass[i] * grav[d]
+        torque[i, d] = 0.0
+    cnew[i] = 0.0
+    if i == first[h] and geo[h, 2] != 0.0:  # the rim's height at the step's end, as the CPU kernel rounds it
+        geo[h, 1] = geo[h, 2] * max(0.0, t0[h] + step * dt[h] + dt[h] - lift_start[h])
 
 @cuda.jit
 def clear_cells(ncells, cell_heap, rebuild, count):
@@ -215,34 +225,16 @@ def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_
         ref_pos[i, d] = pos[i, d]
 
 @cuda.jit
-def heap_step(nheaps, active, rebuild, step, t0, dt, lift_start, geo):
-    """Per heap: the rebuild flags reset, the rim's height at the step's end."""
-    h = cuda.grid(1)
-    if h >= nheaps or active[h] == 0:
-        return
-    rebuild[h] = 0
-    if geo[h, 2] != 0.0:  # as the CPU kernel rounds it: t = t0 + s dt, then t + dt
-        t = t0[h] + step * dt[h]
-        geo[h, 1] = geo[h, 2] * max(0.0, t + dt[h] - lift_start[h])
-
-@cuda.jit
-def gravity(n, active, heap, mass, grav, force, torque, cnew):
-    i = cuda.grid(1)
-    if i >= n or active[heap[i]] == 0:
-        return
-    for d in range(3):
-        force[i, d] = mass[i] * grav[d]
-        torque[i, d] = 0.0
-    cnew[i] = 0.0
-
-
-@cuda.jit
-def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew, overlap_limit,
-         speed_limit, worst, status):
+def kick(n, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
+         overlap_limit, speed_limit, worst, status):
+    """The step's second half: half kick, the contact counts, the overlap and speed checks; a heap's
+    first grain clears its rebuild flag (the lists were rebuilt earlier in the step)."""
     i = cuda.grid(1)
     if i >= n:
         return
     h = heap[i]
+    if i == first[h]:
+        rebuild[h] = 0
     if active[h] == 0:
         return
     _half_kick(i, 0.5 * dt[h], vel, omg, force, torque, mass, inv_inertia)
@@ -258,28 +250,39 @@ def kick(n, active, heap, dt, vel, omg, force, torque, mass, inv_inertia, ncont,
 
 #: the kernels that take no contact law (one set for every composition)
 STEP_KERNELS = dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
-                    find_neighbours=find_neighbours, adopt=adopt, heap_step=heap_step, gravity=gravity, kick=kick)
+                    find_neighbours=find_neighbours, adopt=adopt, kick=kick)
 
 
 def _force_kernels(contact) -> dict:
-    """Pair and wall forces around the composed ``contact`` (a compiled function of :mod:`.forces`)."""
-    return {"pairs": _pair_kernel(contact), "walls": _wall_kernel(contact)}
-
-
-def _pair_kernel(contact):
-    """Every grain's pairs (its slots, j > i): their contacts, added to both grains atomically."""
+    """The step's contacts around the composed ``contact`` (a compiled function of :mod:`.forces`): one
+    kernel, a thread a grain, its pairs and then its walls (one launch: a step is bound by its launches)."""
+    pairs_of, walls_of = _pairs_of(contact), _walls_of(contact)
 
     @cuda.jit
-    def pairs(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, prm, gap, dt, force,
-              torque, ncont, cnew, worst):
+    def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
+               force, torque, ncont, cnew, worst):
         i = cuda.grid(1)
         if i >= n:
             return
         h = heap[i]
         if active[h] == 0:
             return
-        ht = _raw(hist[i])
         p = _raw(prm[h])
+        pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
+                 cnew, worst)
+        walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, cnew,
+                 worst)
+
+    return {"forces": forces}
+
+
+def _pairs_of(contact):
+    """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically."""
+
+    @cuda.jit(device=True)
+    def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
+                 cnew, worst):
+        ht = _raw(hist[i])
         for s in range(nnb[i]):
             j = nbr[i, s]
             dx = pos[i, 0] - pos[j, 0]
@@ -303,34 +306,34 @@ def _pair_kernel(contact):
                 mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
                 vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
                 omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
-            cuda.atomic.add(force, (i, 0), fx)
-            cuda.atomic.add(force, (i, 1), fy)
-            cuda.atomic.add(force, (i, 2), fz)
-            cuda.atomic.add(force, (j, 0), -fx)
-            cuda.atomic.add(force, (j, 1), -fy)
-            cuda.atomic.add(force, (j, 2), -fz)
-            cuda.atomic.add(torque, (i, 0), tix)
-            cuda.atomic.add(torque, (i, 1), tiy)
-            cuda.atomic.add(torque, (i, 2), tiz)
-            cuda.atomic.add(torque, (j, 0), tjx)
-            cuda.atomic.add(torque, (j, 1), tjy)
-            cuda.atomic.add(torque, (j, 2), tjz)
+            _add3(force, i, fx, fy, fz)
+            _add3(force, j, -fx, -fy, -fz)
+            _add3(torque, i, tix, tiy, tiz)
+            _add3(torque, j, tjx, tjy, tjz)
             if ht[s, A_OLD] > 0.0:
                 cuda.atomic.add(cnew, i, 1.0)
                 cuda.atomic.add(cnew, j, 1.0)
             cuda.atomic.max(worst, h, ov / min(Ri, Rj))
 
-    return pairs
+    return pairs_of
 
 
-def _wall_kernel(contact):
-    """Every grain's floor and cylinder contacts and the settling drag."""
+@cuda.jit(device=True)
+def _add3(a, i, x, y, z):
+    """a[i] += (x, y, z), atomically: other threads add their pairs' share to the same grain."""
+    cuda.atomic.add(a, (i, 0), x)
+    cuda.atomic.add(a, (i, 1), y)
+    cuda.atomic.add(a, (i, 2), z)
+
+
+def _walls_of(contact):
+    """Grain i's floor and cylinder contacts and the settling drag (the CPU kernel's wall blocks)."""
 
     @cuda.jit(device=True)
     def on_wall(i, h, nx, ny, nz, delta, gap, wall_vz, ht, row, Ri, vel, omg, mass, inv_inertia, ncont, p, dt,
                 force, torque, cnew, worst):
-        """Grain i on a wall moving up at ``wall_vz`` (the CPU kernel's wall block): its contact with history
-        ``ht[i]`` and interaction ``row`` added to its force and torque, or, out of reach, its history cleared."""
+        """Grain i on a wall moving up at ``wall_vz``: its contact with history ``ht[i]`` and interaction
+        ``row`` added to its force and torque, or, out of reach, its history cleared."""
         if not delta > -gap:
             for c in range(ht.shape[1]):
                 if c != R13:
@@ -340,30 +343,19 @@ def _wall_kernel(contact):
             nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
             vel[i, 0], vel[i, 1], vel[i, 2] - wall_vz, omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
             _raw(ht), i, p, row, dt)
-        force[i, 0] += fx
-        force[i, 1] += fy
-        force[i, 2] += fz
-        torque[i, 0] += tix
-        torque[i, 1] += tiy
-        torque[i, 2] += tiz
-        cnew[i] += 1.0
+        _add3(force, i, fx, fy, fz)
+        _add3(torque, i, tix, tiy, tiz)
+        cuda.atomic.add(cnew, i, 1.0)
         cuda.atomic.max(worst, h, ov / Ri)
 
-    @cuda.jit
-    def walls(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, hf, hc, prm, gap, geo, dt, force,
-              torque, ncont, cnew, worst):
-        i = cuda.grid(1)
-        if i >= n:
-            return
-        h = heap[i]
-        if active[h] == 0:
-            return
-        p = _raw(prm[h])
+    @cuda.jit(device=True)
+    def walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, cnew,
+                 worst):
         Ri = rad[i]
         drag = geo[h, 5]
         if drag > 0.0:  # settling aid only (set during the fill): background viscous drag
-            for d in range(3):
-                force[i, d] -= drag * mass[i] * vel[i, d]
+            m = drag * mass[i]
+            _add3(force, i, -m * vel[i, 0], -m * vel[i, 1], -m * vel[i, 2])
         # floor z = 0, normal +z
         if geo[h, 4] > 0.0:
             on_wall(i, h, 0.0, 0.0, 1.0, Ri - pos[i, 2], gap[h, FLOOR], 0.0, hf, FLOOR, Ri, vel, omg, mass,
@@ -374,7 +366,7 @@ def _wall_kernel(contact):
             on_wall(i, h, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass, inv_inertia,
                     ncont, p, dt[h], force, torque, cnew, worst)
 
-    return walls
+    return walls_of
 
 
 #: the per-grain and per-heap arrays a batch keeps on the device, and the ones a chunk may leave half-done
@@ -403,7 +395,7 @@ def pack(systems: list, width: int = 16, cell_cap: int = 48) -> dict:
         "t0": np.array([s.t for s in ss]),
     }
     first = np.concatenate([[0], np.cumsum([s.n for s in ss])]).astype(np.int64)
-    return {**host, **_slots(ss, first, width), **_grids(ss, cell_cap)}
+    return {**host, "first": first, **_slots(ss, first, width), **_grids(ss, cell_cap)}
 
 
 def _slots(systems: list, first: np.ndarray, width: int) -> dict:
@@ -550,8 +542,8 @@ class Batch:
                 for name, threads in (("clear_cells", len(self.host["count"])), ("bin_grains", n),
                                       ("find_neighbours", n), ("adopt", n)):
                     self._launch(name, threads, args)
-            for name, threads in (("heap_step", nh), ("gravity", n), ("pairs", n), ("walls", n), ("kick", n)):
-                self._launch(name, threads, args)
+            self._launch("forces", n, args)
+            self._launch("kick", n, args)
         self.cuda.synchronize()
 
     def _copy(self, a):
