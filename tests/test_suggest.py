@@ -202,6 +202,24 @@ def test_a_separation_carried_beyond_the_measured_range_is_shown_but_not_ranked_
     assert "2.7x its mean" in why and "rolling friction's 1x" in why and "simulated there" in why
 
 
+def test_an_information_gain_beyond_the_simulated_heaps_is_shown_but_not_ranked():
+    """The draws disagree most at H150 (the larger gain), but no heap had a fill that high: its gain is
+    the surrogate's extrapolation, so H75, inside the heaps' range, ranks first; the gain is still there."""
+    from calib_cli.posterior.suggest import rank_conditions
+
+    ev = _evidence_for_ranking()
+    ev.G = ev.G.iloc[:, :0]  # no candidate effect: the ranking is the information alone
+    cand = pd.DataFrame({"condition_id": ["H150", "H75"], "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
+                         "fill_height_mm": [150.0, 75.0]})
+    mu = np.vstack([30.0 + 20.0 * ev.draws[:, 0], 30.0 + 5.0 * ev.draws[:, 0]])
+    t = rank_conditions(ev, cand, mu, np.ones(2), 10, VARS)
+    assert list(t["condition_id"]) == ["H150", "H75"]  # without the column, the larger gain first
+    t = rank_conditions(ev, cand.assign(beyond_heaps=["fill height 150 beyond the heaps' 50-100", ""]), mu,
+                        np.ones(2), 10, VARS).set_index("condition_id")
+    assert list(t.index) == ["H75", "H150"]
+    assert t.loc["H150", "info_gain_nats"] > t.loc["H75", "info_gain_nats"] > 0
+
+
 def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, tmp_path, monkeypatch):
     """--simulate: diagnose's finite differences at the named candidates (a stand-in here records what it
     was asked), at the parameters diagnose's table names; they are ranked and written out."""

@@ -141,8 +141,9 @@ def suggest_conditions(
     RUN/suggest/conditions.csv: the top conditions, one row per pile, in measure-angle's
     --conditions format, to go and measure.
 
-    A separation at a condition beyond the measured ones' range is a straight line carried out from
-    them: shown, not ranked. --simulate ID,... simulates diagnose's finite differences there
+    A gain at a condition beyond the simulated heaps' range is the surrogate's extrapolation, and a
+    separation beyond the measured conditions' range a straight line carried out from them: both
+    are shown, not ranked. --simulate ID,... simulates diagnose's finite differences there
     (--repeats heaps a step, at the parameters diagnose used, or --set), into
     RUN/suggest/sensitivities.parquet, and ranks them.
     """

@@ -200,7 +200,9 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     cannot be), each weighed with the new residual's variance as diagnose will weigh it (the measured
     mean's plus ``ev.sim_var``). The sensitivities used are columns too (``d_*``, ``candidate_*``). Sorted by the sum of the two ranks
     (information, best separation); a separation extrapolated beyond the measured range is shown but
-    not ranked (a straight line through a few noisy sensitivities is a guess out there)."""
+    not ranked (a straight line through a few noisy sensitivities is a guess out there), and so is an
+    information gain where ``candidates``' column ``beyond_heaps`` is set (beyond the simulated heaps'
+    range the gain is the surrogate's own extrapolation)."""
     u2 = np.full(len(candidates), ev.scatter**2 / piles)
     pairs = [parameter_gain(m, ev.draws, v) for m, v in zip(mu, u2)]
     gains = np.array([g for g, _ in pairs])
@@ -242,8 +244,11 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     out["best_effect"] = [list(ev.G.columns)[k] if np.isfinite(b) else ""
                           for k, b in zip(top, out["best_separation"])]
     ranked_sep = out["best_separation"].where(~out["extrapolated"])
-    order = out["info_gain_nats"].rank(ascending=False, na_option="bottom") + ranked_sep.rank(
-        ascending=False, na_option="bottom")
+    beyond = out["beyond_heaps"].fillna("").astype(str).str.len().to_numpy() > 0 if "beyond_heaps" in out \
+        else np.zeros(len(out), bool)
+    ranked_gain = out["info_gain_nats"].where(~beyond)
+    order = ranked_gain.rank(ascending=False, na_option="bottom") + ranked_sep.rank(ascending=False,
+                                                                                   na_option="bottom")
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
 
 

@@ -249,7 +249,7 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
         else:
             why = "unknown: it sets a variable no simulated heap varied; simulate heaps there first"
         if row.get("beyond_heaps") and np.isfinite(row["info_gain_nats"]):
-            why += f"; the surrogate extrapolates here ({row['beyond_heaps']})"
+            why += f"; the surrogate extrapolates here ({row['beyond_heaps']}): the gain is not ranked"
         sd = row["surrogate_sd"]
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
@@ -339,6 +339,9 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                      f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
                      "heaps where the posterior lies (a design over its 90 % intervals) will teach more than any new "
                      "condition until it falls")
+    if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
+        notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
+                     "extrapolation and is not ranked: simulate heaps there first")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
