@@ -249,7 +249,8 @@ def test_the_command_prints_the_posterior_and_its_verdicts(done, tmp_path):
 
 def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
     """--design N: N points that cut each 90 % interval into N slices, one point in each (a Latin
-    hypercube), with run ids after the run's earlier posterior designs; simulate-heap reads it."""
+    hypercube), with run ids after every id the run's heaps use above 100 (an earlier round made by hand
+    here, ids up to 124); simulate-heap reads it."""
     from calib_cli.cli import app
     from calib_cli.posterior.suggest import region_design
     from calib_cli.stages.simulate import plan_simulation
@@ -258,6 +259,7 @@ def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
     shutil.copytree(done[0], run)
     rows = pd.read_parquet(run / "simulate" / "results.parquet")
     rows.loc[rows.index[:4], "design"], rows.loc[rows.index[:4], "run_id"] = "posterior", [101, 101, 102, 102]
+    rows.loc[rows.index[4:6], "design"], rows.loc[rows.index[4:6], "run_id"] = "post_design", [123, 124]
     art.write_table(run / "simulate" / "results.parquet", rows)
     r = CliRunner().invoke(app, ["calibrate-posterior", "--run", str(run), "--walkers", "8", "--steps", "60",
                                  "--design", "12"], env={"COLUMNS": "160"})
@@ -265,7 +267,7 @@ def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
     assert "design.parquet: 12 points" in " ".join(r.output.split())
     summ = pd.read_parquet(run / "posterior" / "summary.parquet").set_index("parameter")
     d = art.read_table(run / "posterior" / "design.parquet")
-    assert list(d["run_id"]) == list(range(103, 115))
+    assert list(d["run_id"]) == list(range(125, 137))
     for p in summ.index:
         slices = np.floor((d[p] - summ.loc[p, "q05"]) / (summ.loc[p, "q95"] - summ.loc[p, "q05"]) * 12)
         assert sorted(slices.astype(int)) == list(range(12)), p  # one point in each twelfth of the interval

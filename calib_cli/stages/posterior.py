@@ -262,8 +262,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         out.figure("corner.png", fig)
         out.table("summary.parquet", table, model_revision=model.revision, model=list(model.effects),
                   noise_sd=gp.noise_sd_, length_scales=gp.length_scales_.to_dict(), heaps=len(rows))
-        if design:  # run ids after those of the run's earlier posterior designs: each round its own labels
-            done = rows.loc[rows["design"] == "posterior", "run_id"] if "design" in rows.columns else []
-            first = int(max(done, default=100)) + 1
+        if design:  # run ids after every id the run's heaps already use above 100 (earlier rounds, a design
+            # made by hand): each round its own labels
+            first = int(max(rows["run_id"].max() if "run_id" in rows.columns else 0, 100)) + 1
             out.table("design.parquet", region_design(table, design, seed, first), model_revision=model.revision)
     return PosteriorStageResult(st, False, table, held, samples, model.revision)
