@@ -40,24 +40,23 @@ def gpu_rate(preset: str, count: int, steps: int, warmup: int) -> tuple[float, i
     return n * steps / dt, n
 
 
+def _timed(s, steps: int, warmup: int) -> float:
+    """Seconds for ``steps`` steps of system ``s`` after ``warmup`` untimed ones."""
+    s.advance(warmup)
+    t = time.perf_counter()
+    s.advance(steps)
+    return time.perf_counter() - t
+
+
 def cpu_rate(preset: str, count: int, steps: int, warmup: int) -> float:
-    total, dt = 0, 0.0
-    for s in systems(preset, count):
-        s.advance(warmup)
-        t = time.perf_counter()
-        s.advance(steps)
-        dt += time.perf_counter() - t
-        total += s.n * steps
-    return total / dt
+    runs = [(s.n * steps, _timed(s, steps, warmup)) for s in systems(preset, count)]
+    return sum(w for w, _ in runs) / sum(dt for _, dt in runs)
 
 
 def _one_core(preset: str, seed: int, steps: int, warmup: int) -> float:
     pre = PRESETS[preset]
     s = heap_system(PARAMS, pre.condition, pre.numerics, seed)
-    s.advance(warmup)
-    t = time.perf_counter()
-    s.advance(steps)
-    return s.n * steps / (time.perf_counter() - t)
+    return s.n * steps / _timed(s, steps, warmup)
 
 
 def cpu_pool_rate(preset: str, workers: int, steps: int, warmup: int) -> float:

@@ -445,7 +445,7 @@ def _params(kernel) -> tuple[str, ...]:
 
 
 def _scalars(host: dict, systems: list, cell_cap: int, step: int = 0) -> dict:
-    return {"n": len(host["heap"]), "nheaps": len(systems), "ncells": len(host["count"]), "cap": cell_cap,
+    return {"n": len(host["heap"]), "ncells": len(host["count"]), "cap": cell_cap,
             "step": step, "overlap_limit": float(systems[0].overlap_limit),
             "speed_limit": float(systems[0].speed_limit)}
 
@@ -494,8 +494,8 @@ class Batch:
         self.cuda = cuda_module()
         self.k = kernels(self.spec)
         self.width, self.cell_cap = width, cell_cap
-        self.first = np.concatenate([[0], np.cumsum([s.n for s in self.systems])]).astype(np.int64)
         self.host = pack(self.systems, width, cell_cap)
+        self.first = self.host["first"]
         self.width = self.host["nbr"].shape[1]
         self.d = {k: self.cuda.to_device(v) for k, v in self.host.items()}
 

@@ -244,8 +244,7 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     out["best_effect"] = [list(ev.G.columns)[k] if np.isfinite(b) else ""
                           for k, b in zip(top, out["best_separation"])]
     ranked_sep = out["best_separation"].where(~out["extrapolated"])
-    beyond = out["beyond_heaps"].fillna("").astype(str).str.len().to_numpy() > 0 if "beyond_heaps" in out \
-        else np.zeros(len(out), bool)
+    beyond = out["beyond_heaps"].fillna("").astype(bool).to_numpy() if "beyond_heaps" in out else np.zeros(len(out), bool)
     ranked_gain = out["info_gain_nats"].where(~beyond)
     order = ranked_gain.rank(ascending=False, na_option="bottom") + ranked_sep.rank(ascending=False,
                                                                                    na_option="bottom")
