@@ -130,6 +130,11 @@ def calibrate_posterior(
                                         "many points spread over the 90 % intervals (a Latin hypercube), to "
                                         "simulate at the measured conditions with simulate-heap --design, so "
                                         "the surrogate learns where the posterior lies; then run this again.")] = 0,
+    scatter: Annotated[bool, typer.Option("--scatter", help="Weigh each condition's pile-to-pile scatter as "
+                                          "well as its mean: cohesive heaps scatter more than dry ones of the "
+                                          "same mean angle. It assumes the lab's piles scatter as the simulated "
+                                          "ones do (no operator or photo scatter beyond); used only where the "
+                                          "simulated scatter changes with the parameters.")] = False,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
@@ -145,7 +150,7 @@ def calibrate_posterior(
     RSM and BP network) and corner.png (with --design, design.parquet). Skipped when its inputs and
     options are unchanged.
     """
-    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design)
+    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
@@ -157,6 +162,8 @@ def calibrate_posterior(
         console.print(line)
     if design:
         d = r.stage.dir / "design.parquet"
+        # one pile per point and condition teaches the scatter nothing: with --scatter, repeats do
+        reps = " --repeats 3" if scatter else ""
         console.print(f"wrote {d}: {design} points over the 90 % intervals; simulate them at the measured conditions "
-                      f"(calib simulate-heap --run {run} --design {d} --conditions {run}/measure/conditions.parquet), "
-                      "then run calibrate-posterior again")
+                      f"(calib simulate-heap --run {run} --design {d} --conditions {run}/measure/conditions.parquet"
+                      f"{reps}), then run calibrate-posterior again")

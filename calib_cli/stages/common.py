@@ -37,8 +37,9 @@ R = TypeVar("R")
 #: measure 2: heaps that are not cones (a standing column, cut by the frame, ...) are left out of the statistics
 #: diagnose 2: the ranking names the parameter each candidate is confounded with (confounded_with, confound)
 #: suggest 3: an information gain beyond the simulated heaps' range is shown, not ranked
+#: posterior 3: a changing pile scatter is a Gaussian process over the repeated piles' log variances
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 2, "suggest": 3}
+                 "diagnose": 2, "posterior": 3, "suggest": 3}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:

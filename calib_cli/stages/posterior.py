@@ -200,6 +200,21 @@ def _note_extrapolation(rows: pd.DataFrame, model: Model, say: Say) -> None:
             "the posterior there stays as wide as the prior (--prior heaps keeps it to what the heaps cover)")
 
 
+def _note_scatter(gp: GPSurrogate, scatter: bool, say: Say) -> None:
+    """Say whether the piles' scatter is evidence: only where the simulated piles' scatter changes with
+    the parameters (the surrogate's scatter model), and only when asked, since it assumes the lab's
+    piles scatter as the simulated ones do."""
+    if scatter and gp.scatter_ is None:
+        say("[yellow]note:[/] the simulated piles scatter alike over every parameter, so the lab's scatter tells "
+            "nothing about them: only the measured means are used")
+    elif scatter:
+        say("likelihood: each condition's mean angle and its piles' scatter (the simulated piles' scatter "
+            "changes with the parameters)")
+    elif gp.scatter_ is not None:
+        say("[yellow]note:[/] the simulated piles' scatter changes with the parameters: --scatter makes each "
+            "condition's measured scatter evidence too, where the lab's piles scatter as the simulated ones do")
+
+
 def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
     """Each of the model's parameters' range (its effect's bounds): the scale of the surrogate's inputs."""
     return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
@@ -215,13 +230,15 @@ def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0) -> GPSurrog
 
 @writes_run
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
-              force: bool = False, say: Optional[Say] = None, design: int = 0) -> PosteriorStageResult:
+              force: bool = False, say: Optional[Say] = None, design: int = 0,
+              scatter: bool = False) -> PosteriorStageResult:
     """Sample the posterior of the current model's parameters given every measured condition, through a
     Gaussian process trained on the run's simulated heaps of the model; the prior is uniform over each
     effect's range (``prior="effects"``) or over the range the heaps cover (``"heaps"``). Writes
     RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP, RSM
     and BP network) and corner.png; with ``design`` N, also design.parquet: N points over the 90 % box
-    (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``."""
+    (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``. With
+    ``scatter``, each condition's measured pile scatter is evidence as well as its mean."""
     say = say or plain
     run = check_run_dir(run)
     if prior not in PRIORS:
@@ -242,7 +259,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
                        "model": mfile if mfile.is_file() else None},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds,
-                         **({"design": design} if design else {})})
+                         **({"design": design} if design else {}), **({"scatter": True} if scatter else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
     if prior == "effects":
@@ -251,8 +268,10 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         f"simulated heaps, {len(conds)} measured condition(s), {walkers} walkers x {steps} steps")
     gp = model_surrogate(rows, model, seed)
     _check_measured(conds, gp, run / "measure" / "conditions.parquet")
+    _note_scatter(gp, scatter, say)
     held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed)
-    post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed)
+    post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
+                                                scatter=scatter)
     table = _verdicts(post.summary(), post.samples_)
     fig = _corner(post.samples_, table)
     samples = post.samples_.assign(log_prob=post.log_prob_)
@@ -261,7 +280,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         out.table("surrogates.parquet", held)
         out.figure("corner.png", fig)
         out.table("summary.parquet", table, model_revision=model.revision, model=list(model.effects),
-                  noise_sd=gp.noise_sd_, length_scales=gp.length_scales_.to_dict(), heaps=len(rows))
+                  noise_sd=gp.noise_sd_, length_scales=gp.length_scales_.to_dict(), heaps=len(rows),
+                  scatter=bool(scatter and gp.scatter_ is not None))
         if design:  # run ids after every id the run's heaps already use above 100 (earlier rounds, a design
             # made by hand): each round its own labels
             first = int(max(rows["run_id"].max() if "run_id" in rows.columns else 0, 100)) + 1
