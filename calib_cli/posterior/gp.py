@@ -8,7 +8,8 @@ by its simulated range), one length scale l per input; y is standardised by its 
 sd. s, l and sigma maximise the marginal likelihood (scikit-learn). sigma is the pile-to-pile scatter
 of the simulated heaps (``noise_sd_``, deg). Where the repeated piles (rows with equal inputs) show
 that the scatter changes over the inputs (cohesive heaps scatter about twice as much as dry ones),
-each pile's variance is sigma^2(x) = exp(b0 + b'x) + w instead (:func:`scatter_model`).
+each pile's variance is sigma^2(x) + w instead, log sigma^2 a second Gaussian process over the
+groups of repeated piles (:func:`scatter_model`).
 :meth:`GPSurrogate.predict` gives the latent f, without the scatter of a pile:
 
     mean = m + k*' (K + sigma^2 I)^-1 y,   var = s^2 - k*' (K + sigma^2 I)^-1 k*
@@ -211,8 +212,8 @@ class GPSurrogate:
         return np.sqrt(var)
 
     def log_pile_variance(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """log sigma^2(x) of a pile at scaled inputs Xs, and its variance from the scatter fit's
-        coefficients, carried through the white kernel's share by the delta method:
+        """log sigma^2(x) of a pile at scaled inputs Xs, and its variance from the scatter fit's own
+        uncertainty, carried through the white kernel's share by the delta method:
         Var log(w + v) = (v / (w + v))^2 Var log v. One scatter (``scatter_`` None): variance 0."""
         w = np.full(len(Xs), self.white_sd_ ** 2)
         if self.scatter_ is None:
