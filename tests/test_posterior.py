@@ -158,21 +158,33 @@ def test_the_same_seed_gives_the_same_draws_and_a_missing_prior_is_refused(gp):
 # ------------------------------------------------------------------ the piles' scatter as evidence
 def test_the_scatter_likelihood_is_the_chi_square_law_of_a_sample_variance():
     """log s^2 of n piles: its mean is log sigma^2 + psi(k/2) - log(k/2) and its variance psi'(k/2), k = n - 1
-    (checked on 20000 draws); the likelihood peaks there, the coefficients' uncertainty widens it, and one
-    pile or an sd of 0 adds nothing."""
+    (checked on 20000 draws); the likelihood peaks there, the model's uncertainty widens it, and one
+    pile or an sd of 0 is left out."""
     rng = np.random.default_rng(0)
     sigma2, n = 9.0, 10
     logs2 = np.log(rng.normal(0, 3.0, (20000, n)).var(axis=1, ddof=1))
-    grid = np.linspace(0.0, 4.0, 4001)
-    peak = grid[np.argmax(scatter_log_likelihood(grid, 0.0, np.exp(logs2.mean()), n))]
+    s2 = [np.exp(logs2.mean())]
+    grid = np.linspace(0.0, 4.0, 4001)[:, None]
+    peak = grid[np.argmax(scatter_log_likelihood(grid, np.zeros((len(grid), 1, 1)), s2, [n])), 0]
     assert peak == pytest.approx(np.log(sigma2), abs=0.01)
     # the normal's variance is the draws' variance: at one sd from the peak the log likelihood falls by 1/2
     sd = logs2.std()
-    at = scatter_log_likelihood(np.array([np.log(sigma2), np.log(sigma2) + sd]), 0.0, np.exp(logs2.mean()), n)
+    at = scatter_log_likelihood(np.log(sigma2) + np.array([[0.0], [sd]]), np.zeros((2, 1, 1)), s2, [n])
     assert at[0] - at[1] == pytest.approx(0.5, abs=0.02)
-    miss = [scatter_log_likelihood(np.log(sigma2) + 3 * sd, u, np.exp(logs2.mean()), n) for u in (0.0, 0.5)]
+    miss = [scatter_log_likelihood(np.array([[np.log(sigma2) + 3 * sd]]), np.full((1, 1, 1), u), s2, [n])[0]
+            for u in (0.0, 0.5)]
     assert miss[1] > miss[0] + 2  # an uncertain scatter model charges a wide miss less
-    assert np.all(scatter_log_likelihood(np.zeros(3), 0.0, [4.0, 0.0, np.nan], [1, 10, 10]) == 0.0)
+    assert scatter_log_likelihood(np.zeros((1, 3)), np.zeros((1, 3, 3)), [4.0, 0.0, np.nan], [1, 10, 10]) == [0.0]
+
+
+def test_the_scatter_model_s_error_shared_by_the_conditions_is_charged_once():
+    """Six conditions all 1.0 off in log s^2 with a model uncertainty of 0.5 there: shared (one parameter
+    set's error, as the GP gives it) it explains a common offset; taken as independent it was charged
+    six times over."""
+    r = np.full((1, 6), 1.0)
+    shared = scatter_log_likelihood(-r, np.full((1, 6, 6), 0.5), np.ones(6), np.full(6, 10))
+    independent = scatter_log_likelihood(-r, 0.5 * np.eye(6)[None], np.ones(6), np.full(6, 10))
+    assert shared[0] > independent[0] + 1
 
 
 def _flat_mean(a, b, h):
@@ -186,6 +198,30 @@ def scatter_gp():
     rows = [{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1 + 1.5 * b)}
             for a, b in zip(rng.random(40), 2 * rng.random(40)) for h in HEIGHTS for _ in range(4)]
     return GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(pd.DataFrame(rows))
+
+
+def test_the_pile_log_variance_carries_the_scatter_process_s_covariance_through_the_white_term(scatter_gp):
+    """log(w + v): its covariance within a group is the process's, times v / (w + v) at each end (the delta
+    method), and the points of one parameter set are strongly correlated; a constant scatter is found."""
+    G = np.random.default_rng(1).random((3, 4, 3))
+    mean, cov = scatter_gp.log_pile_variance(G)
+    fit, w = scatter_gp.scatter_, scatter_gp.white_sd_ ** 2
+    for g in range(3):
+        m, c = fit.gp.predict(G[g], return_cov=True)
+        lv = fit.z_mean + fit.z_sd * m
+        jac = np.exp(lv) / (w + np.exp(lv))
+        assert np.allclose(mean[g], np.log(w + np.exp(lv)))
+        assert np.allclose(cov[g], fit.z_sd ** 2 * np.outer(jac, jac) * c)
+    assert np.all(np.linalg.eigvalsh(cov) > -1e-12)
+
+
+def test_the_scatter_process_recovers_a_constant_scatter_from_groups_of_three():
+    from calib_cli.posterior.gp import _fit_log_variance
+
+    rng = np.random.default_rng(2)
+    s2 = rng.normal(0, 2.0, (60, 3)).var(axis=1, ddof=1)  # sigma^2 = 4, chi-square's skew at k = 2
+    fit = _fit_log_variance(rng.random((60, 2)), s2, np.full(60, 2.0))
+    assert fit.variance(rng.random((20, 2))) == pytest.approx(np.full(20, 4.0), rel=0.3)
 
 
 def _scatter_lab(truth, seed):
@@ -221,9 +257,10 @@ def _scatter_coverage(gp, runs: int) -> float:
 
 @pytest.mark.slow
 def test_with_the_scatter_the_90_percent_intervals_hold_the_truth_nearly_90_percent_of_the_time(scatter_gp):
-    """100 calibrations (200 intervals, ~2 min) with truths over the prior: 84.5 % hold the truth (87 % of
-    240 over 120). A little under 90 %: 120 groups of four piles leave the scatter's bend (sd 1 + 1.5 b,
-    steepest at b = 0) smoothed, so a truth near b = 0 scatters less than the surrogate thinks any b can."""
+    """100 calibrations (200 intervals, ~2 min) with truths over the prior: 88 % hold the truth (a 83 %,
+    b 93 %). The band's floor is 80 %, not 85: 120 groups of four piles leave the scatter's bend (sd
+    1 + 1.5 b, steepest at b = 0) smoothed, and with the model's error taken as independent per
+    condition the same calibrations gave 84.5 %."""
     assert 0.80 <= _scatter_coverage(scatter_gp, 100) <= 0.95
 
 

@@ -101,23 +101,28 @@ def savage_dickey(draws, value: float, low: float, high: float, width: float = 0
     return float(np.mean((draws >= a) & (draws <= b)) / ((b - a) / (high - low)))
 
 
-def scatter_log_likelihood(log_var: np.ndarray, log_var_var: np.ndarray, s2, n) -> np.ndarray:
-    """The log likelihood of measured pile variances s^2 (from n piles) given the simulated piles' log
-    sigma^2 and that log's own variance u (the scatter fit's): (n - 1) s^2 / sigma^2 is chi^2 with
-    k = n - 1 degrees of freedom, so log s^2 has mean log sigma^2 + psi(k/2) - log(k/2) and variance
-    psi'(k/2) (psi the digamma function), taken as normal with u added:
+def scatter_log_likelihood(log_var: np.ndarray, log_var_cov: np.ndarray, s2, n) -> np.ndarray:
+    """The log likelihood of the measured pile variances s_c^2 (from n_c piles) of C conditions given
+    the simulated piles' log sigma_c^2 (b, C) at b parameter sets and its covariance U (b, C, C) from
+    the scatter model: (n - 1) s^2 / sigma^2 is chi^2 with k = n - 1 degrees of freedom, so log s^2 has
+    mean log sigma^2 + psi(k/2) - log(k/2) and variance psi'(k/2) (psi the digamma function), taken as
+    normal, the conditions' shared model error kept whole (as S is for the means):
 
-        log s^2 ~ N(log sigma^2 + psi(k/2) - log(k/2), psi'(k/2) + u)
+        log s^2 ~ N(log sigma^2 + psi(k/2) - log(k/2), diag(psi'(k/2)) + U)
 
-    Broadcasts over leading axes; a condition with one pile or an sd of 0 adds 0."""
+    Returns (b,); a condition with one pile or an sd of 0 is left out."""
     from scipy.special import digamma, polygamma
 
     s2, k = np.asarray(s2, float), np.asarray(n, float) - 1.0
     ok = (k >= 1) & np.isfinite(s2) & (s2 > 0)
-    kk = np.where(ok, k, 1.0)
-    r = np.log(np.where(ok, s2, 1.0)) - (log_var + digamma(kk / 2) - np.log(kk / 2))
-    v = polygamma(1, kk / 2) + log_var_var
-    return np.where(ok, -0.5 * r ** 2 / v - 0.5 * np.log(2 * np.pi * v), 0.0)
+    if not ok.any():
+        return np.zeros(len(log_var))
+    k = k[ok]
+    r = np.log(s2[ok]) - (log_var[:, ok] + digamma(k / 2) - np.log(k / 2))
+    L = np.linalg.cholesky(log_var_cov[:, ok][:, :, ok] + np.diag(polygamma(1, k / 2)))
+    z = np.linalg.solve(L, r[:, :, None])[:, :, 0]
+    return -0.5 * np.sum(z ** 2, axis=1) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) \
+        - 0.5 * ok.sum() * np.log(2 * np.pi)
 
 
 def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Mapping[str, float],
@@ -132,6 +137,7 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
     col = {c: k for k, c in enumerate(gp.inputs_)}
     cond_vals = measured[conds].to_numpy(float) if conds else np.zeros((C, 0))
     s2, n = measured["sd"].to_numpy(float) ** 2, measured["n"].to_numpy(float)
+    scatter = scatter and gp.scatter_ is not None  # one simulated scatter: the same term at every theta
 
     def log_prob(theta: np.ndarray) -> np.ndarray:
         theta = np.atleast_2d(theta)
@@ -153,8 +159,8 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
         out[inside] = -0.5 * np.sum(z ** 2, axis=1) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) \
             - 0.5 * C * np.log(2 * np.pi)
         if scatter:
-            lv, u = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])))
-            out[inside] += scatter_log_likelihood(lv.reshape(len(t), C), u.reshape(len(t), C), s2, n).sum(axis=1)
+            lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
+            out[inside] += scatter_log_likelihood(lv, U, s2, n)
         return out
 
     return log_prob, lo, hi

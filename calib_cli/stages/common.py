@@ -38,8 +38,9 @@ R = TypeVar("R")
 #: diagnose 2: the ranking names the parameter each candidate is confounded with (confounded_with, confound)
 #: suggest 3: an information gain beyond the simulated heaps' range is shown, not ranked
 #: posterior 3: a changing pile scatter is a Gaussian process over the repeated piles' log variances
+#: posterior 4: with --scatter, that process's error is shared by a parameter set's conditions
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 3, "suggest": 3}
+                 "diagnose": 2, "posterior": 4, "suggest": 3}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:
