@@ -39,8 +39,9 @@ R = TypeVar("R")
 #: suggest 3: an information gain beyond the simulated heaps' range is shown, not ranked
 #: posterior 3: a changing pile scatter is a Gaussian process over the repeated piles' log variances
 #: posterior 4: with --scatter, that process's error is shared by a parameter set's conditions
+#: suggest 4: its surrogate's pile variances are that process's
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 4, "suggest": 3}
+                 "diagnose": 2, "posterior": 4, "suggest": 4}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:
