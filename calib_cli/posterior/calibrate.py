@@ -101,6 +101,14 @@ def savage_dickey(draws, value: float, low: float, high: float, width: float = 0
     return float(np.mean((draws >= a) & (draws <= b)) / ((b - a) / (high - low)))
 
 
+def mvn_logpdf(r: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """log N(r; 0, V) of b residual vectors r (b, m) with their covariances V (b, m, m), by Cholesky."""
+    L = np.linalg.cholesky(V)
+    z = np.linalg.solve(L, r[:, :, None])[:, :, 0]
+    return -0.5 * np.sum(z ** 2, axis=1) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) \
+        - 0.5 * r.shape[1] * np.log(2 * np.pi)
+
+
 def scatter_log_likelihood(log_var: np.ndarray, log_var_cov: np.ndarray, s2, n) -> np.ndarray:
     """The log likelihood of the measured pile variances s_c^2 (from n_c piles) of C conditions given
     the simulated piles' log sigma_c^2 (b, C) at b parameter sets and its covariance U (b, C, C) from
@@ -119,10 +127,7 @@ def scatter_log_likelihood(log_var: np.ndarray, log_var_cov: np.ndarray, s2, n) 
         return np.zeros(len(log_var))
     k = k[ok]
     r = np.log(s2[ok]) - (log_var[:, ok] + digamma(k / 2) - np.log(k / 2))
-    L = np.linalg.cholesky(log_var_cov[:, ok][:, :, ok] + np.diag(polygamma(1, k / 2)))
-    z = np.linalg.solve(L, r[:, :, None])[:, :, 0]
-    return -0.5 * np.sum(z ** 2, axis=1) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) \
-        - 0.5 * ok.sum() * np.log(2 * np.pi)
+    return mvn_logpdf(r, log_var_cov[:, ok][:, :, ok] + np.diag(polygamma(1, k / 2)))
 
 
 def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Mapping[str, float],
@@ -154,10 +159,7 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
         for j, c in enumerate(conds):
             X[:, :, col[c]] = cond_vals[None, :, j]
         mu, cov = gp.predict_joint(X)
-        L = np.linalg.cholesky(cov + np.diag(v + 1e-9))  # the jitter: a measured sd of exactly 0
-        z = np.linalg.solve(L, (ybar[None, :] - mu)[:, :, None])[:, :, 0]
-        out[inside] = -0.5 * np.sum(z ** 2, axis=1) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) \
-            - 0.5 * C * np.log(2 * np.pi)
+        out[inside] = mvn_logpdf(ybar[None, :] - mu, cov + np.diag(v + 1e-9))  # the jitter: a measured sd of 0
         if scatter:
             lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
             out[inside] += scatter_log_likelihood(lv, U, s2, n)
