@@ -34,6 +34,7 @@ from .dem.render import render_side_view
 from .errors import CalibError
 from .engines.clumps import SPHERES
 from .imaging.measure import measure_image
+from .profile import fullness
 
 RESULTS = Path("simulate") / "results.parquet"
 RUNS = Path("simulate") / "runs"
@@ -188,6 +189,7 @@ def _row(req: Request, res, img) -> dict:
         "angle_image": img.repose_angle if img_ok else np.nan,
         "angle_image_left": img.angle_left if img_ok else np.nan,
         "angle_image_right": img.angle_right if img_ok else np.nan,
+        "fullness": fullness(img.profile_s, img.profile_h) if img_ok else np.nan,
         "heap_height_mm": a.height * 1e3, "base_radius_mm": a.base_radius * 1e3,
         "angle_drift_deg_s": float(res.angle_drift),
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,

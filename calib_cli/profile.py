@@ -162,3 +162,42 @@ def fit_flank(r: np.ndarray, h: np.ndarray, height: float, band=DEFAULT_BAND, ba
             c0, c1 = _rlm(r[m], h[m])
     resid = h[m] - (c0 + c1 * r[m])
     return FlankFit(math.degrees(math.atan(abs(c1))), c1, c0, float(np.sqrt(np.mean(resid**2))), int(m.sum()))
+
+
+#: the fullness's base, in heap heights: below it the toe's loose grains and the floor's layer set the
+#: width (one 6-8 mm grain is 15-25 % of a 40 mm cylinder's heap)
+FULLNESS_LEVEL = 0.15
+
+
+def _crossing(s: np.ndarray, h: np.ndarray, i: int, j: int, level: float) -> float:
+    """Where h crosses ``level`` between neighbouring samples i (below) and j (above), linearly."""
+    return float(s[i] + (level - h[i]) * (s[j] - s[i]) / (h[j] - h[i]))
+
+
+def fullness(s: np.ndarray, h: np.ndarray, level: float = FULLNESS_LEVEL) -> float:
+    """The profile's shape beside its angle: the area of the top profile h(s) above ``level`` heap
+    heights H over that of the triangle of the same height and width w there,
+
+        F = int (h - l H) ds / (0.5 (1 - l) H w)
+
+    between the first crossings of l H from the apex outwards (a grain rolled beyond the toe is not
+    the heap). F = 1 for a cone's straight flanks, above 1 for convex ones (rounded shoulders over a
+    steep toe, as cohesive heaps have), below 1 for concave ones. Scale-free, so a photograph's pixels
+    and a simulation's metres give the same number. NaN where either flank never falls to l H."""
+    s, h = np.asarray(s, float), np.asarray(h, float)
+    fin = np.isfinite(s) & np.isfinite(h)
+    s, h = s[fin], h[fin]
+    if len(h) < 3 or not np.max(h) > 0:
+        return float("nan")
+    ia = int(np.argmax(h))
+    H = float(h[ia])
+    lv = level * H
+    below_l, below_r = np.flatnonzero(h[:ia] < lv), ia + np.flatnonzero(h[ia:] < lv)
+    if not (len(below_l) and len(below_r)):
+        return float("nan")
+    il, ir = int(below_l[-1]), int(below_r[0])
+    sl, sr = _crossing(s, h, il, il + 1, lv), _crossing(s, h, ir, ir - 1, lv)
+    xs = np.r_[sl, s[il + 1:ir], sr]
+    ys = np.r_[0.0, h[il + 1:ir] - lv, 0.0]
+    area = float(np.sum(0.5 * (ys[1:] + ys[:-1]) * np.diff(xs)))
+    return area / (0.5 * (1.0 - level) * H * (sr - sl))

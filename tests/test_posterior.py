@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -13,11 +14,12 @@ from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
 from calib_cli.errors import CalibError
-from calib_cli.posterior.calibrate import (OWN_SD_PILES, calibrate_posterior, mean_variance, savage_dickey,
-                                          scatter_log_likelihood)
+from calib_cli.posterior.calibrate import (OWN_SD_PILES, SecondResponse, calibrate_posterior, mean_variance,
+                                          savage_dickey, scatter_log_likelihood)
 from calib_cli.posterior.gp import GPSurrogate, informative_conditions
 from calib_cli.stages.posterior import posterior
 
+ROOT = Path(__file__).resolve().parents[1]
 QUIET = {"say": lambda *a, **k: None}
 
 
@@ -264,6 +266,68 @@ def test_with_the_scatter_the_90_percent_intervals_hold_the_truth_nearly_90_perc
     assert 0.80 <= _scatter_coverage(scatter_gp, 100) <= 0.95
 
 
+# ------------------------------------------------------------------ a second response: the profile
+def _fullness(a, b, h):
+    """A stand-in profile fullness that sees b, which the angle (:func:`_flat_mean`) does not."""
+    return 1.0 + 0.02 * a + 0.15 * b
+
+
+@pytest.fixture(scope="module")
+def two_gps():
+    rng = np.random.default_rng(6)
+    rows = pd.DataFrame([{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1),
+                          "fullness": _fullness(a, b, h) + rng.normal(0, 0.03)}
+                         for a, b in zip(rng.random(40), 2 * rng.random(40)) for h in HEIGHTS])
+    return [GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS, response=y).fit(rows)
+            for y in ("repose_angle", "fullness")]
+
+
+def test_the_profile_pins_a_parameter_the_angle_cannot_see(two_gps):
+    """b moves no mean angle, only the profile's fullness: from the angles alone its interval is the prior's;
+    with the fullness as a second response it is pinned around the truth, and a stays where it was."""
+    angle, full = two_gps
+    truth, rng = {"a": 0.4, "b": 1.2}, np.random.default_rng(3)
+    measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "mean": _flat_mean(truth["a"], 0, HEIGHTS)
+                             + rng.normal(0, 1 / np.sqrt(10), 3), "sd": 1.0, "n": 10})
+    second = SecondResponse(full, _fullness(truth["a"], truth["b"], HEIGHTS) + rng.normal(0, 0.01, 3),
+                            np.full(3, 0.03), np.full(3, 10.0), rho=0.3)
+    kw = dict(n_walkers=16, n_steps=600, seed=0)
+    alone = calibrate_posterior(angle, measured, BOUNDS, **kw).summary().set_index("parameter")
+    both = calibrate_posterior(angle, measured, BOUNDS, second=second, **kw).summary().set_index("parameter")
+    assert alone.loc["b", "rel_width"] > 0.8
+    assert both.loc["b", "rel_width"] < 0.25 and both.loc["b", "q05"] <= truth["b"] <= both.loc["b", "q95"]
+    assert both.loc["a", "q05"] <= truth["a"] <= both.loc["a", "q95"]
+
+
+def test_a_pile_s_two_responses_correlate_in_the_means_covariance_and_nowhere_else(two_gps):
+    """The stacked covariance: each surrogate's own block plus its measured means' variances, and between
+    the blocks only rho sqrt(v v2) on the diagonal (a pile's angle and profile, not two surrogates)."""
+    from calib_cli.posterior.calibrate import _joint_terms
+
+    angle, full = two_gps
+    X = np.random.default_rng(0).random((2, 3, 3)) * [1, 2, 0] + [0, 0, 75]
+    v, sd2, n2 = np.array([0.1, 0.2, 0.3]), np.array([0.03, 0.04, 0.05]), np.full(3, 10.0)
+    second = SecondResponse(full, np.ones(3), sd2, n2, rho=0.5)
+    r, V = _joint_terms(angle, second, X, X, np.zeros(3), v)
+    v2 = mean_variance(sd2, n2, full.noise_sd_)
+    assert r.shape == (2, 6) and V.shape == (2, 6, 6)
+    assert np.allclose(V[:, :3, 3:], np.diag(0.5 * np.sqrt(v * v2)))
+    assert np.allclose(V[:, 3:, 3:], full.predict_joint(X)[1] + np.diag(v2), atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(V) > 0)
+
+
+def test_the_within_condition_correlation_is_pooled_about_each_condition_s_own_mean():
+    """Conditions far apart in both responses would fake a strong correlation; within each it is 0.6."""
+    from calib_cli.stages.profiles import _pooled_correlation
+
+    rng = np.random.default_rng(4)
+    g = np.repeat(np.arange(8), 50)
+    z1, z2 = rng.normal(size=(2, 400))
+    a, b = 10 * g + z1, -5 * g + 0.6 * z1 + 0.8 * z2
+    assert _pooled_correlation(a, b, g) == pytest.approx(0.6, abs=0.08)
+    assert _pooled_correlation(a[:3], b[:3], g[:3]) == 0.0  # two degrees of freedom: too few to say
+
+
 # ------------------------------------------------------------------ the stage
 def _heap(sf, rf, e, h):
     return 18 + 20 * sf + 30 * rf - 2 * e + 0.05 * h * rf
@@ -319,6 +383,64 @@ def test_the_stage_reruns_when_an_option_changes(done, tmp_path):
     s = posterior(run, walkers=8, steps=60, prior="heaps", scatter=True, say=lambda m, **k: said.append(m))
     assert not s.skipped and "only the measured means are used" in " ".join(said)  # one scatter in the heaps
     assert art.read_provenance(run / "posterior" / "summary.parquet")["scatter"] is False
+
+
+def _with_profiles(run, seed=0):
+    """The tiny run with photographs' profiles (ten per condition, h = 50 (1 - |s/60|^p), p about 1.5)
+    and simulated heaps whose fullness follows rolling friction, through the lab's at its truth (0.15)."""
+    from calib_cli.profile import fullness
+
+    rng, s = np.random.default_rng(seed), np.linspace(-80, 80, 321)
+    prof, angles = [], []
+    for cid in ("H50", "H100"):
+        for k in range(10):
+            h = 50 * np.clip(1 - np.abs(s / 60) ** rng.uniform(1.4, 1.6), 0, None)
+            prof.append(pd.DataFrame({"image": f"{cid}_{k}.png", "condition_id": cid, "s_px": s, "h_px": h}))
+            angles.append({"image": f"{cid}_{k}.png", "condition_id": cid, "repose_angle": 30.0 + rng.normal()})
+    prof = pd.concat(prof, ignore_index=True)
+    art.write_table(run / "measure" / "profiles.parquet", prof)
+    art.write_table(run / "measure" / "angles.parquet", pd.DataFrame(angles))
+    lab = np.mean([fullness(g["s_px"], g["h_px"]) for _, g in prof.groupby("image")])
+    rows = pd.read_parquet(run / "simulate" / "results.parquet")
+    rows["fullness"] = lab + 0.6 * (rows["rolling_friction"] - 0.15) + rng.normal(0, 0.02, len(rows))
+    rows["run_hash"] = [f"h{i:03d}" for i in range(len(rows))]
+    art.write_table(run / "simulate" / "results.parquet", rows)
+    return run
+
+
+def test_the_profile_enters_as_a_second_response_with_its_inputs_and_surrogate(tmp_path):
+    run = _with_profiles(_tiny_run(tmp_path / "run"))
+    said = []
+    r = posterior(run, walkers=8, steps=60, profile=True, say=lambda m, **k: said.append(m))
+    lock = json.loads((run / "posterior" / "sample.lock.json").read_text())
+    meta = art.read_provenance(run / "posterior" / "summary.parquet")
+    assert "profiles" in lock["inputs"]
+    assert meta["profile"] is True and -1 < meta["profile_rho"] < 1 and 0 < meta["profile_noise_sd"] < 0.1
+    assert set(r.surrogates["response"]) == {"repose_angle", "fullness"}
+    assert "mean fullness is evidence beside its angle" in " ".join(said)
+    assert r.table.set_index("parameter").loc["rolling_friction", "rel_width"] < 0.5
+
+
+def test_a_heap_without_a_fullness_is_measured_on_its_side_view_or_left_out(tmp_path):
+    from calib_cli.stages.profiles import simulated_fullness
+
+    run = _tiny_run(tmp_path / "run")
+    rows = pd.read_parquet(run / "simulate" / "results.parquet").assign(run_hash=lambda d: [f"h{i}" for i in d.index])
+    art.write_table(run / "simulate" / "results.parquet", rows)
+    side = run / "simulate" / "runs" / "h3"
+    side.mkdir(parents=True)
+    shutil.copy(ROOT / "sample_runs" / "smoke" / "simulate" / "runs" / "example" / "side.png", side / "side.png")
+    f = simulated_fullness(run, rows)
+    assert np.isfinite(f[3]) and 0.8 < f[3] < 1.6 and f.drop(3).isna().all()
+    with pytest.raises(CalibError, match="only 1 of the 60 simulated heaps have a side view"):
+        posterior(run, walkers=8, steps=20, profile=True, **QUIET)
+    art.write_table(run / "measure" / "profiles.parquet",
+                    pd.DataFrame({"image": [], "condition_id": [], "s_px": [], "h_px": []}))
+    rows["fullness"] = 1.1
+    art.write_table(run / "simulate" / "results.parquet", rows)
+    with pytest.raises(CalibError, match="drop --profile"):
+        posterior(run, walkers=8, steps=20, profile=True, **QUIET)
+    assert not (run / "posterior" / "sample.lock.json").exists()
 
 
 @pytest.mark.parametrize("spoil, message", [

@@ -60,3 +60,42 @@ def test_exact_line_and_degenerate_input():
     assert c1 == pytest.approx(-0.7, abs=1e-12) and c0 == pytest.approx(0.03, abs=1e-12)
     fit = profile.fit_flank(r, np.full(9, np.nan), 0.03)
     assert not fit.ok
+
+
+# ------------------------------------------------------------------ the profile's fullness
+S = np.linspace(-100.0, 100.0, 801)
+
+
+def test_the_fullness_of_a_cone_a_dome_and_a_concave_heap_is_their_area_ratio():
+    """A cone's straight flanks 1; a parabola H (1 - (s/a)^2) 4/3 at any level; a concave H (1 - |s|/a)^2
+    2 [(1 - l^1.5)/3 - l (1 - sqrt l)] / ((1 - l)(1 - sqrt l)) (0.8528 at l = 0.15)."""
+    l = profile.FULLNESS_LEVEL
+    assert profile.fullness(S, np.clip(50 - np.abs(S), 0, None)) == pytest.approx(1.0, abs=1e-9)
+    assert profile.fullness(S, 50 * np.clip(1 - (S / 60) ** 2, 0, None)) == pytest.approx(4 / 3, abs=1e-4)
+    concave = 2 * ((1 - l ** 1.5) / 3 - l * (1 - l ** 0.5)) / ((1 - l) * (1 - l ** 0.5))
+    assert profile.fullness(S, 50 * np.clip(1 - np.abs(S) / 60, 0, None) ** 2) == pytest.approx(concave, abs=1e-3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.01, 1e4), st.floats(0.01, 1e4), st.floats(-50, 50))
+def test_the_fullness_is_free_of_scale_and_position(ks, kh, shift):
+    """A photograph's pixels and a simulation's metres, stretched apart, give the same number."""
+    h = 50 * np.clip(1 - (S / 60) ** 2, 0, None) ** 0.7
+    assert profile.fullness(ks * (S + shift), kh * h) == pytest.approx(profile.fullness(S, h), rel=1e-9)
+
+
+def test_a_grain_beyond_the_toe_is_not_the_heap_and_a_flank_that_never_falls_gives_nan():
+    cone = np.clip(50 - np.abs(S), 0, None)
+    grain = cone + np.where(np.abs(S - 80) < 3, 12.0, 0.0)  # a grain rolled away, above the 15 % level
+    assert profile.fullness(S, grain) == pytest.approx(1.0, abs=1e-9)
+    assert np.isnan(profile.fullness(S, np.clip(80 - np.abs(S - 60), 0, None)))  # cut by the frame's side
+    assert np.isnan(profile.fullness(S[:2], cone[:2])) and np.isnan(profile.fullness(S, np.zeros_like(S)))
+
+
+def test_a_photographed_cone_measures_a_fullness_of_one_and_a_rounded_apex_more():
+    """Through the image pipeline: a synthetic cone's silhouette (6 px grains, noise) 0.99; its apex
+    rounded over 40 px (a flat-topped heap of the same flanks, fuller than a cone of its height) 1.10."""
+    cone = measure_image(synth_heap(38, SynthOptions(noise_sd=6), seed=1))
+    rounded = measure_image(synth_heap(38, SynthOptions(apex_round_px=40), seed=1))
+    assert profile.fullness(cone.profile_s, cone.profile_h) == pytest.approx(1.0, abs=0.02)
+    assert profile.fullness(rounded.profile_s, rounded.profile_h) > 1.06

@@ -135,6 +135,11 @@ def calibrate_posterior(
                                           "same mean angle. It assumes the lab's piles scatter as the simulated "
                                           "ones do (no operator or photo scatter beyond); used only where the "
                                           "simulated scatter changes with the parameters.")] = False,
+    profile: Annotated[bool, typer.Option("--profile", help="Weigh each condition's heap profile as well as its "
+                                          "angle: the photographs' mean fullness (1 for a cone's straight "
+                                          "flanks, above 1 for the rounded shoulders of cohesive heaps), against "
+                                          "the simulated heaps' side views. It assumes the photographs show the "
+                                          "heap's silhouette as the simulated side views do.")] = False,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
@@ -145,17 +150,19 @@ def calibrate_posterior(
     interval spans at most a fifth of its prior range; an effect the model gained gets the Bayes
     factor of its being off (docs/method.md, 'The posterior').
 
-    Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet and RUN/model.toml. Writes
-    RUN/posterior/summary.parquet, samples.parquet, surrogates.parquet (held-out RMSE of the GP,
-    RSM and BP network) and corner.png (with --design, design.parquet). Skipped when its inputs and
-    options are unchanged.
+    Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet (with --profile, profiles.parquet
+    and the heaps' side views) and RUN/model.toml. Writes RUN/posterior/summary.parquet,
+    samples.parquet, surrogates.parquet (held-out RMSE of the GP, RSM and BP network) and corner.png
+    (with --design, design.parquet). Skipped when its inputs and options are unchanged.
     """
-    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter)
+    r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter,
+                        profile=profile)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
     cv = r.surrogates
-    console.print(df_table(cv[["surrogate", "rmse", "noise_sd", "piles"]], "held-out RMSE per pile [deg]"))
+    cols = [c for c in ("response", "surrogate", "rmse", "noise_sd", "piles") if c in cv.columns]
+    console.print(df_table(cv[cols], "held-out RMSE per pile (the angle's in deg)"))
     console.print(f"each surrogate trained without a fifth of the {cv['design_points'].iloc[0]} design points, "
                   f"{cv['folds'].iloc[0]} times; noise_sd is the piles' own scatter, the floor")
     for line in r.conclusion():

@@ -12,6 +12,9 @@ was charged once per condition wherever the heaps are sparse, which drew hidden-
 onto the cluster of validation heaps (surface_energy 0.013 to 0.11, the truth 0.6 outside).
 With ``scatter``, each condition's measured pile variance s_c^2 (n_c >= 2 piles) is evidence too
 (:func:`scatter_log_likelihood`): cohesive heaps scatter more than dry ones whose mean angle is alike.
+With a second response (the heap profile's fullness, :class:`SecondResponse`), both responses' means
+are stacked, each with its own surrogate, the measured means of a condition correlated as a pile's two
+responses are.
 It is sampled by emcee's ensemble (Foreman-Mackey et al., PASP 125, 2013) with differential-evolution
 moves (ter Braak & Vrugt 2008): on both sample labs they cut the autocorrelation time of the default
 stretch move three- to fourfold (hidden-effect: 24-35 steps against 113-158).
@@ -130,17 +133,53 @@ def scatter_log_likelihood(log_var: np.ndarray, log_var_cov: np.ndarray, s2, n) 
     return mvn_logpdf(r, log_var_cov[:, ok][:, :, ok] + np.diag(polygamma(1, k / 2)))
 
 
+@dataclass(frozen=True)
+class SecondResponse:
+    """A second measured response of every condition (the heap profile's fullness), with its own
+    surrogate ``gp`` over the same inputs: the measured ``mean``, ``sd`` and ``n`` in the angle's
+    condition order, and ``rho`` the correlation of a pile's two responses within a condition (the
+    measured means then correlate as rho sqrt(v_angle v_second))."""
+
+    gp: object
+    mean: np.ndarray
+    sd: np.ndarray
+    n: np.ndarray
+    rho: float = 0.0
+
+
+def _inputs(gp, t: np.ndarray, names: list[str], fixed: Mapping[str, float], cond_vals: Mapping[str, np.ndarray],
+            C: int) -> np.ndarray:
+    """(walkers, C, inputs) in ``gp.inputs_`` order: each walker's parameters under every condition."""
+    X = np.empty((len(t), C, len(gp.inputs_)))
+    for k, c in enumerate(gp.inputs_):
+        X[:, :, k] = fixed[c] if c in fixed else t[:, names.index(c), None] if c in names else cond_vals[c][None, :]
+    return X
+
+
+def _joint_terms(gp, second: Optional[SecondResponse], X, X2, ybar, v):
+    """The residual vector and its covariance of the means (one response, or both stacked: the two
+    surrogates' errors apart, the measured means correlated within each condition)."""
+    mu, cov = gp.predict_joint(X)
+    r, V = ybar[None, :] - mu, cov + np.diag(v + 1e-9)  # the jitter: a measured sd of 0
+    if second is None:
+        return r, V
+    mu2, cov2 = second.gp.predict_joint(X2)
+    v2 = mean_variance(second.sd, second.n, second.gp.noise_sd_)
+    cross = np.diag(second.rho * np.sqrt(v * v2))
+    V = np.block([[V, np.broadcast_to(cross, V.shape)], [np.broadcast_to(cross, V.shape), cov2 + np.diag(v2 + 1e-12)]])
+    return np.concatenate([r, second.mean[None, :] - mu2], axis=1), V
+
+
 def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Mapping[str, float],
-                 scatter: bool = False):
+                 scatter: bool = False, second: Optional[SecondResponse] = None):
     """The vectorised log posterior: theta (walkers, d) -> (walkers,), one batch of GP predictions
-    for every walker under every condition, with each walker's C x C covariance (and, with
-    ``scatter``, each condition's pile variance)."""
-    conds = [c for c in gp.inputs_ if c not in gp.parameters]
+    for every walker under every condition, with each walker's C x C covariance (2C x 2C with a
+    ``second`` response; with ``scatter``, each condition's pile variance too)."""
     C, ybar = len(measured), measured["mean"].to_numpy(float)
     v = mean_variance(measured["sd"], measured["n"], gp.noise_sd_)
     lo, hi = np.array([bounds[p][0] for p in names]), np.array([bounds[p][1] for p in names])
-    col = {c: k for k, c in enumerate(gp.inputs_)}
-    cond_vals = measured[conds].to_numpy(float) if conds else np.zeros((C, 0))
+    conds = {c for g in (gp, second.gp if second else gp) for c in g.inputs_ if c not in g.parameters}
+    cond_vals = {c: measured[c].to_numpy(float) for c in conds}
     s2, n = measured["sd"].to_numpy(float) ** 2, measured["n"].to_numpy(float)
     scatter = scatter and gp.scatter_ is not None  # one simulated scatter: the same term at every theta
 
@@ -151,15 +190,9 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
         if not inside.any():
             return out
         t = theta[inside]
-        X = np.empty((len(t), C, len(gp.inputs_)))
-        for j, p in enumerate(names):
-            X[:, :, col[p]] = t[:, j, None]
-        for p, val in fixed.items():
-            X[:, :, col[p]] = val
-        for j, c in enumerate(conds):
-            X[:, :, col[c]] = cond_vals[None, :, j]
-        mu, cov = gp.predict_joint(X)
-        out[inside] = mvn_logpdf(ybar[None, :] - mu, cov + np.diag(v + 1e-9))  # the jitter: a measured sd of 0
+        X = _inputs(gp, t, names, fixed, cond_vals, C)
+        X2 = _inputs(second.gp, t, names, fixed, cond_vals, C) if second else None
+        out[inside] = mvn_logpdf(*_joint_terms(gp, second, X, X2, ybar, v))
         if scatter:
             lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
             out[inside] += scatter_log_likelihood(lv, U, s2, n)
@@ -181,11 +214,13 @@ def _start(log_prob, lo: np.ndarray, hi: np.ndarray, n_walkers: int, rng: np.ran
 
 def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[float, float]],
                         fixed: Optional[Mapping[str, float]] = None, n_walkers: int = 32, n_steps: int = 5000,
-                        seed: int = 0, scatter: bool = False) -> PosteriorResult:
+                        seed: int = 0, scatter: bool = False,
+                        second: Optional[SecondResponse] = None) -> PosteriorResult:
     """Sample the posterior of the parameters in ``bounds`` (name -> (low, high), the uniform prior)
     given ``measured`` (one row per condition: ``mean``, ``sd``, ``n`` and the surrogate's condition
     columns), the surrogate's other parameters held at ``fixed``; with ``scatter`` the measured ``sd``
-    is evidence as well as the mean (:func:`scatter_log_likelihood`). The first quarter of the steps, or
+    is evidence as well as the mean (:func:`scatter_log_likelihood`); a ``second`` response's measured
+means too (:class:`SecondResponse`). The first quarter of the steps, or
     three autocorrelation times if longer (at most half), is burn-in; the rest is thinned by half the
     shortest autocorrelation time. The same seed gives the same draws."""
     import emcee
@@ -200,7 +235,7 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
         raise CalibError(f"emcee needs at least {2 * len(names)} walkers (twice the parameters) and 10 steps")
     from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
 
-    log_prob, lo, hi = _log_prob_fn(gp, measured, names, bounds, fixed, scatter)
+    log_prob, lo, hi = _log_prob_fn(gp, measured, names, bounds, fixed, scatter, second)
     moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     sampler = emcee.EnsembleSampler(n_walkers, len(names), log_prob, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(seed).get_state()

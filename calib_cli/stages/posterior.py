@@ -20,12 +20,13 @@ from .. import artifacts as art  # noqa: E402
 from ..campaign import RESULTS, current_results, heap_setups  # noqa: E402
 from ..errors import CalibError  # noqa: E402
 from ..model import DEFAULT_EFFECTS, EFFECTS, MODEL_FILE, Model, load_model  # noqa: E402
-from ..posterior.calibrate import PosteriorResult, calibrate_posterior, savage_dickey  # noqa: E402
+from ..posterior.calibrate import PosteriorResult, SecondResponse, calibrate_posterior, savage_dickey  # noqa: E402
 from ..posterior.gp import GPSurrogate, holdout_rmse, informative_conditions  # noqa: E402
 from ..posterior.suggest import region_design  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from .common import Result, Say, check_run_dir, plain, stage, writes_run  # noqa: E402
 from .compare import measured_conditions  # noqa: E402
+from .profiles import FULLNESS, measured_fullness, simulated_fullness  # noqa: E402
 
 RESPONSE = "repose_angle"
 #: simulated piles per surrogate input (parameter or condition variable) the posterior needs at least:
@@ -220,25 +221,63 @@ def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
     return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
 
 
-def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0) -> GPSurrogate:
-    """The Gaussian process of the model's heaps, fitted on every condition column the heaps have: it
-    learns the ones that vary and records the ones they all shared (``constants_``), at which a
-    measured or suggested condition elsewhere is beyond what it knows."""
-    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), RESPONSE]
-    return GPSurrogate(model.parameters, COND_VARS, effect_ranges(model), RESPONSE, seed=seed).fit(rows[cols])
+def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE) -> GPSurrogate:
+    """The Gaussian process of the model's heaps (of their ``response``), fitted on every condition column
+    the heaps have: it learns the ones that vary and records the ones they all shared (``constants_``),
+    at which a measured or suggested condition elsewhere is beyond what it knows."""
+    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), response]
+    return GPSurrogate(model.parameters, COND_VARS, effect_ranges(model), response, seed=seed).fit(rows[cols])
+
+
+def _profile_rows(run: Path, rows: pd.DataFrame, model: Model, cond_vars: list[str], say: Say) -> pd.DataFrame:
+    """The model's heaps with each one's fullness (:func:`~calib_cli.stages.profiles.simulated_fullness`);
+    refuses fewer heaps with one than the surrogate needs (PILES_PER_INPUT per input)."""
+    rows = rows.assign(**{FULLNESS: simulated_fullness(run, rows)})
+    have = int(np.isfinite(rows[FULLNESS]).sum())
+    need = PILES_PER_INPUT * (len(model.parameters) + len(cond_vars))
+    if have < need:
+        raise CalibError(f"only {have} of the {len(rows)} simulated heaps have a side view to measure the profile on "
+                         f"(a committed sample run keeps its rows, not its heaps' folders); the profile's surrogate "
+                         f"needs at least {need}: simulate more heaps, or drop --profile")
+    if have < len(rows):
+        say(f"the profile's surrogate learns from the {have} of {len(rows)} heaps whose side view is at hand")
+    return rows
+
+
+def _second_response(run: Path, rows: pd.DataFrame, model: Model, conds: pd.DataFrame, seed: int,
+                     say: Say) -> SecondResponse:
+    """The heap profile's fullness as a second response: its surrogate and each condition's measured mean."""
+    table, rho = measured_fullness(run, conds)
+    gp = model_surrogate(rows, model, seed, FULLNESS)
+    _check_measured(conds, gp, run / "measure" / "conditions.parquet")  # its heaps may cover less than the angle's
+    say(f"profile: each condition's photographs' mean fullness is evidence beside its angle (a photograph's two "
+        f"correlate at {rho:+.2f} within a condition; a simulated pile's fullness scatters by {gp.noise_sd_:.3f})")
+    return SecondResponse(gp, table["mean"].to_numpy(float), table["sd"].to_numpy(float),
+                          table["n"].to_numpy(float), rho)
+
+
+def _held_out(used: pd.DataFrame, params: list[str], scale, seed: int, profile: bool) -> pd.DataFrame:
+    """The surrogates' held-out RMSE per pile (:func:`holdout_rmse`), of the angle and, with ``profile``,
+    of the fullness (on the heaps that have one)."""
+    held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed).assign(response=RESPONSE)
+    if not profile:
+        return held
+    full = holdout_rmse(used, params, COND_VARS, scale, FULLNESS, seed=seed).assign(response=FULLNESS)
+    return pd.concat([held, full], ignore_index=True)
 
 
 @writes_run
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
               force: bool = False, say: Optional[Say] = None, design: int = 0,
-              scatter: bool = False) -> PosteriorStageResult:
+              scatter: bool = False, profile: bool = False) -> PosteriorStageResult:
     """Sample the posterior of the current model's parameters given every measured condition, through a
     Gaussian process trained on the run's simulated heaps of the model; the prior is uniform over each
     effect's range (``prior="effects"``) or over the range the heaps cover (``"heaps"``). Writes
-    RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP, RSM
-    and BP network) and corner.png; with ``design`` N, also design.parquet: N points over the 90 % box
+    RUN/posterior/samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP,
+    RSM and BP network) and corner.png; with ``design`` N, also design.parquet: N points over the 90 % box
     (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``. With
-    ``scatter``, each condition's measured pile scatter is evidence as well as its mean."""
+    ``scatter``, each condition's measured pile scatter is evidence as well as its mean; with
+    ``profile``, each condition's mean profile fullness (:mod:`~calib_cli.stages.profiles`)."""
     say = say or plain
     run = check_run_dir(run)
     if prior not in PRIORS:
@@ -250,16 +289,20 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                          "run `calib measure-angle` first")
     rows = model_rows(run, model)
     cond_vars = _check_rows(run, rows, model)
+    if profile:
+        rows = _profile_rows(run, rows, model, cond_vars, say)
     params = model.parameters
     scale = effect_ranges(model)
     bounds = scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in params}
-    used = rows[[*params, *cond_vars, RESPONSE]]
+    used = rows[[*params, *cond_vars, RESPONSE, *([FULLNESS] if profile else [])]]
     mfile = run / MODEL_FILE
     st = stage(run, "posterior", "sample",
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
-                       "model": mfile if mfile.is_file() else None},
+                       "model": mfile if mfile.is_file() else None,
+                       **({"profiles": run / "measure" / "profiles.parquet"} if profile else {})},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds,
-                         **({"design": design} if design else {}), **({"scatter": True} if scatter else {})})
+                         **({"design": design} if design else {}), **({"scatter": True} if scatter else {}),
+                         **({"profile": True} if profile else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
     if prior == "effects":
@@ -269,21 +312,22 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     gp = model_surrogate(rows, model, seed)
     _check_measured(conds, gp, run / "measure" / "conditions.parquet")
     _note_scatter(gp, scatter, say)
-    held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed)
+    second = _second_response(run, rows, model, conds, seed, say) if profile else None
+    held = _held_out(used, params, scale, seed, profile)
     post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
-                                                scatter=scatter)
+                                                scatter=scatter, second=second)
     table = _verdicts(post.summary(), post.samples_)
-    fig = _corner(post.samples_, table)
-    samples = post.samples_.assign(log_prob=post.log_prob_)
     with st.commit() as out:
-        out.table("samples.parquet", samples, discard=post.discard_, thin=post.thin_)
+        out.table("samples.parquet", post.samples_.assign(log_prob=post.log_prob_), discard=post.discard_,
+                  thin=post.thin_)
         out.table("surrogates.parquet", held)
-        out.figure("corner.png", fig)
+        out.figure("corner.png", _corner(post.samples_, table))
         out.table("summary.parquet", table, model_revision=model.revision, model=list(model.effects),
                   noise_sd=gp.noise_sd_, length_scales=gp.length_scales_.to_dict(), heaps=len(rows),
-                  scatter=bool(scatter and gp.scatter_ is not None))
+                  scatter=bool(scatter and gp.scatter_ is not None), profile=bool(profile),
+                  **({"profile_rho": second.rho, "profile_noise_sd": second.gp.noise_sd_} if second else {}))
         if design:  # run ids after every id the run's heaps already use above 100 (earlier rounds, a design
             # made by hand): each round its own labels
             first = int(max(rows["run_id"].max() if "run_id" in rows.columns else 0, 100)) + 1
             out.table("design.parquet", region_design(table, design, seed, first), model_revision=model.revision)
-    return PosteriorStageResult(st, False, table, held, samples, model.revision)
+    return PosteriorStageResult(st, False, table, held, post.samples_.assign(log_prob=post.log_prob_), model.revision)

@@ -1,0 +1,81 @@
+"""The heap profile as a second response beside the angle: each heap's fullness
+(:func:`calib_cli.profile.fullness`), of the measured photographs and of the simulated heaps, both
+taken from a silhouette by the same image code."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import artifacts as art
+from ..campaign import RUNS
+from ..errors import CalibError
+from ..profile import fullness
+
+FULLNESS = "fullness"
+
+
+def _side_view_fullness(folder: Path) -> float:
+    """The fullness of a simulated heap's side view, measured as the campaign measures it; NaN where
+    the folder has none (a heap that blew up) or its silhouette is no heap."""
+    from ..imaging.measure import measure_image, read_image
+
+    side = folder / "side.png"
+    if not side.is_file():
+        return float("nan")
+    res = measure_image(read_image(side), limits=None)
+    return fullness(res.profile_s, res.profile_h) if res.status == "ok" else float("nan")
+
+
+def simulated_fullness(run: Path, rows: pd.DataFrame) -> pd.Series:
+    """Each results row's fullness: the row's own where it has one (heaps simulated since the campaign
+    records it), else measured on its side view (RUN/simulate/runs/<hash>/side.png); NaN where the
+    heap's folder is gone (a committed sample run keeps its rows, not its folders)."""
+    own = rows[FULLNESS] if FULLNESS in rows.columns else pd.Series(np.nan, index=rows.index)
+    out = own.astype(float).copy()
+    for i in out.index[out.isna()]:
+        out[i] = _side_view_fullness(run / RUNS / str(rows.at[i, "run_hash"]))
+    return out
+
+
+def _pooled_correlation(a: np.ndarray, b: np.ndarray, groups: np.ndarray) -> float:
+    """The correlation of a and b within the groups: each group's deviations from its own means,
+    pooled (0 with fewer than 3 degrees of freedom or no spread)."""
+    da = a - pd.Series(a).groupby(groups).transform("mean").to_numpy()
+    db = b - pd.Series(b).groupby(groups).transform("mean").to_numpy()
+    den = np.sqrt(np.sum(da ** 2) * np.sum(db ** 2))
+    dof = len(a) - len(np.unique(groups))
+    return float(np.clip(np.sum(da * db) / den, -0.95, 0.95)) if dof >= 3 and den > 0 else 0.0
+
+
+def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, float]:
+    """Per measured condition, in ``conds``' order: the fullness's ``mean``, ``sd`` and ``n`` over its
+    photographs' profiles (RUN/measure/profiles.parquet, the photographs that enter the statistics),
+    and the pooled within-condition correlation of a photograph's fullness with its angle."""
+    path = run / "measure" / "profiles.parquet"
+    prof = art.read_table(path, columns=["image", "condition_id", "s_px", "h_px"],
+                          what="measured heap profiles (run `calib measure-angle --images` first)")
+    if prof.empty:
+        raise CalibError(f"{path} holds no profile: the angles were given as a table, not measured on "
+                         "photographs, so there is no heap profile to use; drop --profile")
+    per_image = pd.DataFrame([{"image": im, "condition_id": str(g["condition_id"].iloc[0]),
+                               FULLNESS: fullness(g["s_px"].to_numpy(), g["h_px"].to_numpy())}
+                              for im, g in prof.groupby("image", sort=True)])
+    angles = art.read_table(run / "measure" / "angles.parquet", columns=["image", "repose_angle"])[
+        ["image", "repose_angle"]]
+    per_image = per_image.merge(angles, on="image", how="left")
+    per_image = per_image[np.isfinite(per_image[FULLNESS]) & np.isfinite(per_image["repose_angle"])]
+    stats = per_image.groupby("condition_id")[FULLNESS].agg(["mean", "std", "count"])
+    ids = conds["condition_id"].astype(str)
+    missing = sorted(set(ids) - set(stats.index))
+    if missing:
+        raise CalibError(f"condition(s) {', '.join(missing)} have no photograph whose profile gives a fullness: "
+                         "drop --profile, or measure them on photographs")
+    stats = stats.loc[ids]
+    table = pd.DataFrame({"condition_id": ids.to_numpy(), "mean": stats["mean"].to_numpy(),
+                          "sd": stats["std"].fillna(0.0).to_numpy(), "n": stats["count"].to_numpy()})
+    rho = _pooled_correlation(per_image["repose_angle"].to_numpy(float), per_image[FULLNESS].to_numpy(float),
+                              per_image["condition_id"].to_numpy())
+    return table, rho
