@@ -35,6 +35,24 @@ def test_a_condition_that_tells_two_modes_apart_gains_and_one_that_cannot_does_n
     assert blind == pytest.approx(0.0) and none[0] == pytest.approx(0.0, abs=0.02)
 
 
+def test_two_responses_gain_as_the_linear_gaussian_model_of_both_and_a_blind_one_adds_nothing():
+    """y = J theta + N(0, U) with two responses (an angle and a profile's fullness, correlated within a
+    pile): the gain is 1/2 log det(I + U^-1 J s2 J') and the interval shrinks to the Kalman update's;
+    a second response that sees nothing leaves the first's gain as it was."""
+    s2, J = 0.04, np.array([30.0, 3.0])
+    U = np.array([[2.0, 0.3 * math.sqrt(2.0 * 0.01)], [0.3 * math.sqrt(2.0 * 0.01), 0.01]])
+    draws = np.random.default_rng(1).normal(0, math.sqrt(s2), (20000, 1))
+    gain, shrink = parameter_gain(draws * J, draws, U, outcomes=200)
+    post = 1.0 / (1.0 / s2 + J @ np.linalg.solve(U, J))
+    assert gain == pytest.approx(0.5 * np.linalg.slogdet(np.eye(2) + np.linalg.solve(U, np.outer(J, J)) * s2)[1],
+                                 rel=0.05)
+    assert shrink[0] == pytest.approx(1 - math.sqrt(post / s2), abs=0.04)
+    angle, _ = parameter_gain(30.0 * draws[:, 0], draws, 2.0)
+    blind, _ = parameter_gain(np.column_stack([30.0 * draws[:, 0], np.full(len(draws), 1.1)]), draws,
+                              np.diag([2.0, 0.01]))
+    assert blind == pytest.approx(angle, rel=1e-9) and gain > angle + 0.3
+
+
 def test_unknown_sensitivities_give_no_gain_rather_than_a_guess():
     gain, shrink = parameter_gain(np.array([np.nan, 1.0]), np.zeros((2, 2)), 1.0)
     assert np.isnan(gain) and np.isnan(shrink).all()
@@ -155,6 +173,31 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
     shutil.rmtree(mine / "posterior")
     r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig)])
     assert r.exit_code == 2 and "calibrate-posterior" in r.output
+
+
+def test_after_a_posterior_that_weighed_the_profile_the_ranking_counts_it_too(tmp_path):
+    """The profile's fullness sees rolling friction here: a new condition's expected information counts
+    its profile as the posterior did (the angle's alone in its own column), and the lock reads it."""
+    import json
+
+    from test_posterior import QUIET, _tiny_run, _with_profiles
+
+    from calib_cli import artifacts as art
+    from calib_cli.stages.posterior import posterior
+    from calib_cli.stages.suggest import suggest_conditions
+
+    run = _with_profiles(_tiny_run(tmp_path / "run"))
+    posterior(run, walkers=8, steps=60, profile=True, **QUIET)
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[rig]\nparticle_sizes_mm = [[4, 5]]\ncylinder_diameter_mm = [40]\nfill_height_mm = [50, 75, 100]\n"
+                   "lift_speed_mm_s = [50]\n")
+    said = []
+    r = suggest_conditions(run, rig, top=1, say=lambda m, **k: said.append(m))
+    t = r.table.set_index("condition_id")
+    assert t.loc["d4-5_D40_H75", "info_gain_nats"] > t.loc["d4-5_D40_H75", "info_gain_angle_nats"] > 0
+    assert art.read_provenance(run / "suggest" / "ranking.parquet")["profile"] is True
+    assert "profiles" in json.loads((run / "suggest" / "rank.lock.json").read_text())["inputs"]
+    assert "angle and profile" in " ".join(said)
 
 
 def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):

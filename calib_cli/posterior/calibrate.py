@@ -138,7 +138,8 @@ class SecondResponse:
     """A second measured response of every condition (the heap profile's fullness), with its own
     surrogate ``gp`` over the same inputs: the measured ``mean``, ``sd`` and ``n`` in the angle's
     condition order, and ``rho`` the correlation of a pile's two responses within a condition (the
-    measured means then correlate as rho sqrt(v_angle v_second))."""
+    measured means then correlate as rho sqrt(v_angle v_second); where a photograph gave an angle but no
+    fullness the two means' piles differ and this slightly overstates their covariance)."""
 
     gp: object
     mean: np.ndarray
@@ -235,6 +236,8 @@ means too (:class:`SecondResponse`). The first quarter of the steps, or
         raise CalibError(f"emcee needs at least {2 * len(names)} walkers (twice the parameters) and 10 steps")
     from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
 
+    if second is not None and not (np.size(second.mean) == np.size(second.sd) == np.size(second.n) == len(measured)):
+        raise CalibError(f"the second response gives {np.size(second.mean)} condition(s), the angle {len(measured)}")
     log_prob, lo, hi = _log_prob_fn(gp, measured, names, bounds, fixed, scatter, second)
     moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     sampler = emcee.EnsembleSampler(n_walkers, len(names), log_prob, vectorize=True, moves=moves)

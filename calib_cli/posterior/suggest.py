@@ -127,24 +127,32 @@ def extrapolate(measured: pd.DataFrame, sens: pd.DataFrame, candidates: pd.DataF
 
 
 # ------------------------------------------------------------------ expected gains
-def parameter_gain(mu: np.ndarray, draws: np.ndarray, u2: float, outcomes: int = 64,
+def parameter_gain(mu: np.ndarray, draws: np.ndarray, u2, outcomes: int = 64,
                    seed: int = 0) -> tuple[float, np.ndarray]:
     """One candidate's expected information gain (nats) and each parameter's expected interval
-    shrinkage (module docstring): ``mu`` the surrogate's angle at each posterior draw (S,), ``draws``
-    the draws (S, k), ``u2`` the variance of the new condition's measured mean."""
+    shrinkage (module docstring): ``mu`` the surrogate's angle at each posterior draw (S,), or its m
+    responses (S, m: the angle and the profile's fullness), ``draws`` the draws (S, k), ``u2`` the
+    variance of the new condition's measured mean, or the (m, m) covariance of its measured means.
+    The gain is 1/2 log det(I + U^-1 Cov_s mu) (one response: 1/2 log(1 + Var_s mu / u2))."""
     mu, draws = np.asarray(mu, float), np.asarray(draws, float)
-    if not (np.all(np.isfinite(mu)) and np.isfinite(u2) and u2 > 0):
+    M = mu.reshape(len(mu), -1)
+    U = np.asarray(u2, float) if np.ndim(u2) == 2 else np.diag(np.atleast_1d(np.asarray(u2, float)))
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(U)) and np.all(np.diag(U) > 0)):
         return np.nan, np.full(draws.shape[1], np.nan)
+    L = np.linalg.cholesky(U)
     rng = np.random.default_rng(seed)
-    width0 = _widths(draws, np.full(len(mu), 1.0 / len(mu)))
+    width0 = _widths(draws, np.full(len(M), 1.0 / len(M)))
     widths = []
-    for s in rng.integers(0, len(mu), outcomes):
-        y = mu[s] + rng.normal(0.0, np.sqrt(u2))
-        logw = -0.5 * (y - mu) ** 2 / u2
+    for s in rng.integers(0, len(M), outcomes):
+        y = M[s] + L @ rng.normal(0.0, 1.0, M.shape[1])
+        z = np.linalg.solve(L, (y - M).T)
+        logw = -0.5 * np.sum(z * z, axis=0)
         w = np.exp(logw - logw.max())
         widths.append(_widths(draws, w / w.sum()))
     shrink = 1.0 - np.mean(widths, axis=0) / np.where(width0 > 0, width0, np.nan)
-    return 0.5 * float(np.log1p(np.var(mu) / u2)), np.clip(shrink, 0.0, 1.0)
+    Li = np.linalg.inv(L)
+    C = Li @ np.atleast_2d(np.cov(M.T, bias=True)) @ Li.T
+    return 0.5 * float(np.linalg.slogdet(np.eye(len(C)) + C)[1]), np.clip(shrink, 0.0, 1.0)
 
 
 def _widths(draws: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -183,6 +191,17 @@ class Evidence:
     #: the variance of the simulated mean a residual is also uncertain by (compare's share of u^2):
     #: the score test's weights count it, so a new condition's separation must too
     sim_var: float = 0.0
+    #: with the profile as a second response: a photograph's fullness sd, and its correlation with the
+    #: angle within a condition
+    profile_scatter: float = float("nan")
+    profile_rho: float = 0.0
+
+    def mean_cov(self, piles: int) -> np.ndarray:
+        """The covariance of a new condition's measured mean angle (and mean fullness) over ``piles``."""
+        if not np.isfinite(self.profile_scatter):
+            return np.array([[self.scatter ** 2]]) / piles
+        c = self.profile_rho * self.scatter * self.profile_scatter
+        return np.array([[self.scatter ** 2, c], [c, self.profile_scatter ** 2]]) / piles
 
     def draws_frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.draws, columns=self.params)
@@ -192,7 +211,9 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
                     variables, simulated: pd.DataFrame | None = None) -> pd.DataFrame:
     """One row per candidate (not yet measured): the expected information gain about the parameters
     (nats) and each one's interval shrinkage, from the surrogate's angle at every posterior draw
-    ``mu`` (candidates, draws) and its own variance ``vp`` at the candidates; each candidate effect's
+    ``mu`` (candidates, draws; or (candidates, draws, 2) with the profile's fullness as well, measured
+    with ``ev.mean_cov``, and then ``info_gain_angle_nats``, the angle's alone) and its own variance
+    ``vp`` at the candidates; each candidate effect's
     separation gain, from diagnose's sensitivities simulated at the candidate (``simulated``: rows as
     ``candidates``, diagnose's columns d_<parameter> and candidate_<effect>, and se_candidate_<effect>
     the signature's standard error, whose expected share D^2 se^2 / u^2 is taken off; NaN where not
@@ -204,10 +225,14 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     information gain where ``candidates``' column ``beyond_heaps`` is set (beyond the simulated heaps'
     range the gain is the surrogate's own extrapolation)."""
     u2 = np.full(len(candidates), ev.scatter**2 / piles)
-    pairs = [parameter_gain(m, ev.draws, v) for m, v in zip(mu, u2)]
+    U = ev.mean_cov(piles)
+    pairs = [parameter_gain(m, ev.draws, U) for m in mu]
     gains = np.array([g for g, _ in pairs])
     shrink = np.array([s for _, s in pairs]).reshape(len(candidates), len(ev.params))
     out = candidates.assign(info_gain_nats=gains, surrogate_sd=np.sqrt(np.asarray(vp, float)))
+    if np.ndim(mu) == 3:  # the profile too: what the angle alone would teach, beside it
+        out["info_gain_angle_nats"] = [0.5 * float(np.log1p(np.var(m[:, 0]) / u2[0])) if np.all(np.isfinite(m))
+                                       else np.nan for m in mu]
     for k, p in enumerate(ev.params):
         out[f"shrink_{p}"] = shrink[:, k]
     Jc, known, extrapolated = extrapolate(ev.measured, ev.J, candidates, variables)

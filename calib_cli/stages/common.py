@@ -41,7 +41,7 @@ R = TypeVar("R")
 #: posterior 4: with --scatter, that process's error is shared by a parameter set's conditions
 #: suggest 4: its surrogate's pile variances are that process's
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 5, "suggest": 4}
+                 "diagnose": 2, "posterior": 5, "suggest": 5}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:

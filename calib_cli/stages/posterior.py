@@ -26,7 +26,7 @@ from ..posterior.suggest import region_design  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from .common import Result, Say, check_run_dir, plain, stage, writes_run  # noqa: E402
 from .compare import measured_conditions  # noqa: E402
-from .profiles import FULLNESS, measured_fullness, simulated_fullness  # noqa: E402
+from .profiles import FULLNESS, measured_fullness, profile_inputs, simulated_fullness  # noqa: E402
 
 RESPONSE = "repose_angle"
 #: simulated piles per surrogate input (parameter or condition variable) the posterior needs at least:
@@ -236,9 +236,9 @@ def _profile_rows(run: Path, rows: pd.DataFrame, model: Model, cond_vars: list[s
     have = int(np.isfinite(rows[FULLNESS]).sum())
     need = PILES_PER_INPUT * (len(model.parameters) + len(cond_vars))
     if have < need:
-        raise CalibError(f"only {have} of the {len(rows)} simulated heaps have a side view to measure the profile on "
-                         f"(a committed sample run keeps its rows, not its heaps' folders); the profile's surrogate "
-                         f"needs at least {need}: simulate more heaps, or drop --profile")
+        raise CalibError(f"only {have} of the {len(rows)} simulated heaps have a profile (a side view whose heap "
+                         f"could be measured; a committed sample run keeps its rows, not its heaps' folders); the "
+                         f"profile's surrogate needs at least {need}: simulate more heaps, or drop --profile")
     if have < len(rows):
         say(f"the profile's surrogate learns from the {have} of {len(rows)} heaps whose side view is at hand")
     return rows
@@ -289,22 +289,23 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                          "run `calib measure-angle` first")
     rows = model_rows(run, model)
     cond_vars = _check_rows(run, rows, model)
-    if profile:
-        rows = _profile_rows(run, rows, model, cond_vars, say)
     params = model.parameters
     scale = effect_ranges(model)
     bounds = scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in params}
-    used = rows[[*params, *cond_vars, RESPONSE, *([FULLNESS] if profile else [])]]
+    used = rows[[*params, *cond_vars, RESPONSE]]
     mfile = run / MODEL_FILE
+    # a heap's fullness follows from its run hash (its side view) and the code's version: the rows stand for it
     st = stage(run, "posterior", "sample",
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
-                       "model": mfile if mfile.is_file() else None,
-                       **({"profiles": run / "measure" / "profiles.parquet"} if profile else {})},
+                       "model": mfile if mfile.is_file() else None, **(profile_inputs(run) if profile else {})},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds,
                          **({"design": design} if design else {}), **({"scatter": True} if scatter else {}),
                          **({"profile": True} if profile else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
+    if profile:
+        rows = _profile_rows(run, rows, model, cond_vars, say)
+        used = rows[[*params, *cond_vars, RESPONSE, FULLNESS]]
     if prior == "effects":
         _note_extrapolation(rows, model, say)
     say(f"posterior of model revision {model.revision} ({', '.join(params)}): a Gaussian process on {len(rows)} "

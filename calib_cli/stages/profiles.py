@@ -17,6 +17,16 @@ from ..profile import fullness
 FULLNESS = "fullness"
 
 
+def profile_inputs(run: Path) -> dict[str, Path]:
+    """The measured files the profile's evidence reads, for a stage's lock; a one-line error where the
+    photographs' profiles are missing."""
+    prof = run / "measure" / "profiles.parquet"
+    if not prof.is_file():
+        raise CalibError(f"no heap profiles in {prof}: measure the photographs (`calib measure-angle --images`) "
+                         "first, or drop --profile")
+    return {"profiles": prof, "angles": run / "measure" / "angles.parquet"}
+
+
 def _side_view_fullness(folder: Path) -> float:
     """The fullness of a simulated heap's side view, measured as the campaign measures it; NaN where
     the folder has none (a heap that blew up) or its silhouette is no heap."""
@@ -76,6 +86,7 @@ def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, flo
     stats = stats.loc[ids]
     table = pd.DataFrame({"condition_id": ids.to_numpy(), "mean": stats["mean"].to_numpy(),
                           "sd": stats["std"].fillna(0.0).to_numpy(), "n": stats["count"].to_numpy()})
-    rho = _pooled_correlation(per_image["repose_angle"].to_numpy(float), per_image[FULLNESS].to_numpy(float),
-                              per_image["condition_id"].to_numpy())
+    mine = per_image[per_image["condition_id"].isin(set(ids))]  # not an unassigned photograph's
+    rho = _pooled_correlation(mine["repose_angle"].to_numpy(float), mine[FULLNESS].to_numpy(float),
+                              mine["condition_id"].to_numpy())
     return table, rho

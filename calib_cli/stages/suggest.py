@@ -24,7 +24,8 @@ from ..requests import engine_settings, heap_setup, modulus_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from .compare import measured_conditions, model_and_theta
 from .diagnose import _signatures
-from .posterior import RESPONSE, _check_rows, model_rows, model_surrogate
+from .posterior import RESPONSE, _check_rows, _profile_rows, model_rows, model_surrogate
+from .profiles import FULLNESS, measured_fullness, profile_inputs
 from .simulate import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
@@ -105,6 +106,17 @@ def _surrogate_at(gp: GPSurrogate, draws: pd.DataFrame, cand: pd.DataFrame) -> t
             unknown |= ~np.isclose(cand[c].to_numpy(float), v)
     mu[unknown], var[unknown] = np.nan, np.nan
     return mu, var
+
+
+def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measured: pd.DataFrame,
+                cand: pd.DataFrame, mu: np.ndarray) -> np.ndarray:
+    """With a posterior that weighed the heap profile: the fullness's surrogate at every draw under each
+    candidate stacked on the angle's ``mu`` (candidates, draws, 2), and ``ev`` given the photographs'
+    fullness scatter and its correlation with the angle, as a new condition would be measured."""
+    table, rho = measured_fullness(run, measured)
+    ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(table["sd"].to_numpy(float) ** 2))), rho
+    mu_f, _ = _surrogate_at(model_surrogate(rows, model, response=FULLNESS), ev.draws_frame(), cand)
+    return np.stack([mu, mu_f], axis=2)
 
 
 @dataclass
@@ -300,6 +312,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if measured.empty:
         raise CalibError(f"no measured condition in {run}: run `calib measure-angle` first")
     samples = _posterior(run, model)
+    # the responses the posterior weighed: with the heap profile, a new condition's profile counts too
+    profile = bool(art.read_provenance(run / "posterior" / "summary.parquet").get("profile", False))
     cand = _candidates(the_rig, measured)
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
@@ -317,7 +331,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                        "conditions.parquet", "sensitivities": sens if sens.is_file() else None,
                        "residuals": res if res.is_file() else None,
                        "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
-                       "model": mfile if mfile.is_file() else None, "rig": Path(rig)},
+                       "model": mfile if mfile.is_file() else None, "rig": Path(rig),
+                       **(profile_inputs(run) if profile else {})},
                settings={"piles": piles, "top": top, **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
                          "preset": preset, **modulus_settings(shear_modulus),
                          **engine_settings(resolve_settings(run, None, None))} if simulate else {})})
@@ -326,9 +341,12 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     ev, notes = _evidence(run, model, measured, samples)
     gp = model_surrogate(rows, model)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
-        f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)")
+        f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)"
+        + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
     draws = ev.draws_frame()
     mu, vp = _surrogate_at(gp, draws, cand)
+    if profile:
+        mu = _profile_at(run, _profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
     table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)
@@ -347,7 +365,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
-        out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter)
+        out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
+                  profile=profile)
         if sims is not None:
             out.table("sensitivities.parquet", cand[["condition_id"]].join(sims).dropna().reset_index(drop=True))
     return SuggestResult(st, False, table, top, tuple(notes))
