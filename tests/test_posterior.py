@@ -440,7 +440,8 @@ def _with_profiles(run, seed=0):
         for k in range(10):
             h = 50 * np.clip(1 - np.abs(s / 60) ** rng.uniform(1.4, 1.6), 0, None)
             prof.append(pd.DataFrame({"image": f"{cid}_{k}.png", "condition_id": cid, "s_px": s, "h_px": h}))
-            angles.append({"image": f"{cid}_{k}.png", "condition_id": cid, "repose_angle": 30.0 + rng.normal()})
+            angles.append({"image": f"{cid}_{k}.png", "condition_id": cid, "repose_angle": 30.0 + rng.normal(),
+                           "status": "ok", "message": ""})
     prof = pd.concat(prof, ignore_index=True)
     art.write_table(run / "measure" / "profiles.parquet", prof)
     art.write_table(run / "measure" / "angles.parquet", pd.DataFrame(angles))

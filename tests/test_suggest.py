@@ -198,6 +198,9 @@ def test_after_a_posterior_that_weighed_the_profile_the_ranking_counts_it_too(tm
     assert art.read_provenance(run / "suggest" / "ranking.parquet")["profile"] is True
     assert "profiles" in json.loads((run / "suggest" / "rank.lock.json").read_text())["inputs"]
     assert "angle and profile" in " ".join(said)
+    from calib_cli.report import build_report
+
+    assert "mean angle and its photographs&#x27; heap profile" in build_report(run)
 
 
 def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
@@ -208,6 +211,7 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     assert "<h3>Posterior</h3>" in page or ">Posterior<" in page
     assert "90 % interval" in page and "Measure next" in page and "To tell cohesion apart" in page
     assert r.table["condition_id"].iloc[0] in page
+    assert "given each condition&#x27;s mean angle." in page or "given each condition's mean angle." in page
 
 
 def _evidence_for_ranking():

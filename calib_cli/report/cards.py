@@ -120,12 +120,16 @@ def posterior_card(f: RunFiles) -> str:
     post = f.table("posterior/summary.parquet")
     if post is None or post.empty:
         return ""
-    rev = f.prov("posterior/summary.parquet").get("model_revision", "?")
+    prov = f.prov("posterior/summary.parquet")
+    rev = prov.get("model_revision", "?")
+    used = ["each condition's mean angle"] + (["its piles' scatter"] if prov.get("scatter") else []) \
+        + (["its photographs' heap profile"] if prov.get("profile") else [])
     rows = [[esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
              badge("identified", "pass") if r.identified else badge(f"{100 * r.rel_width:.0f} % of range", "warn")]
             for r in post.itertuples(index=False)]
     body = rows_table(["parameter", "median", "90 % interval", ""], rows, "compact")
-    body += note(f"Posterior of model revision {esc(rev)} (<code>calib calibrate-posterior</code>).", "prov")
+    body += note(f"Posterior of model revision {esc(rev)} (<code>calib calibrate-posterior</code>), given "
+                 f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.", "prov")
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
         body += "<h3>Measure next</h3>" + "".join(
