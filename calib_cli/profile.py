@@ -182,7 +182,7 @@ def fullness(s: np.ndarray, h: np.ndarray, level: float = FULLNESS_LEVEL) -> flo
 
     between the first crossings of l H from the apex outwards (a grain rolled beyond the toe is not
     the heap). F = 1 for a cone's straight flanks, above 1 for convex ones (rounded shoulders over a
-    steep toe, as cohesive heaps have), below 1 for concave ones. Scale-free, so a photograph's pixels
+    steep toe), below 1 for concave ones. Scale-free, so a photograph's pixels
     and a simulation's metres give the same number. NaN where either flank never falls to l H. A layer
     lying along the level itself (a skirt of single grains at 15 % of a small heap's height) would
     move the crossings, and F with them, by a step: on the sample labs' photographs and side views

@@ -467,7 +467,7 @@ def test_the_profile_enters_as_a_second_response_with_its_inputs_and_surrogate(t
 
 
 def test_a_heap_without_a_fullness_is_measured_on_its_side_view_or_left_out(tmp_path):
-    from calib_cli.stages.profiles import simulated_fullness
+    from calib_cli.stages.profiles import profiles_at_hand, simulated_fullness
 
     run = _tiny_run(tmp_path / "run")
     with pytest.raises(CalibError, match="no heap profiles in .*measure-angle --images"):
@@ -480,6 +480,7 @@ def test_a_heap_without_a_fullness_is_measured_on_its_side_view_or_left_out(tmp_
     shutil.copy(ROOT / "sample_runs" / "smoke" / "simulate" / "runs" / "example" / "side.png", side / "side.png")
     f = simulated_fullness(run, rows)
     assert np.isfinite(f[3]) and 0.8 < f[3] < 1.6 and f.drop(3).isna().all()
+    assert profiles_at_hand(run, rows) == 1  # the lock counts them: a side view that arrives reruns the stage
     with pytest.raises(CalibError, match="only 1 of the 60 simulated heaps have a profile"):
         posterior(run, walkers=8, steps=20, profile=True, **QUIET)
     rows["fullness"] = 1.1

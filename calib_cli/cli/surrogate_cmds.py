@@ -137,7 +137,7 @@ def calibrate_posterior(
                                           "simulated scatter changes with the parameters.")] = False,
     profile: Annotated[bool, typer.Option("--profile", help="Weigh each condition's heap profile as well as its "
                                           "angle: the photographs' mean fullness (1 for a cone's straight "
-                                          "flanks, above 1 for the rounded shoulders of cohesive heaps), against "
+                                          "flanks, above 1 for convex ones), against "
                                           "the simulated heaps' side views. It assumes the photographs show the "
                                           "heap's silhouette as the simulated side views do.")] = False,
     force: ForceOpt = False,

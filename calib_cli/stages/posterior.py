@@ -26,7 +26,7 @@ from ..posterior.suggest import region_design  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from .common import Result, Say, check_run_dir, plain, stage, writes_run  # noqa: E402
 from .compare import measured_conditions  # noqa: E402
-from .profiles import FULLNESS, measured_fullness, profile_inputs, simulated_fullness  # noqa: E402
+from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness  # noqa: E402
 
 RESPONSE = "repose_angle"
 #: simulated piles per surrogate input (parameter or condition variable) the posterior needs at least:
@@ -294,13 +294,14 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     bounds = scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in params}
     used = rows[[*params, *cond_vars, RESPONSE]]
     mfile = run / MODEL_FILE
-    # a heap's fullness follows from its run hash (its side view) and the code's version: the rows stand for it
+    # a heap's fullness follows from its run hash (its side view) and the code's version: the rows and how many
+    # of them have one stand for it
     st = stage(run, "posterior", "sample",
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
                        "model": mfile if mfile.is_file() else None, **(profile_inputs(run) if profile else {})},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "bounds": bounds,
                          **({"design": design} if design else {}), **({"scatter": True} if scatter else {}),
-                         **({"profile": True} if profile else {})})
+                         **({"profile": True, "profiles_at_hand": profiles_at_hand(run, rows)} if profile else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
     if profile:

@@ -20,11 +20,11 @@ FULLNESS = "fullness"
 def profile_inputs(run: Path) -> dict[str, Path]:
     """The measured files the profile's evidence reads, for a stage's lock; a one-line error where the
     photographs' profiles are missing."""
-    prof = run / "measure" / "profiles.parquet"
-    if not prof.is_file():
-        raise CalibError(f"no heap profiles in {prof}: measure the photographs (`calib measure-angle --images`) "
-                         "first, or drop --profile")
-    return {"profiles": prof, "angles": run / "measure" / "angles.parquet"}
+    prof, angles = run / "measure" / "profiles.parquet", run / "measure" / "angles.parquet"
+    if not (prof.is_file() and angles.is_file()):
+        raise CalibError(f"no heap profiles in {prof.parent} (profiles.parquet and angles.parquet): measure the "
+                         "photographs (`calib measure-angle --images`) first, or drop --profile")
+    return {"profiles": prof, "angles": angles}
 
 
 def _side_view_fullness(folder: Path) -> float:
@@ -45,9 +45,20 @@ def simulated_fullness(run: Path, rows: pd.DataFrame) -> pd.Series:
     heap's folder is gone (a committed sample run keeps its rows, not its folders)."""
     own = rows[FULLNESS] if FULLNESS in rows.columns else pd.Series(np.nan, index=rows.index)
     out = own.astype(float).copy()
+    if "run_hash" not in rows.columns:  # a results table not written by a campaign: no heap folders to read
+        return out
     for i in out.index[out.isna()]:
         out[i] = _side_view_fullness(run / RUNS / str(rows.at[i, "run_hash"]))
     return out
+
+
+def profiles_at_hand(run: Path, rows: pd.DataFrame) -> int:
+    """How many rows have a fullness or a side view to measure it on: a stage's lock keeps it, so that
+    heaps whose folders arrive later (simulated again, copied in) rerun it."""
+    own = rows[FULLNESS].notna() if FULLNESS in rows.columns else pd.Series(False, index=rows.index)
+    if "run_hash" not in rows.columns:
+        return int(own.sum())
+    return int(sum(o or (run / RUNS / str(h) / "side.png").is_file() for o, h in zip(own, rows["run_hash"])))
 
 
 def _pooled_correlation(a: np.ndarray, b: np.ndarray, groups: np.ndarray) -> float:

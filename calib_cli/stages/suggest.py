@@ -25,7 +25,7 @@ from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, 
 from .compare import measured_conditions, model_and_theta
 from .diagnose import _signatures
 from .posterior import RESPONSE, _check_rows, _profile_rows, model_rows, model_surrogate
-from .profiles import FULLNESS, measured_fullness, profile_inputs
+from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
 from .simulate import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
@@ -333,7 +333,9 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                        "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                        "model": mfile if mfile.is_file() else None, "rig": Path(rig),
                        **(profile_inputs(run) if profile else {})},
-               settings={"piles": piles, "top": top, **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
+               settings={"piles": piles, "top": top,
+                         **({"profiles_at_hand": profiles_at_hand(run, rows)} if profile else {}),
+                         **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
                          "preset": preset, **modulus_settings(shear_modulus),
                          **engine_settings(resolve_settings(run, None, None))} if simulate else {})})
     if st.up_to_date() and not force:
