@@ -221,9 +221,9 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
     given ``measured`` (one row per condition: ``mean``, ``sd``, ``n`` and the surrogate's condition
     columns), the surrogate's other parameters held at ``fixed``; with ``scatter`` the measured ``sd``
     is evidence as well as the mean (:func:`scatter_log_likelihood`); a ``second`` response's measured
-means too (:class:`SecondResponse`). The first quarter of the steps, or
-    three autocorrelation times if longer (at most half), is burn-in; the rest is thinned by half the
-    shortest autocorrelation time. The same seed gives the same draws."""
+    means too (:class:`SecondResponse`). The first quarter of the steps, or three autocorrelation times
+    if longer (at most half), is burn-in; the rest is thinned by half the shortest autocorrelation time.
+    The same seed gives the same draws."""
     import emcee
 
     fixed = {k: float(v) for k, v in (fixed or {}).items()}

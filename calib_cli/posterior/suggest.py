@@ -150,9 +150,15 @@ def parameter_gain(mu: np.ndarray, draws: np.ndarray, u2, outcomes: int = 64,
         w = np.exp(logw - logw.max())
         widths.append(_widths(draws, w / w.sum()))
     shrink = 1.0 - np.mean(widths, axis=0) / np.where(width0 > 0, width0, np.nan)
-    Li = np.linalg.inv(L)
+    return information_gain(M, U), np.clip(shrink, 0.0, 1.0)
+
+
+def information_gain(M: np.ndarray, U: np.ndarray) -> float:
+    """1/2 log det(I + U^-1 Cov_s M) nats: what measuring responses of covariance U (m, m) teaches about
+    draws whose predicted responses are M (S, m) (exact for a Gaussian predictive)."""
+    Li = np.linalg.inv(np.linalg.cholesky(U))
     C = Li @ np.atleast_2d(np.cov(M.T, bias=True)) @ Li.T
-    return 0.5 * float(np.linalg.slogdet(np.eye(len(C)) + C)[1]), np.clip(shrink, 0.0, 1.0)
+    return 0.5 * float(np.linalg.slogdet(np.eye(len(C)) + C)[1])
 
 
 def _widths(draws: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -231,8 +237,8 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     shrink = np.array([s for _, s in pairs]).reshape(len(candidates), len(ev.params))
     out = candidates.assign(info_gain_nats=gains, surrogate_sd=np.sqrt(np.asarray(vp, float)))
     if np.ndim(mu) == 3:  # the profile too: what the angle alone would teach, beside it
-        out["info_gain_angle_nats"] = [0.5 * float(np.log1p(np.var(m[:, 0]) / u2[0])) if np.all(np.isfinite(m))
-                                       else np.nan for m in mu]
+        out["info_gain_angle_nats"] = [information_gain(m[:, :1], U[:1, :1]) if np.all(np.isfinite(m)) else np.nan
+                                       for m in mu]
     for k, p in enumerate(ev.params):
         out[f"shrink_{p}"] = shrink[:, k]
     Jc, known, extrapolated = extrapolate(ev.measured, ev.J, candidates, variables)

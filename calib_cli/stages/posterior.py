@@ -319,9 +319,9 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     post: PosteriorResult = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                                 scatter=scatter, second=second)
     table = _verdicts(post.summary(), post.samples_)
+    samples = post.samples_.assign(log_prob=post.log_prob_)
     with st.commit() as out:
-        out.table("samples.parquet", post.samples_.assign(log_prob=post.log_prob_), discard=post.discard_,
-                  thin=post.thin_)
+        out.table("samples.parquet", samples, discard=post.discard_, thin=post.thin_)
         out.table("surrogates.parquet", held)
         out.figure("corner.png", _corner(post.samples_, table))
         out.table("summary.parquet", table, model_revision=model.revision, model=list(model.effects),
@@ -332,4 +332,4 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
             # made by hand): each round its own labels
             first = int(max(rows["run_id"].max() if "run_id" in rows.columns else 0, 100)) + 1
             out.table("design.parquet", region_design(table, design, seed, first), model_revision=model.revision)
-    return PosteriorStageResult(st, False, table, held, post.samples_.assign(log_prob=post.log_prob_), model.revision)
+    return PosteriorStageResult(st, False, table, held, samples, model.revision)

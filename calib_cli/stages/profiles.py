@@ -39,12 +39,16 @@ def _side_view_fullness(folder: Path) -> float:
     return fullness(res.profile_s, res.profile_h) if res.status == "ok" else float("nan")
 
 
+def _own(rows: pd.DataFrame) -> pd.Series:
+    """Each row's recorded fullness (NaN where the campaign did not record one)."""
+    return rows[FULLNESS].astype(float).copy() if FULLNESS in rows.columns else pd.Series(np.nan, index=rows.index)
+
+
 def simulated_fullness(run: Path, rows: pd.DataFrame) -> pd.Series:
     """Each results row's fullness: the row's own where it has one (heaps simulated since the campaign
     records it), else measured on its side view (RUN/simulate/runs/<hash>/side.png); NaN where the
     heap's folder is gone (a committed sample run keeps its rows, not its folders)."""
-    own = rows[FULLNESS] if FULLNESS in rows.columns else pd.Series(np.nan, index=rows.index)
-    out = own.astype(float).copy()
+    out = _own(rows)
     if "run_hash" not in rows.columns:  # a results table not written by a campaign: no heap folders to read
         return out
     for i in out.index[out.isna()]:
@@ -55,7 +59,7 @@ def simulated_fullness(run: Path, rows: pd.DataFrame) -> pd.Series:
 def profiles_at_hand(run: Path, rows: pd.DataFrame) -> int:
     """How many rows have a fullness or a side view to measure it on: a stage's lock keeps it, so that
     heaps whose folders arrive later (simulated again, copied in) rerun it."""
-    own = rows[FULLNESS].notna() if FULLNESS in rows.columns else pd.Series(False, index=rows.index)
+    own = _own(rows).notna()
     if "run_hash" not in rows.columns:
         return int(own.sum())
     return int(sum(o or (run / RUNS / str(h) / "side.png").is_file() for o, h in zip(own, rows["run_hash"])))
