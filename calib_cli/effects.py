@@ -25,6 +25,7 @@ class Effect:
     #: added after heaps were cached leaves it out instead (the heap's own default is the same "off"),
     #: so that the cache keys of the heaps made before it stay what they were
     pinned_when_absent: bool = True
+    unit: str = "-"  # the parameter's unit ("-": dimensionless)
 
     @property
     def two_sided(self) -> bool:

@@ -65,3 +65,67 @@ def pareto_effects(effects, alpha: float):
     ax.set_xlabel("|main effect| [deg]")
     ax.set_title(f"Plackett-Burman main effects (red: p < {alpha:g})")
     return fig
+
+
+def corner(samples, table):
+    """Every pair of parameters' posterior draws (2-D histograms), each one's own on the diagonal with its
+    90 % interval, each axis over the parameter's whole prior range."""
+    names = list(table["parameter"])
+    d = len(names)
+    fig, axes = plt.subplots(d, d, figsize=(2.3 * d + 0.5, 2.3 * d + 0.5), squeeze=False)
+    lim = {r.parameter: (r.low, r.high) for r in table.itertuples()}
+    for i, a in enumerate(names):
+        for j, b in enumerate(names):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(samples[a], bins=40, range=lim[a], color="0.4")
+                for q in ("q05", "q95"):
+                    ax.axvline(table.loc[i, q], color="tab:red", ls="--", lw=1)
+                ax.set_yticks([])
+            else:
+                ax.hist2d(samples[b], samples[a], bins=40, range=[lim[b], lim[a]], cmap="Greys")
+                ax.set_ylim(lim[a])
+            ax.set_xlim(lim[b])
+            ax.set_xlabel(b if i == d - 1 else "")
+            ax.set_ylabel(a if j == 0 and i > 0 else "")
+    fig.suptitle("posterior draws over the prior ranges (dashed: 90 % interval)")
+    fig.tight_layout()
+    return fig
+
+
+def rounds_figure(rounds):
+    """calibrate's rounds: each parameter's 90 % interval and median against the heaps its posterior
+    learnt from, over its prior range; and the surrogates' variance at the posterior's draws over the
+    measured means' (below 1 a verdict can be given) with each effect's Bayes factor of "off"."""
+    params = list(dict.fromkeys(rounds["parameter"]))
+    n = len(params) + 1
+    cols = min(n, 3)
+    rows_ = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows_, cols, figsize=(4.2 * cols, 3.2 * rows_), squeeze=False)
+    for ax, p in zip(axes.flat, params):
+        r = rounds[rounds["parameter"] == p]
+        ax.fill_between(r["heaps"], r["q05"], r["q95"], color="tab:blue", alpha=0.25, step=None, label="90 %")
+        ax.plot(r["heaps"], r["median"], "o-", color="tab:blue", ms=3, label="median")
+        ax.set_ylim(r["low"].iloc[0], r["high"].iloc[0])
+        ax.set_title(p)
+        ax.set_xlabel("heaps the posterior learnt from")
+    ax = axes.flat[len(params)]
+    first = rounds.groupby("round", sort=True).first()
+    ax.semilogy(first["heaps"], first["surrogate_ratio"], "s-", color="0.3", ms=3, label="surrogate / measured variance")
+    for p in params:
+        r = rounds[(rounds["parameter"] == p) & rounds["bf_off"].notna()]
+        if len(r):
+            ax.semilogy(r["heaps"], r["bf_off"].clip(lower=1e-4), "o-", ms=3, label=f"Bayes factor off ({p})")
+    ax.axhline(1.0, color="k", lw=0.6)
+    ax.axhline(0.1, color="tab:red", lw=0.6, ls="--")
+    ax.axhline(3.0, color="tab:green", lw=0.6, ls="--")
+    ax.set_xlabel("heaps the posterior learnt from")
+    ax.legend(fontsize=7)
+    for extra in list(axes.flat)[n:]:
+        extra.axis("off")
+    fig.suptitle(f"calibrate, model revision {int(rounds['revision'].iloc[0])}: the posterior round by round")
+    fig.tight_layout()
+    return fig

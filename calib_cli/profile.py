@@ -206,3 +206,46 @@ def fullness(s: np.ndarray, h: np.ndarray, level: float = FULLNESS_LEVEL) -> flo
     ys = np.r_[0.0, h[il + 1:ir] - lv, 0.0]
     area = float(np.sum(0.5 * (ys[1:] + ys[:-1]) * np.diff(xs)))
     return area / (0.5 * (1.0 - level) * H * (sr - sl))
+
+
+#: the band of heap heights whose flanks :func:`band_fullness` weighs: above the toe's loose grains and
+#: floor layer, below a flat top (a fill that never reached an apex)
+BAND_LEVELS = (0.15, 0.85)
+
+
+def band_fullness(s: np.ndarray, h: np.ndarray, levels: tuple[float, float] = BAND_LEVELS) -> float:
+    """The flanks' shape between two heights, l1 = levels[0] H and l2 = levels[1] H: the profile's area
+    between them over that of the trapezoid with the same widths at both,
+
+        F_b = int (min(h, l2) - l1)+ ds / (0.5 (w1 + w2) (l2 - l1))
+
+    w1 the width between the first crossings of l1 from the apex outwards (a grain rolled beyond the
+    toe is not the heap), w2 the span of the profile above l2. Straight flanks give 1 whatever the top:
+    a cone and a truncated cone alike (a flat top, where the fill never reached an apex, moved
+    :func:`fullness` as much as cohesion does); convex flanks (rounded shoulders over a steep toe) give
+    more, concave ones less. Scale-free; NaN where a flank never falls to l1."""
+    s, h = np.asarray(s, float), np.asarray(h, float)
+    fin = np.isfinite(s) & np.isfinite(h)
+    s, h = s[fin], h[fin]
+    if len(h) < 3 or not np.max(h) > 0:
+        return float("nan")
+    o = np.argsort(s)
+    s, h = s[o], h[o]
+    ia = int(np.argmax(h))
+    H = float(h[ia])
+    l1, l2 = levels[0] * H, levels[1] * H
+    below_l, below_r = np.flatnonzero(h[:ia] < l1), ia + np.flatnonzero(h[ia:] < l1)
+    if not (len(below_l) and len(below_r)):
+        return float("nan")
+    il, ir = int(below_l[-1]), int(below_r[0])
+    sl, sr = _crossing(s, h, il, il + 1, l1), _crossing(s, h, ir, ir - 1, l1)
+    above = np.flatnonzero(h[il:ir + 1] >= l2) + il
+    a, b = int(above[0]), int(above[-1])
+    s2l = _crossing(s, h, a - 1, a, l2) if a > il else s[a]
+    s2r = _crossing(s, h, b + 1, b, l2) if b < ir else s[b]
+    if not (sr > sl and s2r >= s2l):
+        return float("nan")
+    xs = np.r_[sl, s[il + 1:ir], sr]
+    ys = np.r_[0.0, np.clip(h[il + 1:ir], l1, l2) - l1, 0.0]
+    area = float(np.sum(0.5 * (ys[1:] + ys[:-1]) * np.diff(xs)))
+    return area / (0.5 * ((sr - sl) + (s2r - s2l)) * (l2 - l1))

@@ -17,8 +17,9 @@ from typing import Iterable, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
+from . import artifacts as art
 from .campaign import Request, derive_seed
-from .dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, get_preset
+from .dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, condition_dict, get_preset
 from .engines.clumps import SPHERES
 from .errors import CalibError
 from .settings import _parse_value
@@ -186,3 +187,12 @@ def request_from_row(row) -> Request:
     pre = heap_preset(row["preset"], float(g) if g is not None and pd.notna(g) else None)
     return Request(params, condition_from_row(pre.condition, row), pre.numerics, int(row["seed"]),
                    model=row["model"])
+
+
+def content_seed(base: int, params: Mapping[str, float], condition: HeapCondition, repeat: int) -> int:
+    """A heap's seed from what it simulates (its parameters, its condition's values and its repeat),
+    not from a design row or a conditions table's order: the same heap in another round, run or
+    model revision, or after a condition is added to a table, is the same heap (and cached)."""
+    h = art.hash_obj({"params": {k: float(v) for k, v in sorted(params.items())},
+                      "condition": condition_dict(condition), "repeat": int(repeat)})
+    return derive_seed(base, int(h[:7], 16), repeat)

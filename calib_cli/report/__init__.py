@@ -51,10 +51,11 @@ details{margin:4px 0}summary{cursor:pointer}details.raw{border-bottom:1px solid 
 
 
 def first_screen(f: RunFiles) -> str:
-    """Headline and verdict, then parameters, fit, error history, ranking, posterior and photographs."""
+    """Headline and verdict, then the posterior, the fit, the error history, the ranking, the surrogate's
+    best fit and the photographs."""
     fit = fit_rows(f)
-    return (f"<section id=summary>{headline(f, fit)}<div class=grid>{params_card(f)}{fit_card(f, fit)}"
-            f"<div class=stack>{history_card(f)}{ranking_card(f)}{posterior_card(f)}</div>"
+    return (f"<section id=summary>{headline(f, fit)}<div class=grid>{posterior_card(f)}{fit_card(f, fit)}"
+            f"<div class=stack>{history_card(f)}{ranking_card(f)}{params_card(f)}</div>"
             f"{photos_card(f)}</div></section>")
 
 

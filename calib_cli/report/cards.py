@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ..model import EFFECTS
+from ..posterior.evidence import bf_text, effect_verdict
 from ..posterior.suggest import best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
@@ -18,32 +20,43 @@ def _missing(cmd: str, what: str) -> str:
     return note(f"Not run yet: <code>{esc(cmd)}</code> {what}.")
 
 
+def _ga_state(p: str, w: float, post) -> str:
+    """The GA point's badge: pinned only where the posterior identifies the parameter too."""
+    if post is not None and p in post.index:
+        return badge("pinned", "pass") if bool(post.loc[p, "identified"]) else badge("posterior wide", "warn")
+    return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
+
+
 def params_card(f: RunFiles) -> str:
-    """The solution with each parameter's near-optimal range; fixed values; how it was validated."""
+    """The GA's point (the surrogate's best fit) with each parameter's near-optimal range; fixed values; how
+    it was validated. Called pinned only where the posterior identifies the parameter."""
     params = solution_params(f)
     if not params:
-        return card("Calibrated parameters", _missing("calib invert", "finds them from the surrogate"))
+        return ""
     rng = f.table("invert/ranges.parquet")
     rng = rng.set_index("parameter") if rng is not None else pd.DataFrame()
+    post = f.table("posterior/summary.parquet")
+    post = post.set_index("parameter") if post is not None and len(post) else None
     rows, outside = [], []
     for p, v in params.items():
         if p in rng.index:
             lo, hi, w = rng.loc[p, ["low", "high", "width_fraction"]]
             out = not (lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi))
             outside += [p] if out else []
-            state = badge("pinned", "pass") if w <= PINNED else badge("loose", "warn")
             rows.append([esc(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
-                         f"{w:.0%}".replace("%", " %"), state])
+                         f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post)])
         else:
             rows.append([esc(p), f"<b>{num(v)}</b>", "", "", ""])
     body = rows_table(["parameter", "value", "near-optimal", "spread", ""], rows, "compact")
     tol = f.prov("invert/solution_set.parquet").get("tolerance")
     body += note(f"Near-optimal: surrogate within {num(tol, 3) if tol else 'the tolerance'}&deg; of the best fit; "
-                 f"spread as a share of the search range, pinned at &le; {PINNED:.0%}.".replace("%", " %"), "prov")
+                 "spread as a share of the search range. A narrow spread is the surrogate's, not the data's: "
+                 + ("the posterior says how well the data pin each parameter." if post is not None else
+                    "no posterior here says how well the data pin them (<code>calib calibrate</code>)."), "prov")
     if outside:
         body += note(f"* {esc(', '.join(outside))}: the solution lies outside the surrogate's near-optimal range, "
                      "moved there by the refinement by simulation.", "prov")
-    return card("Calibrated parameters", body + _fixed_and_validation(f, params))
+    return card("The surrogate's best fit (GA)", body + _fixed_and_validation(f, params))
 
 
 def _fixed_and_validation(f: RunFiles, params: dict) -> str:
@@ -115,21 +128,71 @@ def ranking_card(f: RunFiles) -> str:
                        "<a href='#discrepancy'>Discrepancy loop</a>.", "prov"))
 
 
-def posterior_card(f: RunFiles) -> str:
-    """The posterior's 90 % intervals and the next conditions to measure, when those stages ran."""
-    post = f.table("posterior/summary.parquet")
-    if post is None or post.empty:
+def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
+    word = effect_verdict(bf, upper, decided)
+    return {"on": badge("called for", "fail"), "off": badge("favoured off", "pass"),
+            "open": badge("not decided", "warn"), "undecided": badge("undecided: surrogate unsure", "warn")}.get(word, "")
+
+
+def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
+    units = {e.parameter: e.unit for e in EFFECTS.values()}
+    rows = []
+    for r in post.itertuples(index=False):
+        unit = units.get(r.parameter, "-")
+        decided = bool(getattr(r, "decided", True))
+        state = (badge("undecided", "warn") if not decided else badge("identified", "pass") if r.identified
+                 else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
+        rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
+                     esc("" if unit == "-" else unit), state])
+    return rows
+
+
+def _effects_table(post: pd.DataFrame) -> str:
+    """Each switchable effect the model gained: the Bayes factor of its being off, and the verdict."""
+    owner = {e.parameter: e.name for e in EFFECTS.values()}
+    eff = post[post["bf_off"].notna()] if "bf_off" in post.columns else post.iloc[:0]
+    if eff.empty:
         return ""
+    rows = [[esc(owner.get(r.parameter, r.parameter)), bf_text(r.bf_off, bool(getattr(r, "bf_upper", False))),
+             _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
+            for r in eff.itertuples(index=False)]
+    return rows_table(["effect", "Bayes factor of off", ""], rows, "compact")
+
+
+def _rounds_note(f: RunFiles, rev) -> str:
+    rounds = f.table("calibrate/rounds.parquet")
+    if rounds is None or rounds.empty:
+        return ""
+    r = rounds[rounds["revision"] == rev] if "revision" in rounds.columns else rounds
+    if r.empty:
+        return ""
+    last = r[r["round"] == r["round"].max()].iloc[0]
+    return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, {int(last['calibration_heaps'])} heaps "
+                f"simulated, the posterior on {int(last['heaps'])}; stopped by {esc(str(last['stop']).split(':')[0])} "
+                "(<a href='calibrate/rounds.png'>the intervals round by round</a>).", "prov")
+
+
+def posterior_card(f: RunFiles) -> str:
+    """The answer: each parameter's median and 90 % interval with its unit, whether identified, each added
+    effect's Bayes factor, and what to measure next; or, without a posterior, the command that makes one."""
+    post = f.table("posterior/summary.parquet")
+    title = "Calibrated parameters: the posterior"
+    if post is None or post.empty:
+        return card(title, _missing("calib calibrate", "measures how well the data pin each parameter (a posterior "
+                                    "given every condition) and which added effect they call for"))
     prov = f.prov("posterior/summary.parquet")
     rev = prov.get("model_revision", "?")
     used = ["each condition's mean angle"] + (["its piles' scatter"] if prov.get("scatter") else []) \
         + (["its photographs' heap profile"] if prov.get("profile") else [])
-    rows = [[esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
-             badge("identified", "pass") if r.identified else badge(f"{100 * r.rel_width:.0f} % of range", "warn")]
-            for r in post.itertuples(index=False)]
-    body = rows_table(["parameter", "median", "90 % interval", ""], rows, "compact")
-    body += note(f"Posterior of model revision {esc(rev)} (<code>calib calibrate-posterior</code>), given "
+    body = rows_table(["parameter", "median", "90 % interval", "unit", ""], _posterior_rows(post), "compact")
+    body += _effects_table(post)
+    if "decided" in post.columns and not bool(post["decided"].iloc[0]):
+        body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
+                     f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
+                     "(<code>calib calibrate</code> with a larger budget).", "prov")
+    body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "
                  f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.", "prov")
+    body += _rounds_note(f, rev)
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
         body += "<h3>Measure next</h3>" + "".join(
@@ -137,4 +200,4 @@ def posterior_card(f: RunFiles) -> str:
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
                         f"({sep:.2g} chi-square units, sensitivities {how})</p>"
                         for e, cid, sep, how in best_per_effect(nxt))
-    return card("Posterior", body)
+    return card(title, body)

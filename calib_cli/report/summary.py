@@ -141,28 +141,59 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
         return "info", (f"Not checked by simulation: at the solution the surrogate predicts the measured "
                         f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}, but no heap was simulated there "
                         "(<code>calib invert --validate N</code>, <code>calib compare</code>).")
-    return "info", "Not calibrated yet: no inversion in this run directory."
+    return "info", "Not checked by simulation yet: <code>calib compare</code> simulates the calibrated point."
 
 
 def _loose_clause(f: RunFiles) -> str:
+    """The GA point's near-optimal spread, said as the surrogate's (no posterior here)."""
     rng = f.table("invert/ranges.parquet")
+    note = " No posterior says how well the data pin them (<code>calib calibrate</code>)."
     if rng is None or rng.empty:
-        return ""
+        return note
     loose = list(rng.loc[rng["width_fraction"] > PINNED, "parameter"])
     if not loose:
-        return " Every parameter is pinned by the data."
-    return (f" Not pinned by the data: {words(loose)} (near-optimal values span more than "
-            f"{PINNED:.0%} of the search range).").replace("%", " %")
+        return f" The surrogate's near-optimal set is narrow for every parameter.{note}"
+    return (f" The surrogate's near-optimal values of {words(loose)} span more than {PINNED:.0%} of the search "
+            f"range.{note}").replace("%", " %")
+
+
+def _posterior_clause(post: pd.DataFrame) -> str:
+    """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
+    each added effect's verdict with its Bayes factor."""
+    from ..model import EFFECTS
+    from ..posterior.evidence import bf_text, effect_verdict
+
+    if "decided" in post.columns and not bool(post["decided"].iloc[0]):
+        return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
+                f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').")
+    ident = list(post.loc[post["identified"].astype(bool), "parameter"])
+    loose = list(post.loc[~post["identified"].astype(bool), "parameter"])
+    text = (f" Identified by the data: {words(ident)}." if ident else "") + \
+        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "")
+    owner = {e.parameter: e.name for e in EFFECTS.values()}
+    said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide"}
+    for r in post[post["bf_off"].notna()].itertuples(index=False) if "bf_off" in post.columns else []:
+        upper = bool(getattr(r, "bf_upper", False))
+        word = effect_verdict(r.bf_off, upper, True)
+        text += (f" {esc(owner.get(r.parameter, r.parameter)).capitalize()}: {said.get(word, '')} "
+                 f"(Bayes factor of off {bf_text(r.bf_off, upper)}).")
+    return text
 
 
 def headline(f: RunFiles, fit: Fit) -> str:
+    post = f.table("posterior/summary.parquet")
     params = solution_params(f)
-    if not params:
+    if post is not None and len(post):
+        what = f"Calibrated {words(list(post['parameter']))}"
+        extra = _posterior_clause(post)
+    elif params:
+        what = f"The surrogate's best fit (GA) of {words(params)}"
+        extra = _loose_clause(f)
+    else:
         ran = [s for s in ("measure", "pb", "ascent", "bbd", "surrogate") if f.has_dir(s)]
         return (f"<p class=lead>{badge('not calibrated', 'info')} <b>No calibration in this run directory yet</b> "
-                f"(<code>calib invert</code> has not run); stages here: {esc(', '.join(ran) or 'none')}.</p>")
-    what = f"Calibrated {words(params)}"
+                f"(<code>calib calibrate</code> has not run); stages here: {esc(', '.join(ran) or 'none')}.</p>")
     kind, sentence = verdict(f, fit)
     label = {"pass": "fits", "fail": "misfit", "info": "unchecked"}[kind]
     return (f"<p class=lead><b>{what}</b> against {_against(f)}.</p>"
-            f"<p class=lead>{badge(label, kind)} {sentence}{_diagnosis_clause(f)}{_loose_clause(f)}</p>")
+            f"<p class=lead>{badge(label, kind)} {sentence}{_diagnosis_clause(f)}{extra}</p>")

@@ -40,8 +40,10 @@ R = TypeVar("R")
 #: posterior 3: a changing pile scatter is a Gaussian process over the repeated piles' log variances
 #: posterior 4: with --scatter, that process's error is shared by a parameter set's conditions
 #: suggest 4: its surrogate's pile variances are that process's
+#: posterior 6: the scatter and the profile weighed wherever they can be; no verdict while the surrogate is unsure;
+#: a Bayes factor with no draw near its value is an upper bound
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 5, "suggest": 5}
+                 "diagnose": 2, "posterior": 6, "suggest": 5, "calibrate": 1}
 
 
 def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:

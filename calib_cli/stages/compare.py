@@ -19,6 +19,7 @@ from ..campaign import CACHE_SOURCE, run_campaign  # noqa: E402
 from ..dem.heap import LAWS  # noqa: E402
 from ..discrepancy.stats import per_condition, residual_table, summary  # noqa: E402
 from ..errors import CalibError  # noqa: E402
+from ..measurements import measured_conditions  # noqa: E402
 from ..model import EFFECTS, Model, load_model  # noqa: E402
 from ..requests import (COND_VARS, build_requests, engine_settings, heap_engine, heap_preset, heap_setup,  # noqa: E402
                         modulus_settings, parse_params, table_conditions)
@@ -27,25 +28,30 @@ from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_setti
 from .simulate import Pairs, pairs  # noqa: E402
 
 
-def measured_conditions(run: Path) -> pd.DataFrame:
-    p = run / "measure" / "conditions.parquet"
-    c = art.read_table(p, columns=["condition_id", "mean", "sd", "n"],
-                       what="measured conditions (run `calib measure-angle` first)")
-    if (c["n"] < 1).any():
-        raise CalibError(f"condition(s) {', '.join(c.loc[c['n'] < 1, 'condition_id'])} have no measured angle")
-    return c
+#: calibrate's point: the posterior's most probable draw (calib_cli.stages.calibrate)
+POINT = Path("calibrate") / "point.parquet"
+
+
+def calibrated_point(run: Path, model: Model) -> Optional[Path]:
+    """The table of the calibrated parameters: calibrate's most probable draw where it was made for the
+    current model revision, else the inversion's solution (the paper's chain), else None."""
+    point = run / POINT
+    if point.is_file() and art.read_provenance(point).get("model_revision") == model.revision:
+        return point
+    sol = run / "invert" / "solution.parquet"
+    return sol if sol.is_file() else None
 
 
 def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, float]]:
-    """The model and its calibrated parameter values: the BBD's fixed values < the inversion's
-    solution < --set. Without a model file (revision 0) simulate-heap pins nothing, so an effect
+    """The model and its calibrated parameter values: the BBD's fixed values < the calibrated point
+    (:func:`calibrated_point`) < --set. Without a model file (revision 0) simulate-heap pins nothing, so an effect
     the calibration switched on (a non-neutral value, e.g. surface_energy 0.5) joins the model."""
     model = load_model(run)
     given = parse_params(pairs(set_, "--set")) if set_ else {}
-    sol = run / "invert" / "solution.parquet"
     known = {e.parameter for e in EFFECTS.values()}
     base = {}
-    if sol.is_file():
+    sol = calibrated_point(run, model)
+    if sol is not None:
         s = art.read_table(sol).iloc[0]
         base = {k: float(s[k]) for k in s.index if k in known}
     # parameters the response surface held fixed keep their fixed values (the surrogate and
@@ -60,7 +66,8 @@ def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, flo
             model = Model((*model.effects, *used), 0, f"default model + {', '.join(used)} (set by the calibration)")
     missing = [p for p in model.parameters if p not in theta]
     if missing:
-        raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib invert` or pass --set NAME=VALUE")
+        raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib calibrate` (or `calib invert`) or "
+                         "pass --set NAME=VALUE")
     # with the contact laws the BBD's heaps had (or --set gives): its surrogate learnt those
     return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
 

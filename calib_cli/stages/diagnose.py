@@ -15,11 +15,12 @@ from .. import artifacts as art
 from ..campaign import CACHE_SOURCE
 from ..discrepancy.stats import at_bounds, confound, confounded, difference_se, score_effects, signature_noise, trends
 from ..errors import CalibError
+from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
 from ..requests import COND_VARS, engine_settings, heap_setup, modulus_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
                      warn_other_modulus, writes_run)
-from .compare import measured_conditions, model_and_theta, simulate_at
+from .compare import model_and_theta, simulate_at
 from .simulate import Pairs
 
 

@@ -69,10 +69,11 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
               cylinders: str = "50", fill_ratio: float = 1.0, fills: Optional[str] = None, repeats: int = 3,
               preset: str = "smoke", workers: int = 1, shear_modulus: Optional[float] = None,
               floor: Optional[list[str]] = None, noise: float = 6.0, seed: int = 7,
-              engine: str = "builtin") -> LabResult:
+              engine: str = "builtin", px_per_m: float = 6000.0) -> LabResult:
     """Synthetic measurements with a hidden effect: DEM heaps at the true parameters ``set_`` under every
-    condition (sizes x cylinders x fills x floors), rendered as photographs with image noise, a
-    conditions.csv and truth.toml (which no stage reads) in ``out``."""
+    condition (sizes x cylinders x fills x floors) on ``engine`` (builtin, gpu, or lammps: another DEM
+    code's heaps, its own laws), rendered as photographs of ``px_per_m`` pixels a metre with image noise,
+    a conditions.csv and truth.toml (which no stage reads) in ``out``."""
     import cv2
     import tomli_w
 
@@ -82,12 +83,18 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     pre = heap_preset(preset, shear_modulus)
     floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]
     conds = _lab_conditions(floors, sizes, cylinders, fills, fill_ratio, bool(floor))
-    if engine not in RUN_ENGINES:
-        raise CalibError(f"unknown engine {engine!r}: {' or '.join(RUN_ENGINES)}")
+    if engine not in (*RUN_ENGINES, "lammps"):
+        raise CalibError(f"unknown engine {engine!r}: {', '.join(RUN_ENGINES)} or lammps")
     if engine == "gpu":
         from ..dem.gpu import cuda_module
 
         cuda_module()  # fail now: no GPU, or no CUDA driver
+    if engine == "lammps":
+        from ..engines.lammps import open_lammps
+
+        open_lammps().close()  # fail now, with the extra named, not after the first run
+    if not (np.isfinite(px_per_m) and 1000.0 <= px_per_m <= 50000.0):
+        raise CalibError(f"--px-per-m {px_per_m:g} is outside 1000 to 50000 pixels a metre")
     reqs = build_requests([(0, truth)], conds, pre.numerics, seed=seed, repeats=repeats, preset=preset, design="lab",
                           model="truth", label_by_condition=True, engine=engine)
     for _, c in conds:
@@ -103,7 +110,7 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     lines = ["image," + "condition_id," + ",".join(cvars)]
     for (_, row), req in zip(rows.iterrows(), reqs):
         st = art.read_table(work / RUNS / row["run_hash"] / "state.parquet")
-        img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=6000).image
+        img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=px_per_m).image
         img = np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
         name = f"{req.condition_id}_r{req.repeat + 1}.png"
         cv2.imwrite(str(out / name), img)
@@ -112,6 +119,7 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     (out / "conditions.csv").write_text("\n".join(lines) + "\n")
     (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
         {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
+         **({"engine": engine} if engine != "builtin" else {}), **({"px_per_m": px_per_m} if px_per_m != 6000 else {}),
          **modulus_settings(shear_modulus),
          "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
     return LabResult(out, rows, len(conds))

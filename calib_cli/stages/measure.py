@@ -165,6 +165,21 @@ def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, li
     return pd.DataFrame(rows), profiles, overlays
 
 
+def columns_by_pile(table: pd.DataFrame, cond: pd.DataFrame, profiles: list) -> tuple[pd.DataFrame, list]:
+    """Several photographs of one pile (the conditions table's ``pile`` column): where any view stands as
+    a column the pile is a column as a whole, so its other views are flagged too (their stub's flanks
+    are no repose angle) and leave the statistics and the profiles. Adds the ``pile`` column."""
+    pile = dict(zip(cond["image"].astype(str), cond["pile"].astype(str)))
+    table = table.assign(pile=[pile.get(n, n) for n in table["image"]])
+    standing = table[table["status"] == "column"].groupby("pile")["image"].first()
+    hit = table["pile"].isin(standing.index) & (table["status"] != "column")
+    table.loc[hit, "message"] = [f"another view of this pile ({standing[p]}) stands as a column: the pile is a "
+                                 "column as a whole" for p in table.loc[hit, "pile"]]
+    table.loc[hit, "status"] = "column"
+    gone = set(table.loc[hit, "image"])
+    return table, [p for p in profiles if not (len(p) and p["image"].iloc[0] in gone)]
+
+
 def _left_out(angles: pd.DataFrame, keep_flagged: bool) -> dict[str, int]:
     """How many images each status leaves out of the condition statistics."""
     counts = angles[~used(angles, keep_flagged)]["status"].value_counts().sort_index()
@@ -258,6 +273,8 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     profiles, overlays = [], {}
     if table is None:
         table, profiles, overlays = _measure_images(files, cmap, cond is None, band, limits, keep_flagged, progress)
+    if cond is not None and "pile" in cond.columns:
+        table, profiles = columns_by_pile(table, cond, profiles)
     if cond is not None:
         _warn_unmatched(table, cond, say)
     _check_usable(table, keep_flagged, say)

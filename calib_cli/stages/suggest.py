@@ -22,10 +22,11 @@ from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_rig, rank_conditions
 from ..requests import engine_settings, heap_setup, modulus_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
-from .compare import measured_conditions, model_and_theta
+from ..measurements import measured_conditions
+from ..posterior.evidence import RESPONSE, check_rows, model_rows, model_surrogate, profile_rows
+from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
+from .compare import model_and_theta
 from .diagnose import _signatures
-from .posterior import RESPONSE, _check_rows, _profile_rows, model_rows, model_surrogate
-from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
 from .simulate import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
@@ -322,7 +323,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say) \
         if simulate else None
     rows = model_rows(run, model)
-    cond_vars = _check_rows(run, rows, model)
+    cond_vars = check_rows(run, rows, model)
     sens, res = run / "diagnose" / "sensitivities.parquet", run / "compare" / "residuals.parquet"
     mfile = run / MODEL_FILE
     # the heaps the surrogate learns from are an input too: more of them change the gains
@@ -348,7 +349,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     draws = ev.draws_frame()
     mu, vp = _surrogate_at(gp, draws, cand)
     if profile:
-        mu = _profile_at(run, _profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
+        mu = _profile_at(run, profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
     table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)

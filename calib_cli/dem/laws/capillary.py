@@ -55,7 +55,7 @@ EFFECT = Effect(
     "steeper heaps, most for small grains (a bridge pulls with 2 pi R gamma, a grain weighs ~R^3); on 4-6 mm "
     "grains water bridges raised every heap by about the same amount whatever its size, where JKR cohesion "
     "grew with the fill; unlike JKR the pull does not fall with the contact stiffness and reaches across a gap",
-    pinned_when_absent=False)
+    pinned_when_absent=False, unit="N/m")
 
 
 def selected(pp, *walls) -> bool:

@@ -1,0 +1,448 @@
+"""What a posterior weighs and how its answer is worded: the model's simulated heaps, the responses'
+surrogates (the angle's, and the heap profile's fullness where the photographs and side views give
+one), the measured conditions, and the verdicts (identified, an effect called for or favoured off,
+or undecided because the surrogate is unsure where the posterior lies).
+
+``fit_posterior`` is what ``calibrate-posterior`` and each round of ``calibrate`` compute; it reads
+the run directory and writes nothing (docs/method.md, "The posterior").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+import pandas as pd
+
+from ..campaign import RESULTS, current_results, heap_setups
+from ..errors import CalibError
+from ..model import DEFAULT_EFFECTS, EFFECTS, Model
+from ..requests import COND_VARS
+from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, bayes_factor_off, calibrate_posterior,
+                        mean_variance)
+from .gp import ColumnModel, GPSurrogate, holdout_rmse, informative_conditions
+from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
+
+RESPONSE = "repose_angle"
+#: simulated piles per surrogate input (parameter or condition variable) the posterior needs at least:
+#: Loeppky, Sacks & Welch (Technometrics 51, 2009) recommend 10 runs per input for a GP
+PILES_PER_INPUT = 10
+#: Jeffreys' scale for the Bayes factor of an effect off: above 3 substantial evidence it is off, below
+#: 1/10 strong evidence it is on
+BF_OFF, BF_NEEDED = 3.0, 0.1
+#: the prior ranges: each effect's own (`calib model show`), or what the model's heaps cover
+PRIORS = ("effects", "heaps")
+#: no verdict while the surrogate's variance at the posterior's draws exceeds the measured means' (its
+#: ratio r above this): the posterior's width is then the surrogate's ignorance, not the lab's evidence
+SURROGATE_RATIO_MAX = 1.0
+
+Say = Callable[..., None]
+
+
+def _quiet(message: str, err: bool = False) -> None:
+    pass
+
+
+# ------------------------------------------------------------------ the heaps and their surrogates
+#: the heaps' statuses the column share learns from: those that stood, and those that formed a heap
+JUDGED = ("ok", "column")
+
+
+def model_rows(run: Path, model: Model, judged: bool = False) -> pd.DataFrame:
+    """The simulated piles of the current model (every heap that gave an angle, or with ``judged`` every
+    heap that stood as a column too, with each absent effect's parameter at its neutral value, or
+    unset), with the model's parameters filled in where a heap left one unset: a wall's value at the
+    grains' own, another at its neutral value."""
+    if not (run / RESULTS).is_file():
+        raise CalibError(f"no simulated heaps in {run}: run `calib calibrate --run {run}` (or simulate-heap) first")
+    rows = current_results(run)
+    if judged:
+        keep = rows["status"].isin(JUDGED).to_numpy().copy() if "status" in rows.columns else np.zeros(len(rows), bool)
+    else:
+        keep = rows[RESPONSE].notna().to_numpy().copy() if RESPONSE in rows.columns else np.zeros(len(rows), bool)
+    for name, eff in EFFECTS.items():
+        if name not in model.effects and eff.parameter in rows.columns:
+            v = rows[eff.parameter]
+            keep = keep & (v.isna() | (v == eff.neutral)).to_numpy()
+    rows = rows[keep].copy()
+    for name in model.effects:
+        eff = EFFECTS[name]
+        tied = eff.parameter.replace("wall_", "") if eff.two_sided else None
+        col = rows[eff.parameter] if eff.parameter in rows.columns else pd.Series(np.nan, index=rows.index)
+        rows[eff.parameter] = col.fillna(rows[tied] if tied in rows.columns else eff.neutral)
+    setups = heap_setups(rows)
+    if len(setups) > 1:
+        raise CalibError(f"the heaps of model revision {model.revision} in {run} were simulated with {len(setups)} "
+                         f"setups ({'; '.join(setups)}), which one surrogate would mix: keep one preset and shear "
+                         "modulus per run directory")
+    return rows.reset_index(drop=True)
+
+
+def heaps_needed(model: Model, cond_vars: list[str]) -> int:
+    """The fewest heaps a surrogate of the model learns from: PILES_PER_INPUT per input."""
+    return PILES_PER_INPUT * (len(model.parameters) + len(cond_vars))
+
+
+def check_rows(run: Path, rows: pd.DataFrame, model: Model) -> list[str]:
+    """The condition variables the surrogate learns; refuses a parameter the heaps never varied and
+    fewer piles than PILES_PER_INPUT per input."""
+    flat = [p for p in model.parameters if rows[p].nunique() < 2]
+    if flat:
+        vals = ", ".join(f"{p} = {rows[p].iloc[0]:g}" for p in flat) if len(rows) else "no heaps"
+        raise CalibError(f"every simulated heap of model revision {model.revision} in {run} has the same "
+                         f"{', '.join(flat)} ({vals}): the surrogate cannot learn its effect; run `calib calibrate`, "
+                         "which designs heaps that vary it")
+    conds = informative_conditions(rows, COND_VARS)
+    need = heaps_needed(model, conds)
+    if len(rows) < need:
+        raise CalibError(f"{run} has {len(rows)} simulated heaps of model revision {model.revision}; the posterior's "
+                         f"surrogate needs at least {need} ({PILES_PER_INPUT} per input: {len(model.parameters)} "
+                         f"parameters + {len(conds)} condition variables): simulate more heaps (`calib calibrate`)")
+    return conds
+
+
+def check_measured(conds: pd.DataFrame, gp: GPSurrogate, path: Path) -> None:
+    """Refuse a measured condition the surrogate would extrapolate to: outside the simulated range of
+    a condition variable it learnt, or off the value every simulated heap shared."""
+    ids = conds["condition_id"].astype(str)
+    for c, (lo, hi) in gp.condition_ranges().items():
+        if c not in conds.columns:
+            raise CalibError(f"{path} has no {c} column, which the simulated heaps vary: measure-angle's "
+                             "conditions table must give it")
+        out = ~conds[c].between(lo, hi)
+        if out.any():
+            raise CalibError(f"condition(s) {', '.join(ids[out])} have {c} outside the simulated heaps' "
+                             f"{lo:g} to {hi:g}: simulate heaps under them first")
+    for c, val in gp.constants_.items():
+        off = conds[c].notna() & ~np.isclose(conds[c], val) if c in conds.columns else pd.Series(False)
+        if off.any():
+            raise CalibError(f"condition(s) {', '.join(ids[off])} have {c} other than the {val:g} of every "
+                             "simulated heap: simulate heaps under them first")
+
+
+def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
+    """Each of the model's parameters' range (its effect's bounds): the prior and the surrogate's scale."""
+    return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+
+
+def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE) -> GPSurrogate:
+    """The Gaussian process of the model's heaps (of their ``response``), fitted on every condition column
+    the heaps have: it learns the ones that vary and records the ones they all shared (``constants_``),
+    at which a measured or suggested condition elsewhere is beyond what it knows."""
+    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), response]
+    return GPSurrogate(model.parameters, COND_VARS, effect_ranges(model), response, seed=seed).fit(rows[cols])
+
+
+# ------------------------------------------------------------------ the heap profile
+def profile_rows(run: Path, rows: pd.DataFrame, model: Model, cond_vars: list[str], say: Say = _quiet,
+                 need: Optional[int] = None) -> pd.DataFrame:
+    """The model's heaps with each one's fullness (:func:`~calib_cli.posterior.profiles.simulated_fullness`);
+    refuses fewer heaps with one than the surrogate needs (PILES_PER_INPUT per input)."""
+    rows = rows.assign(**{FULLNESS: simulated_fullness(run, rows)})
+    have = int(np.isfinite(rows[FULLNESS]).sum())
+    need = heaps_needed(model, cond_vars) if need is None else need
+    if have < need:
+        raise CalibError(f"only {have} of the {len(rows)} simulated heaps have a profile (a side view whose heap "
+                         f"could be measured; a committed sample run keeps its rows, not its heaps' folders); the "
+                         f"profile's surrogate needs at least {need}: simulate more heaps, or leave the profile out")
+    if have < len(rows):
+        say(f"the profile's surrogate learns from the {have} of {len(rows)} heaps whose side view is at hand")
+    return rows
+
+
+def profile_available(run: Path, rows: pd.DataFrame, model: Model, cond_vars: list[str]) -> str:
+    """Why the heap profile cannot be evidence here ("" where it can): no photographs' profiles, or
+    too few heaps with a fullness."""
+    try:
+        profile_inputs(run)
+        prof = pd.read_parquet(run / "measure" / "profiles.parquet", columns=["image"])
+    except (CalibError, OSError, ValueError):
+        return "the angles were not measured on photographs here (no measure/profiles.parquet)"
+    if prof.empty:
+        return "the angles were given as a table, not measured on photographs"
+    have = int(np.isfinite(simulated_fullness(run, rows)).sum())
+    need = heaps_needed(model, cond_vars)
+    return "" if have >= need else f"only {have} of {len(rows)} simulated heaps have a side view's profile ({need} needed)"
+
+
+def second_response(run: Path, rows: pd.DataFrame, model: Model, conds: pd.DataFrame, seed: int,
+                    say: Say = _quiet) -> SecondResponse:
+    """The heap profile's fullness as a second response: its surrogate and each condition's measured mean."""
+    table, rho = measured_fullness(run, conds)
+    gp = model_surrogate(rows, model, seed, FULLNESS)
+    check_measured(conds, gp, run / "measure" / "conditions.parquet")  # its heaps may cover less than the angle's
+    say(f"profile: each condition's photographs' mean fullness is evidence beside its angle (a photograph's two "
+        f"correlate at {rho:+.2f} within a condition; a simulated pile's fullness scatters by {gp.noise_sd_:.3f})")
+    return SecondResponse(gp, table["mean"].to_numpy(float), table["sd"].to_numpy(float),
+                          table["n"].to_numpy(float), rho)
+
+
+def held_out(used: pd.DataFrame, params: list[str], scale, seed: int, profile: bool,
+             which: tuple[str, ...] = ("gp", "rsm", "bp")) -> pd.DataFrame:
+    """The surrogates' held-out RMSE per pile (:func:`holdout_rmse`), of the angle and, with ``profile``,
+    of the fullness (on the heaps that have one); ``which`` surrogates."""
+    held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed, which=which).assign(response=RESPONSE)
+    if not profile:
+        return held
+    full = holdout_rmse(used, params, COND_VARS, scale, FULLNESS, seed=seed, which=which).assign(response=FULLNESS)
+    return pd.concat([held, full], ignore_index=True)
+
+
+# ------------------------------------------------------------------ the share of piles that stood as columns
+def measured_columns(run: Path, conds: pd.DataFrame) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """Per measured condition (``conds``' order) the piles that stood as columns and the piles judged
+    (formed a heap or stood), from the photographs' statuses (RUN/measure/angles.parquet; a pile is its
+    ``pile`` where the conditions table gave one, else a photograph); None where the angles were given
+    as numbers, not measured on photographs."""
+    path = run / "measure" / "angles.parquet"
+    if not path.is_file():
+        return None
+    a = pd.read_parquet(path)
+    if a.empty or (a.get("message", pd.Series(dtype=str)) == "given").all():
+        return None
+    a = a[a["status"].isin(JUDGED)].assign(pile=a["pile"] if "pile" in a.columns else a["image"])
+    piles = a.groupby(["condition_id", "pile"])["status"].agg(lambda s: bool((s == "column").any()))
+    per = piles.groupby(level=0).agg(["sum", "count"])
+    ids = conds["condition_id"].astype(str)
+    per = per.reindex(ids).fillna(0)
+    return per["sum"].to_numpy(float), per["count"].to_numpy(float)
+
+
+def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, seed: int = 0) -> tuple[
+        Optional[ColumnShare], str]:
+    """The share of piles that stood as columns as evidence (:class:`ColumnShare`), or None and why not:
+    no photographs' statuses, or no simulated heap of the model stood (or every one did)."""
+    lab = measured_columns(run, conds)
+    if lab is None:
+        return None, "the angles were not measured on photographs"
+    rows = model_rows(run, model, judged=True)
+    stands = (rows["status"] == "column").to_numpy() if "status" in rows.columns else np.zeros(0, bool)
+    if not stands.any():
+        return None, f"none of the model's {len(rows)} simulated fills stood as a column"
+    if stands.all():
+        return None, "every simulated fill stood as a column"
+    if not set(gp.inputs_) <= set(rows.columns):
+        return None, "the heaps that stood lack the surrogate's inputs"
+    return ColumnShare(ColumnModel(gp, seed).fit(rows, stands), *lab), ""
+
+
+# ------------------------------------------------------------------ how sure the surrogate is
+def surrogate_ratios(gp: GPSurrogate, second: Optional[SecondResponse], measured: pd.DataFrame,
+                     samples: pd.DataFrame, draws: int = 256, seed: int = 0) -> dict[str, float]:
+    """Per response, r = mean over the posterior's draws and the conditions of s_gp^2(theta, c) / v_c:
+    the surrogate's own variance of a condition's mean against the measured mean's (v_c, as the
+    likelihood takes it); and ``combined``, the r whose measured share 1 / (1 + r) is the responses'
+    mean share. r > 1: the surrogate's uncertainty outweighs the measurement's where the posterior lies."""
+    names = list(samples.columns.intersection(gp.parameters))
+    pick = np.random.default_rng(seed).choice(len(samples), min(draws, len(samples)), replace=False)
+    t = samples[names].to_numpy(float)[pick]
+    C = len(measured)
+    conds = {c: measured[c].to_numpy(float) for c in measured.columns if c in COND_VARS}
+    out = {}
+    for name, g, v in [(RESPONSE, gp, mean_variance(measured["sd"], measured["n"], gp.noise_sd_)),
+                       *([(FULLNESS, second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_))]
+                         if second is not None else [])]:
+        X = _inputs(g, t, names, {}, conds, C).reshape(-1, len(g.inputs_))
+        _, sd = g.predict(X, return_std=True)
+        out[name] = float(np.mean(sd.reshape(len(t), C) ** 2 / np.maximum(v, 1e-12)[None, :]))
+    out["combined"] = float(1.0 / np.mean([1.0 / (1.0 + r) for r in out.values()]) - 1.0)
+    return out
+
+
+# ------------------------------------------------------------------ the verdicts
+def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0) -> pd.DataFrame:
+    """Each parameter's verdict in words, and for an effect the model gained (not a default one) the
+    Bayes factor of "off" against the posterior (``bf_off``; ``bf_upper`` where no draw fell near
+    the neutral value and it is an upper bound from the effective draws). Where the surrogate is
+    unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against."""
+    owner = {e.parameter: e for e in EFFECTS.values()}
+    added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
+             for p in table["parameter"]]
+    table = table.assign(neutral=[e.neutral if e else math.nan for e in added])
+    bfs = [bayes_factor_off(samples[r.parameter], r.neutral, r.low, r.high, r.n_eff)
+           if e and r.low <= r.neutral <= r.high else (math.nan, False) for r, e in zip(table.itertuples(), added)]
+    unsure = bool(ratio > SURROGATE_RATIO_MAX)
+    table["bf_off"], table["bf_upper"] = [b for b, _ in bfs], [u for _, u in bfs]
+    table["surrogate_ratio"], table["decided"] = float(ratio), not unsure
+    table["identified"] = table["identified"] & (not unsure)
+    table["verdict"] = [_words(r, owner, unsure) for r in table.itertuples()]
+    return table
+
+
+def bf_text(bf: float, upper: bool) -> str:
+    """A Bayes factor as it can be read: "< 0.037" where no draw fell in the window (its resolution)."""
+    return f"< {bf:.2g}" if upper else f"{bf:.2g}"
+
+
+def _words(r, owner, unsure: bool) -> str:
+    if unsure:
+        w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.2g}x "
+             f"the measured means'); 90 % between {r.q05:.3g} and {r.q95:.3g}: simulate heaps where the posterior "
+             "lies (`calib calibrate`)")
+    elif r.identified:
+        w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
+    else:
+        w = (f"not identified: its 90 % interval {r.q05:.3g} to {r.q95:.3g} spans {100 * r.rel_width:.0f} % "
+             "of its range")
+    if not math.isnan(r.bf_off):
+        name = owner[r.parameter].name
+        say = ("undecided" if unsure else "the data call for it" if r.bf_off < BF_NEEDED
+               else "the data favour it off" if r.bf_off > BF_OFF else "the data do not decide")
+        w += (f"; {name} off ({r.parameter} = {r.neutral:g}) against on: Bayes factor "
+              f"{bf_text(r.bf_off, r.bf_upper)}, {say}")
+    return w
+
+
+def effect_verdict(bf: float, upper: bool, decided: bool) -> str:
+    """A switchable effect's verdict in one word: on, off, undecided or open (the data do not decide)."""
+    if not decided or not np.isfinite(bf):
+        return "undecided" if not decided else ""
+    return "on" if bf < BF_NEEDED else "off" if bf > BF_OFF and not upper else "open"
+
+
+# ------------------------------------------------------------------ the fit
+@dataclass
+class PosteriorFit:
+    """A posterior of the model's parameters: the per-parameter ``table`` (with verdicts), the ``samples``
+    (with their log_prob), the surrogates' held-out errors ``held``, the angle's surrogate ``gp`` and the
+    profile's (``second``, or None), the surrogate ratios, and what the likelihood weighed (``evidence``)."""
+
+    model: Model
+    table: pd.DataFrame
+    samples: pd.DataFrame
+    held: pd.DataFrame
+    gp: GPSurrogate
+    second: Optional[SecondResponse]
+    rows: pd.DataFrame
+    ratios: dict[str, float]
+    evidence: dict = field(default_factory=dict)
+    result: Optional[PosteriorResult] = None
+
+    @property
+    def heaps(self) -> int:
+        return len(self.rows)
+
+    def provenance(self) -> dict:
+        """What summary.parquet's metadata keeps of the fit."""
+        s = self.second
+        return {"model_revision": self.model.revision, "model": list(self.model.effects),
+                "noise_sd": self.gp.noise_sd_, "length_scales": self.gp.length_scales_.to_dict(), "heaps": self.heaps,
+                "scatter": bool(self.evidence.get("scatter")), "profile": bool(self.evidence.get("profile")),
+                "columns": bool(self.evidence.get("columns")),
+                "surrogate_ratios": self.ratios,
+                **({"profile_rho": s.rho, "profile_noise_sd": s.gp.noise_sd_} if s is not None else {})}
+
+
+def prior_bounds(rows: pd.DataFrame, model: Model, prior: str) -> dict[str, tuple[float, float]]:
+    """The uniform prior's ranges: the effects' own (``effects``) or what the heaps cover (``heaps``)."""
+    if prior not in PRIORS:
+        raise CalibError(f"--prior must be one of {', '.join(PRIORS)}, got {prior!r}")
+    scale = effect_ranges(model)
+    return scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in model.parameters}
+
+
+def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say):
+    """Which of the scatter, the profile and the column share the likelihood weighs (None: wherever they
+    can be), the profile's second response and the column share; says why one is left out."""
+    if profile is None:
+        why = profile_available(run, rows, model, cond_vars)
+        profile = not why
+        if why:
+            say(f"[yellow]note:[/] the heap profile is not evidence here: {why}")
+    second = None
+    if profile:
+        rows = profile_rows(run, rows, model, cond_vars, say)
+        second = second_response(run, rows, model, conds, seed, say)
+    use_scatter = gp.scatter_ is not None and scatter is not False
+    if scatter and gp.scatter_ is None:
+        say("[yellow]note:[/] the simulated piles scatter alike over every parameter, so the lab's scatter tells "
+            "nothing about them: only the measured means are used")
+    elif scatter is None and gp.scatter_ is not None:
+        say("likelihood: each condition's piles' scatter too (the simulated piles' scatter changes with the "
+            "parameters; it assumes the lab's piles scatter as the simulated ones do)")
+    share = None
+    if columns is not False:
+        share, why = column_share(run, model, gp, conds, seed)
+        if share is None and columns:
+            raise CalibError(f"the share of piles that stood as columns cannot be evidence: {why}")
+        if share is None:
+            say(f"[yellow]note:[/] the share of piles that stood as columns is not evidence here: {why}")
+        else:
+            say(f"likelihood: each condition's share of piles that stood as columns too ({int(share.k.sum())} of "
+                f"{int(share.n.sum())} photographed piles; {share.model.n_columns_} of {share.model.n_train_} "
+                "simulated fills)")
+    return rows, second, share, {"scatter": use_scatter, "profile": bool(profile), "columns": share is not None}
+
+
+def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int = 32, steps: int = 5000, seed: int = 0,
+                  prior: str = "effects", scatter: Optional[bool] = None, profile: Optional[bool] = None,
+                  columns: Optional[bool] = None,
+                  rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
+                  say: Say = _quiet) -> PosteriorFit:
+    """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
+    on the run's heaps of the model (``rows``: else :func:`model_rows`). ``scatter`` / ``profile``: weigh
+    each condition's pile scatter / heap profile / share of piles that stood as columns too (None:
+    wherever the heaps and photographs allow).
+    ``held_out_by``: the surrogates whose held-out error is scored (none: empty)."""
+    rows = model_rows(run, model) if rows is None else rows
+    cond_vars = check_rows(run, rows, model)
+    params, scale = model.parameters, effect_ranges(model)
+    bounds = prior_bounds(rows, model, prior)
+    gp = model_surrogate(rows, model, seed)
+    check_measured(conds, gp, run / "measure" / "conditions.parquet")
+    rows, second, share, evidence = _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
+                                              seed, say)
+    cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else [])]
+    held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
+    post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
+                               scatter=evidence["scatter"], second=second, columns=share)
+    ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
+    table = verdicts(post.summary(), post.samples_, ratios["combined"])
+    return PosteriorFit(model, table, post.samples_.assign(log_prob=post.log_prob_), held, gp, second, rows, ratios,
+                        evidence, post)
+
+
+def extrapolation_note(rows: pd.DataFrame, model: Model) -> str:
+    """Names the parameters whose prior range the heaps cover less than 80 % of ("" if none)."""
+    short = [f"{e.parameter} {rows[e.parameter].min():.3g} to {rows[e.parameter].max():.3g} of {e.low:g} to {e.high:g}"
+             for e in (EFFECTS[n] for n in model.effects)
+             if np.ptp(rows[e.parameter].to_numpy(float)) < 0.8 * (e.high - e.low)]
+    return (f"[yellow]note:[/] the heaps cover {'; '.join(short)}: beyond them the surrogate knows nothing, and the "
+            "posterior there stays as wide as the prior (--prior heaps keeps it to what the heaps cover)"
+            if short else "")
+
+
+def write_posterior(out, fit: PosteriorFit, prefix: str = "") -> None:
+    """The posterior's artefacts through a stage's staging writer (:meth:`~calib_cli.artifacts.Stage.commit`):
+    samples.parquet, surrogates.parquet, corner.png and summary.parquet (each name after ``prefix``)."""
+    from ..plots import corner
+
+    res = fit.result
+    out.table(f"{prefix}samples.parquet", fit.samples, discard=res.discard_, thin=res.thin_)
+    out.table(f"{prefix}surrogates.parquet", fit.held)
+    out.figure(f"{prefix}corner.png", corner(fit.samples.drop(columns="log_prob"), fit.table))
+    out.table(f"{prefix}summary.parquet", fit.table, **fit.provenance())
+
+
+def evidence_lock(run: Path, model: Model, rows: pd.DataFrame, profile: Optional[bool],
+                  columns: Optional[bool] = None) -> tuple[dict, dict]:
+    """The lock inputs and settings of a stage that may weigh the heap profile and the column share: the
+    measured files they read, how many heaps have a profile (heaps whose side views arrive later rerun
+    the stage) and how many stood as columns. With ``profile`` / ``columns`` None, wherever they can be."""
+    inputs, settings = {}, {"profile": profile, "columns": columns}
+    angles = run / "measure" / "angles.parquet"
+    if profile is not False:
+        try:
+            inputs.update(profile_inputs(run))
+            settings["profiles_at_hand"] = profiles_at_hand(run, rows)
+        except CalibError:
+            if profile:
+                raise
+    if columns is not False and angles.is_file():
+        inputs["angles"] = angles
+        judged = model_rows(run, model, judged=True)
+        settings["columns_at_hand"] = int((judged["status"] == "column").sum()) if "status" in judged.columns else 0
+    return inputs, settings

@@ -1,0 +1,422 @@
+"""`calib calibrate`: the whole calibration in rounds. Round 0 simulates a space-filling design over the
+model's parameters and the measured conditions; each round then fits the posterior (every condition's
+mean angle, its piles' scatter and its heap profile, as far as the heaps and photographs allow), and
+the next round simulates where the surrogates are least sure about it, until the intervals and
+verdicts stop moving or the heap budget is spent (calib_cli.posterior.adaptive, docs/method.md).
+
+Every round is a locked stage under RUN/calibrate/rev<N>/round-<k>/: a rerun reads the finished ones,
+and a kill loses only the heaps in flight (the campaign caches each finished heap). Every heap the
+model's posterior can use counts, whichever command simulated it: revision 0's heaps, compare's and
+diagnose's are reused after ``model add``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+import pandas as pd
+
+from .. import artifacts as art
+from ..campaign import RESULTS, Request, run_campaign
+from ..errors import CalibError
+from ..measurements import CONDITIONS, measured_conditions
+from ..model import MODEL_FILE, Model, load_model
+from ..posterior.adaptive import RULES, acquire, first_design, stop_reason
+from ..posterior.calibrate import mean_variance
+from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_ranges, effect_verdict, fit_posterior,
+                                  heaps_needed, held_out, model_rows, model_surrogate, evidence_lock, profile_rows,
+                                  second_response, write_posterior)
+from ..posterior.gp import informative_conditions
+from ..requests import (COND_VARS, condition_from_row, content_seed, engine_settings, heap_engine, heap_preset,
+                        heap_setup, modulus_settings)
+from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
+
+#: the results rows' design label of every heap a calibration's rounds simulate
+DESIGN = "calibrate"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A calibration's settings: the heap budget, round 0's and each later round's heaps, piles per design
+    pair, the acquisition rule, the sampler's walkers and steps, the seed, and the evidence weighed
+    (None: wherever it can be)."""
+
+    budget: int
+    first: int
+    batch: int
+    repeats: int = 2
+    rule: str = "variance"
+    walkers: int = 32
+    steps: int = 3000
+    seed: int = 0
+    scatter: Optional[bool] = None
+    profile: Optional[bool] = None
+    columns: Optional[bool] = None
+
+    def round_settings(self, model: Model) -> dict:
+        """What a round's design and posterior depend on (not the budget: a larger budget goes on from
+        the rounds a smaller one finished)."""
+        return {"first": self.first, "batch": self.batch, "repeats": self.repeats, "rule": self.rule,
+                "walkers": self.walkers, "steps": self.steps, "seed": self.seed, "scatter": self.scatter,
+                "profile": self.profile, "columns": self.columns, "model": model.hash}
+
+
+@dataclass
+class Round:
+    """One round: its ``design`` (pairs, each simulated ``repeats`` times), the posterior after it
+    (``table``, ``samples``, the surrogates' held-out errors ``held`` and variance ratios ``ratios``), the
+    heaps that posterior learnt from, and ``fit`` where it was computed in this process."""
+
+    index: int
+    rule: str
+    design: pd.DataFrame
+    table: pd.DataFrame
+    samples: pd.DataFrame
+    held: pd.DataFrame
+    ratios: dict
+    heaps: int
+    evidence: dict = field(default_factory=dict)
+    fit: Optional[PosteriorFit] = None
+    spent: int = 0  # the heaps this calibration simulated up to this round, top-up rounds included
+
+
+@dataclass
+class CalibrateResult(Result):
+    """RUN/calibrate/: ``rounds`` (one row per round and parameter), the final posterior ``table``, why
+    the rounds stopped, the model's revision, and the heaps: the posterior's and this calibration's."""
+
+    rounds: Optional[pd.DataFrame] = None
+    table: Optional[pd.DataFrame] = None
+    stop: str = ""
+    revision: int = 0
+
+    def __post_init__(self):
+        if self.rounds is None and (self.dir / "rounds.parquet").is_file():
+            rounds = art.read_table(self.dir / "rounds.parquet")
+            self.revision = int(art.read_provenance(self.dir / "rounds.parquet").get("model_revision", 0))
+            self.rounds = rounds[rounds["revision"] == self.revision].reset_index(drop=True)
+            self.table = art.read_table(self.run_posterior / "summary.parquet")
+            self.stop = str(self.rounds["stop"].iloc[-1]) if len(self.rounds) else ""
+
+    @property
+    def run_posterior(self) -> Path:
+        return self.stage.run_dir / "posterior"
+
+    def per_round(self) -> pd.DataFrame:
+        """A row per round: heaps, the interval of each parameter and the effects' Bayes factors."""
+        r = self.rounds
+        wide = r.assign(interval=[f"{a:.3g}-{b:.3g}" for a, b in zip(r["q05"], r["q95"])]).pivot_table(
+            index="round", columns="parameter", values="interval", aggfunc="first", sort=False)
+        head = r.groupby("round", sort=True)[["new_heaps", "heaps", "surrogate_ratio"]].first()
+        return head.join(wide).reset_index()
+
+
+# ------------------------------------------------------------------ the heaps of a round
+def _requests(design: pd.DataFrame, model: Model, conds: pd.DataFrame, setup: dict, plan: Plan) -> list[Request]:
+    """Each design pair's ``repeats`` heaps, seeded by what they simulate (:func:`content_seed`)."""
+    pre = setup["pre"]
+    rows = {str(r["condition_id"]): r for _, r in conds.iterrows()}
+    out = []
+    for _, d in design.iterrows():
+        params = model.pin({p: float(d[p]) for p in model.parameters})
+        cond = condition_from_row(pre.condition, rows[str(d["condition_id"])])
+        out += [Request(params, cond, pre.numerics, content_seed(plan.seed, params, cond, r), setup["preset"], DESIGN,
+                        int(d["run_id"]), r, model.hash, str(d["condition_id"]), setup["engine"])
+                for r in range(plan.repeats)]
+    return out
+
+
+def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Round], conds: pd.DataFrame,
+                  plan: Plan, say: Say) -> pd.DataFrame:
+    """Round k's pairs (locked): space-filling until a posterior exists (round 0, and a top-up where too few
+    of its heaps formed one), then where the surrogates are least sure about the previous posterior."""
+    prev_dir = _dir(run, model, prev.index) if prev is not None else None
+    st = stage(run, "calibrate", f"rev{model.revision}-round-{k:02d}-design",
+               inputs={"conditions": run / CONDITIONS, "posterior": prev_dir / "samples.parquet" if prev_dir else None},
+               settings={**plan.round_settings(model), "pairs": pairs})
+    path = _dir(run, model, k) / "design.parquet"
+    if st.up_to_date():
+        return art.read_table(path)
+    if prev is None:
+        design = first_design(effect_ranges(model), conds["condition_id"].astype(str).tolist(), pairs, plan.seed + k)
+    else:
+        design = acquire(_surrogates(run, model, prev, conds, plan), prev.samples, conds, pairs, plan.repeats,
+                         plan.rule, plan.seed + k)
+    design.insert(0, "run_id", np.arange(pairs) + 1000 * (k + 1))
+    with st.commit() as out:
+        out.table(path.relative_to(st.dir).as_posix(), design, model_revision=model.revision, round=k)
+    return design
+
+
+def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan: Plan) -> list:
+    """The previous round's surrogates with their measured means' variances: the angle's, and the
+    profile's where the posterior weighed it (refitted when the round was read back from disk)."""
+    if prev.fit is not None:
+        gp, second = prev.fit.gp, prev.fit.second
+    else:
+        rows = _until_round(model_rows(run, model), model, prev.index)
+        gp = model_surrogate(rows, model, plan.seed)
+        second = None
+        if prev.evidence.get("profile"):
+            cond_vars = informative_conditions(rows, COND_VARS)
+            second = second_response(run, profile_rows(run, rows, model, cond_vars), model, conds, plan.seed)
+    out = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_))]
+    if second is not None:
+        out.append((second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_)))
+    return out
+
+
+def _dir(run: Path, model: Model, k: int) -> Path:
+    return run / "calibrate" / f"rev{model.revision}" / f"round-{k:02d}"
+
+
+def _simulate(run: Path, design: pd.DataFrame, model: Model, conds: pd.DataFrame, setup: dict, plan: Plan,
+              workers: int, dask: Optional[str], on_heap: Optional[Callable]) -> pd.DataFrame:
+    """Run a round's heaps (cached ones are read); a kill loses only the heaps in flight."""
+    return run_campaign(_requests(design, model, conds, setup, plan), run, workers, on_done=on_heap, dask=dask)
+
+
+# ------------------------------------------------------------------ the posterior of a round
+def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.DataFrame, conds: pd.DataFrame,
+                     plan: Plan, force: bool, say: Say, first: bool = False) -> Round:
+    """The posterior after round k (locked): every heap of the model so far, the surrogates' held-out
+    error scored for the Gaussian processes alone (the last round's is scored for every surrogate)."""
+    rows = _until_round(model_rows(run, model), model, k)
+    cond_vars = informative_conditions(rows, COND_VARS)
+    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns)
+    mfile = run / MODEL_FILE
+    st = stage(run, "calibrate", f"rev{model.revision}-round-{k:02d}",
+               inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
+                       "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
+               settings={**plan.round_settings(model), **prof_set})
+    d = _dir(run, model, k)
+    if st.up_to_date() and not force:
+        meta = art.read_provenance(d / "summary.parquet")
+        return Round(k, rule, design, art.read_table(d / "summary.parquet"), art.read_table(d / "samples.parquet"),
+                     art.read_table(d / "surrogates.parquet"), meta["surrogate_ratios"], int(meta["heaps"]),
+                     {"scatter": meta["scatter"], "profile": meta["profile"]})
+    fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=plan.steps, seed=plan.seed,
+                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows,
+                        held_out_by=("gp",), say=say if first else _quiet)
+    with st.commit() as out:
+        write_posterior(out, fit, prefix=d.relative_to(st.dir).as_posix() + "/")
+    return Round(k, rule, design, fit.table, fit.samples, fit.held, fit.ratios, fit.heaps, fit.evidence, fit)
+
+
+def _quiet(message: str, err: bool = False) -> None:
+    pass
+
+
+def _until_round(rows: pd.DataFrame, model: Model, k: int) -> pd.DataFrame:
+    """The heaps a round's posterior learns from: every heap of the model but those of this calibration's
+    later rounds (a run stopped after simulating them must resume as it would have gone on)."""
+    if not {"design", "model", "run_id"} <= set(rows.columns):
+        return rows
+    later = (rows["design"] == DESIGN) & (rows["model"] == model.hash) & (rows["run_id"] >= 1000 * (k + 2))
+    return rows[~later.to_numpy()].reset_index(drop=True)
+
+
+def _effect_words(table: pd.DataFrame) -> list[str]:
+    """Each switchable effect's verdict in a word (on, off, open, undecided), in the table's order."""
+    ok = table["bf_off"].notna()
+    return [effect_verdict(b, u, d) for b, u, d in zip(table["bf_off"][ok], table["bf_upper"][ok], table["decided"][ok])]
+
+
+def _record(rnd: Round, new: int, revision: int) -> pd.DataFrame:
+    """Round ``rnd``'s rows of rounds.parquet: one per parameter, with the heaps so far, its interval, its
+    effect's Bayes factor, the surrogates' variance ratios and held-out errors."""
+    held = rnd.held[rnd.held["surrogate"] == "gp"].set_index("response") if len(rnd.held) else pd.DataFrame()
+    rmse = {r: float(held.loc[r, "rmse"]) if r in held.index else math.nan for r in (RESPONSE, FULLNESS)}
+    t = rnd.table
+    return pd.DataFrame({
+        "revision": revision, "round": rnd.index, "rule": rnd.rule, "new_heaps": new,
+        "calibration_heaps": rnd.spent, "heaps": rnd.heaps, "parameter": t["parameter"], "median": t["median"],
+        "q05": t["q05"], "q95": t["q95"], "low": t["low"], "high": t["high"], "rel_width": t["rel_width"],
+        "identified": t["identified"], "bf_off": t["bf_off"], "bf_upper": t["bf_upper"],
+        "effect": [effect_verdict(b, u, d) for b, u, d in zip(t["bf_off"], t["bf_upper"], t["decided"])],
+        "surrogate_ratio": rnd.ratios["combined"], "ratio_angle": rnd.ratios.get(RESPONSE, math.nan),
+        "ratio_profile": rnd.ratios.get(FULLNESS, math.nan), "rmse_angle": rmse[RESPONSE],
+        "rmse_profile": rmse[FULLNESS], "scatter": bool(rnd.evidence.get("scatter")),
+        "profile": bool(rnd.evidence.get("profile")), "stop": ""})
+
+
+def _say_round(rnd: Round, spent: int, say: Say) -> None:
+    t = rnd.table
+    parts = [f"{r.parameter} {r.q05:.3g}-{r.q95:.3g}" for r in t.itertuples()]
+    bf = [f"{r.parameter} Bayes factor off {'<' if r.bf_upper else ''}{r.bf_off:.2g}" for r in t.itertuples()
+          if np.isfinite(r.bf_off)]
+    say(f"round {rnd.index}: posterior on {rnd.heaps} heaps ({spent} simulated by this calibration): "
+        + "; ".join(parts + bf) + f"; surrogate/measurement variance {rnd.ratios['combined']:.2g}")
+
+
+# ------------------------------------------------------------------ the calibration
+def _plan(model: Model, conds: pd.DataFrame, budget: int, first: Optional[int], batch: Optional[int],
+          **kw) -> Plan:
+    """The settings, checked; round 0 defaults to a fifth more heaps than a surrogate needs (PILES_PER_INPUT
+    per input: some fills stand as columns or blow up), a later round to 4 per input."""
+    inputs = len(model.parameters) + len(informative_conditions(conds, COND_VARS))
+    need = heaps_needed(model, informative_conditions(conds, COND_VARS))
+    plan = Plan(int(budget), int(first or math.ceil(1.2 * need)), int(batch or 4 * inputs), **kw)
+    if plan.rule not in RULES:
+        raise CalibError(f"--rule must be one of {', '.join(RULES)}, got {plan.rule!r}")
+    if plan.repeats < 1 or plan.first < 1 or plan.batch < 1:
+        raise CalibError("--repeats, --first and --batch must be at least 1")
+    if min(plan.first, plan.budget) // plan.repeats < 2:
+        raise CalibError(f"--budget {plan.budget} leaves round 0 fewer than 2 points of {plan.repeats} heaps: "
+                         f"give at least {2 * plan.repeats} (a surrogate of {inputs} inputs wants {heaps_needed(model, [])} "
+                         "or more)")
+    return plan
+
+
+def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optional[pd.DataFrame]):
+    """The lock of the whole calibration of this model revision: its heaps and settings."""
+    mfile = run / MODEL_FILE
+    used = None
+    if rows is not None and len(rows):
+        cond_vars = informative_conditions(rows, COND_VARS)
+        used = art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]])
+    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns) if rows is not None else ({}, {})
+    return stage(run, "calibrate", f"rev{model.revision}",
+                 inputs={"results": used, "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None,
+                         **prof_in},
+                 settings={**plan.round_settings(model), "budget": plan.budget, "preset": setup["preset"],
+                           **modulus_settings(setup["modulus"]), **setup["engine_settings"], **prof_set})
+
+
+def _current_rows(run: Path, model: Model) -> Optional[pd.DataFrame]:
+    try:
+        return model_rows(run, model)
+    except CalibError:  # no heaps yet
+        return None
+
+
+@writes_run
+def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: Optional[int] = None,
+              repeats: int = 2, rule: str = "variance", walkers: int = 32, steps: int = 3000, seed: int = 0,
+              preset: Optional[str] = None, shear_modulus: Optional[float] = None, engine: Optional[str] = None,
+              workers: int = 1, dask: Optional[str] = None, scatter: Optional[bool] = None,
+              profile: Optional[bool] = None, columns: Optional[bool] = None, at_revision: Optional[int] = None,
+              force: bool = False,
+              say: Optional[Say] = None, on_heap: Optional[Callable] = None) -> CalibrateResult:
+    """Calibrate the run's current model in rounds until the posterior is stable or ``budget`` heaps are
+    simulated (see the module's docstring). Writes RUN/calibrate/rev<N>/round-<k>/ per round (design,
+    posterior), RUN/calibrate/rounds.parquet, rounds.png and point.parquet (the posterior's most probable
+    draw, which compare and diagnose simulate), and RUN/posterior/ (the last round's posterior, every
+    surrogate's held-out error). ``at_revision``: do nothing unless the model is at that revision (a
+    pipeline's step for one revision). ``on_heap(request, row)`` after each heap."""
+    say = say or plain
+    run = check_run_dir(run)
+    model = load_model(run)
+    cfg = resolve_settings(run, None, None)
+    preset, g = heap_setup(cfg, preset, shear_modulus)
+    setup = {"pre": heap_preset(preset, g), "preset": preset, "modulus": g, "engine": heap_engine(cfg, engine),
+             "engine_settings": engine_settings(cfg) if engine is None else ({} if engine == "builtin"
+                                                                              else {"engine": engine})}
+    conds = measured_conditions(run)
+    if conds.empty:
+        raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")
+    plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
+                 seed=seed, scatter=scatter, profile=profile, columns=columns)
+    if at_revision is not None and model.revision != at_revision:
+        say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
+        return CalibrateResult(_final_stage(run, model, plan, setup, None), True)
+    if _final_stage(run, model, plan, setup, _current_rows(run, model)).up_to_date() and not force:
+        return CalibrateResult(_final_stage(run, model, plan, setup, _current_rows(run, model)), True)
+    say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
+        f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
+        f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}")
+    rounds, spent, stop = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
+    return _finish(run, model, conds, plan, setup, rounds, spent, stop, say)
+
+
+def _next_pairs(plan: Plan, k: int, spent: int, short: int = 0) -> int:
+    """The pairs of round k: round 0's, a top-up of half as many again as the heaps missing, or a batch;
+    never beyond the budget."""
+    want = plan.first if k == 0 else max(math.ceil(1.5 * short), 2 * plan.repeats) if short else plan.batch
+    return min(want, plan.budget - spent) // plan.repeats
+
+
+def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) -> tuple[list[Round], int, str]:
+    """Round after round until the stop rule or the budget; returns the rounds that fitted a posterior,
+    the heaps they simulated and why they stopped."""
+    rounds: list[Round] = []
+    spent, k, short = 0, 0, 0
+    need = heaps_needed(model, informative_conditions(conds, COND_VARS))
+    while True:
+        pairs = _next_pairs(plan, k, spent, short)
+        if pairs < 2:
+            if not rounds:
+                raise CalibError(f"only {need - short} of the {spent} heaps simulated formed a heap; the surrogate "
+                                 f"needs {need}: raise --budget")
+            return rounds, spent, (f"budget: {spent} of the {plan.budget} heaps simulated, too few left for "
+                                   f"another round")
+        prev = rounds[-1] if rounds else None
+        rule = "space-filling" if prev is None else plan.rule
+        design = _round_design(run, model, k, pairs, prev, conds, plan, say)
+        spent += len(design) * plan.repeats
+        say(f"round {k}: {len(design)} points x {plan.repeats} piles ({rule})")
+        _simulate(run, design, model, conds, setup, plan, workers, dask, on_heap)
+        have = len(_until_round(model_rows(run, model), model, k))
+        short = max(need - have, 0)
+        if short:
+            say(f"round {k}: {have} heaps of the model formed a heap, the surrogate needs {need}: another "
+                "space-filling round")
+            k += 1
+            continue
+        rnd = _round_posterior(run, model, k, rule, design, conds, plan, force, say, first=prev is None)
+        rnd.spent = spent
+        rounds.append(rnd)
+        _say_round(rnd, spent, say)
+        stop = stop_reason(prev.table if prev else None, rnd.table, _effect_words(prev.table) if prev else [],
+                           _effect_words(rnd.table), bool(rnd.table["decided"].iloc[0]))
+        if stop:
+            return rounds, spent, stop
+        k += 1
+
+
+def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dict, rounds: list[Round],
+            spent: int, stop: str, say: Say) -> CalibrateResult:
+    """RUN/posterior/ from the last round (with every surrogate's held-out error), then RUN/calibrate/'s
+    rounds, figure and point under the calibration's lock."""
+    from ..plots import rounds_figure
+
+    last = rounds[-1]
+    rows = model_rows(run, model)
+    cond_vars = informative_conditions(rows, COND_VARS)
+    profile = bool(last.evidence.get("profile"))
+    used = profile_rows(run, rows, model, cond_vars) if profile else rows
+    cols = [*model.parameters, *cond_vars, RESPONSE, *([FULLNESS] if profile else [])]
+    say("the surrogates' held-out errors (GP, RSM, BP network) on every heap of the last round")
+    held = held_out(used[cols], model.parameters, effect_ranges(model), plan.seed, profile)
+    d = _dir(run, model, last.index)
+    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns)
+    mfile = run / MODEL_FILE
+    pst = stage(run, "posterior", "sample",
+                inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
+                        "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
+                settings={"calibrate": plan.round_settings(model), "round": last.index, **prof_set})
+    with pst.commit() as out:
+        for name in ("samples.parquet", "summary.parquet", "corner.png"):
+            out.bytes(name, (d / name).read_bytes())
+        out.table("surrogates.parquet", held)
+    table = pd.concat([_record(r, r.spent - (rounds[i - 1].spent if i else 0), model.revision)
+                       for i, r in enumerate(rounds)], ignore_index=True)
+    table.loc[table["round"] == last.index, "stop"] = stop
+    old = run / "calibrate" / "rounds.parquet"
+    if old.is_file():
+        prev = art.read_table(old)
+        table = pd.concat([prev[prev["revision"] != model.revision], table], ignore_index=True)
+    best = last.samples.loc[[last.samples["log_prob"].idxmax()], model.parameters].reset_index(drop=True)
+    final = _final_stage(run, model, plan, setup, rows)
+    with final.commit() as out:
+        out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)
+        out.figure("rounds.png", rounds_figure(table[table["revision"] == model.revision]))
+        out.table("point.parquet", best, model_revision=model.revision, model=list(model.effects),
+                  how="the posterior's most probable draw")
+    say(f"stopped after round {last.index}: {stop}")
+    return CalibrateResult(final, False, table[table["revision"] == model.revision].reset_index(drop=True),
+                           art.read_table(run / "posterior" / "summary.parquet"), stop, model.revision)
