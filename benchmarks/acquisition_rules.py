@@ -31,6 +31,9 @@ from calib_cli.stages import calibrate as cal
 
 TRUTH = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6}
 SIZES, FILLS = (4.0, 5.0), (50.0, 75.0, 100.0)
+PRIOR = "".join(f"[factors.{p}]\nlow = {lo}\nhigh = {hi}\n" for p, (lo, hi) in
+                {"static_friction": (0.3, 0.7), "rolling_friction": (0.1, 0.3), "restitution": (0.1, 0.5),
+                 "surface_energy": (0.0, 1.6)}.items())
 
 
 def mean_angle(p: dict, d: float, fill: float) -> float:
@@ -70,13 +73,14 @@ def lab(run: Path, seed: int) -> None:
                          "sd": piles.std(ddof=1), "n": 10})
     art.write_table(run / "measure" / "conditions.parquet", pd.DataFrame(rows))
     save_model(run, Model(("sliding_friction", "rolling_friction", "restitution", "cohesion")))
+    (run / "settings.toml").write_text(PRIOR)  # the hidden-effect lab's factor table
 
 
 def one(rule: str, seed: int, budget: int, root: Path) -> dict:
     run = root / f"{rule}-{seed}"
     lab(run, 1000 + seed)
     t0 = time.perf_counter()
-    r = cal.calibrate(run, budget=budget, rule=rule, walkers=24, steps=1500, seed=seed, say=lambda *a, **k: None)
+    r = cal.calibrate(run, budget=budget, rule=rule, walkers=24, steps=1000, seed=seed, say=lambda *a, **k: None)
     t = r.table.set_index("parameter")
     se = t.loc["surface_energy"]
     return {"rule": rule, "seed": seed, "heaps": int(r.rounds["calibration_heaps"].max()),

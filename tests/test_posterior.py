@@ -391,7 +391,21 @@ def _tiny_run(run, n_points=30, seed=0):
                          "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
                          "mean": [_heap(0.45, 0.15, 0.3, h) for h in (50.0, 100.0)], "sd": 1.0, "n": 10})
     art.write_table(run / "measure" / "conditions.parquet", meas)
+    (run / "settings.toml").write_text(TINY_FACTORS)
     return run
+
+
+#: the tiny runs' prior: the factor table over the box their heaps fill
+TINY_FACTORS = """[factors.static_friction]
+low = 0.05
+high = 1.0
+[factors.rolling_friction]
+low = 0.0
+high = 0.5
+[factors.restitution]
+low = 0.05
+high = 1.0
+"""
 
 
 @pytest.fixture(scope="module")
@@ -421,7 +435,7 @@ def test_the_stage_reruns_when_an_option_changes(done, tmp_path):
     r = posterior(run, walkers=8, steps=60, prior="heaps", **QUIET)
     rows = pd.read_parquet(run / "simulate" / "results.parquet")
     assert not r.skipped and r.table["low"].tolist() == [rows[p].min() for p in r.table["parameter"]]
-    with pytest.raises(CalibError, match="--prior must be one of effects, heaps"):
+    with pytest.raises(CalibError, match="--prior must be one of settings, effects, heaps"):
         posterior(run, prior="box", **QUIET)
     said = []
     s = posterior(run, walkers=8, steps=60, prior="heaps", scatter=True, say=lambda m, **k: said.append(m))

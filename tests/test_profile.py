@@ -99,3 +99,45 @@ def test_a_photographed_cone_measures_a_fullness_of_one_and_a_rounded_apex_more(
     rounded = measure_image(synth_heap(38, SynthOptions(apex_round_px=40), seed=1))
     assert profile.fullness(cone.profile_s, cone.profile_h) == pytest.approx(1.0, abs=0.02)
     assert profile.fullness(rounded.profile_s, rounded.profile_h) > 1.06
+
+
+# ------------------------------------------------------------------ the band fullness: shapes another rig gives
+def test_the_band_fullness_reads_straight_flanks_as_one_whatever_the_top():
+    """A cone and a truncated cone (a fill that never reached an apex) give 1; fullness reads the flat
+    top as convexity (1.23 for a top at 80 % of the cone's height). Convex and concave flanks keep their
+    sign: a parabola 1.056, a concave heap 0.895 (the band leaves out the apex, where a dome bends most)."""
+    cone = np.clip(50 - np.abs(S), 0, None)
+    for top in (50, 44, 40, 35):
+        assert profile.band_fullness(S, np.minimum(cone, top)) == pytest.approx(1.0, abs=1e-4), top
+    assert profile.fullness(S, np.minimum(cone, 40)) == pytest.approx(1.227, abs=1e-3)
+    dome = 50 * np.clip(1 - (S / 60) ** 2, 0, None)
+    assert profile.band_fullness(S, dome) == pytest.approx(1.0556, abs=1e-3)
+    assert profile.band_fullness(S, 50 * np.clip(1 - np.abs(S) / 60, 0, None) ** 2) == pytest.approx(0.8946, abs=2e-3)
+
+
+def test_a_skirt_of_single_grains_below_the_band_and_grains_beyond_the_toe_move_neither_response():
+    """A layer of grains one tenth of the heap's height spread 30 units past the toe (a skirt), and a grain
+    rolled away: both responses unchanged. A skirt reaching above 15 % of the height would move both."""
+    cone = np.clip(50 - np.abs(S), 0, None)
+    skirt = np.maximum(cone, np.where(np.abs(S) < 80, 5.0, 0.0))
+    grain = cone + np.where(np.abs(S - 80) < 3, 12.0, 0.0)
+    for shape in (skirt, grain):
+        assert profile.band_fullness(S, shape) == pytest.approx(1.0, abs=1e-9)
+        assert profile.fullness(S, shape) == pytest.approx(1.0, abs=1e-9)
+    thick = np.maximum(cone, np.where(np.abs(S) < 80, 10.0, 0.0))
+    assert profile.band_fullness(S, thick) < 0.95
+
+
+def test_the_stub_of_a_collapsed_column_is_no_heap_profile():
+    """A column's stub standing on a low heap sets the height both responses scale by: neither reads the
+    heap under it (0.75-0.77, a concave heap), which is why a pile that stands in one view is a column in
+    all (measure-angle's pile column) rather than a profile to fit."""
+    stub = np.maximum(0.7 * np.clip(50 - np.abs(S), 0, None), np.where(np.abs(S) < 6, 50.0, 0.0))
+    assert profile.band_fullness(S, stub) < 0.8 and profile.fullness(S, stub) < 0.8
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.01, 1e4), st.floats(0.01, 1e4), st.floats(-50, 50))
+def test_the_band_fullness_is_free_of_scale_and_position(ks, kh, shift):
+    h = np.minimum(50 * np.clip(1 - (S / 60) ** 2, 0, None) ** 0.7, 42.0)
+    assert profile.band_fullness(ks * (S + shift), kh * h) == pytest.approx(profile.band_fullness(S, h), rel=1e-9)

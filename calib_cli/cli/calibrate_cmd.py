@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from .common import ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, console, df_table, posterior_table, say
+from .common import AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, console, df_table, posterior_table, say
 
 
 def calibrate(
@@ -44,11 +44,10 @@ def calibrate(
                                                     "photographs were measured and some simulated fill stood).",
                                                     show_default=False)] = None,
     walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers.")] = 32,
-    steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round.")] = 3000,
+    steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round; the answer (the "
+                                       "last round's posterior) samples three to six times as many.")] = 2000,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the designs, the heaps and the sampler.")] = 0,
-    at_revision: Annotated[Optional[int], typer.Option("--at-revision", help="Do nothing unless the model is at "
-                                                       "this revision (a pipeline's step for one revision).",
-                                                       show_default=False)] = None,
+    at_revision: AtRevisionOpt = None,
     force: ForceOpt = False,
 ):
     """Calibrate the run's model in rounds: a space-filling design of heaps over its parameters and the

@@ -39,6 +39,9 @@ SettingOpt = Annotated[
     typer.Option("--setting", "-s", help="Override one setting, e.g. -s pb.alpha=0.1 (repeatable)."),
 ]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Rerun even if inputs and settings are unchanged.")]
+AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", help="Do nothing unless the model is at "
+                                                     "this revision (a pipeline's step for one revision).",
+                                                     show_default=False)]
 ResponsesOpt = Annotated[
     Optional[Path],
     typer.Option("--responses", help="CSV/Parquet of responses (factor columns in natural units + repose_angle) "
@@ -165,3 +168,16 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
     bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
     return table[["parameter", "median", "q05", "q95", "rel_width", "identified"]].assign(
         bf_off=bf, autocorr_time=table["autocorr_time"], chain_ok=table["chain_ok"])
+
+
+def other_revision(run: Path, at_revision: Optional[int]) -> bool:
+    """With --at-revision N: True (and says so) when the run's model is at another revision."""
+    if at_revision is None:
+        return False
+    from ..model import load_model
+
+    rev = load_model(check_run_dir(run)).revision
+    if rev != at_revision:
+        console.print(f"[green]✓[/] the model is at revision {rev}, this step is for revision {at_revision}: "
+                      "nothing to do")
+    return rev != at_revision

@@ -16,8 +16,8 @@ from ..stages import compare as compare_stage
 from ..stages import diagnose as diagnose_stage
 from ..stages import lab
 from ..stages import suggest as suggest_stage
-from .common import (PRESETS_HELP, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, check_run_dir, console, df_table, handle_errors,
-                     say, skipped)
+from .common import (PRESETS_HELP, AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, check_run_dir, console,
+                     df_table, handle_errors, other_revision, say, skipped)
 
 model_app = typer.Typer(help="The model: a named set of physical effects.", no_args_is_help=True)
 RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
@@ -43,8 +43,10 @@ def model_show(run: RunOpt):
 
 @model_app.command("add")
 @handle_errors
-def model_add(effect: str, run: RunOpt):
+def model_add(effect: str, run: RunOpt, at_revision: AtRevisionOpt = None):
     """Add an effect: writes a new revision of RUN/model.toml (old ones kept in RUN/model/)."""
+    if other_revision(run, at_revision):
+        return
     run = check_run_dir(run)
     m = load_model(run)
     if effect not in EFFECTS:
@@ -68,18 +70,22 @@ def model_remove(effect: str, run: RunOpt):
 
 
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3,
-            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, force: ForceOpt = False):
+            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, at_revision: AtRevisionOpt = None,
+            force: ForceOpt = False):
     """Calibrated model vs measurements per condition: residuals in units of the combined
     uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
     RMSE and chi2/dof, and the error history across model revisions.
 
-    Reads RUN/measure/conditions.parquet, RUN/invert/solution.parquet (or --set; parameters the
-    BBD held fixed keep their fixed values), RUN/model.toml (without it: the default effects plus
-    any the calibration switched on).
+    Reads RUN/measure/conditions.parquet, the calibrated point (RUN/calibrate/point.parquet, the
+    posterior's most probable draw, else RUN/invert/solution.parquet; --set overrides; parameters the
+    BBD held fixed keep their fixed values), RUN/model.toml (without it: the default effects plus any
+    the calibration switched on).
     Writes RUN/compare/residuals.parquet, adds the revision's row to RUN/compare/history.parquet
     (a rerun of the same revision replaces its row), and plots residuals.png, history.png.
     Skipped when the revision's parameters, conditions, settings and kernel are unchanged.
     """
+    if other_revision(run, at_revision):
+        return
     r = compare_stage.compare(run, set_, preset, repeats, workers, shear_modulus, force, say=say)
     if r.skipped:
         return skipped(r.stage)
@@ -94,7 +100,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
              workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None,
              alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
                                                   "candidate is tested at alpha / the number of candidates "
-                                                  "(Bonferroni).")] = 0.05, force: ForceOpt = False):
+                                                  "(Bonferroni).")] = 0.05, at_revision: AtRevisionOpt = None,
+             force: ForceOpt = False):
     """Rank the effects missing from the model by how much of the misfit each would explain
     (score test after projecting out what the current parameters absorb), with the evidence.
 
@@ -108,6 +115,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
     Runs go through the simulation cache; skipped when the comparison, parameters, settings and
     kernel are unchanged.
     """
+    if other_revision(run, at_revision):
+        return
     r = diagnose_stage.diagnose(run, set_, preset, repeats, workers, shear_modulus, alpha, force, say=say)
     if r.skipped:
         return skipped(r.stage)

@@ -123,9 +123,10 @@ def calibrate_posterior(
                                        "autocorrelation times) is burn-in.")] = 5000,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the sampler and of the surrogates' held-out "
                                       "folds: the same seed gives the same draws.")] = 0,
-    prior: Annotated[str, typer.Option("--prior", help="The uniform prior's ranges: effects (each effect's "
-                                       "own, `calib model show`) or heaps (what the model's simulated heaps "
-                                       "cover; beyond them the surrogate knows nothing).")] = "effects",
+    prior: Annotated[str, typer.Option("--prior", help="The uniform prior's ranges: settings (the run's factor "
+                                       "table, settings.toml \\[factors]: the ranges you declare plausible), effects "
+                                       "(each effect's physical bounds, `calib model show`) or heaps (what the "
+                                       "model's simulated heaps cover).")] = "settings",
     design: Annotated[int, typer.Option("--design", min=0, help="Also write RUN/posterior/design.parquet: this "
                                         "many points spread over the 90 % intervals (a Latin hypercube), to "
                                         "simulate at the measured conditions with simulate-heap --design, so "

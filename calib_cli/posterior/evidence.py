@@ -33,8 +33,12 @@ PILES_PER_INPUT = 10
 #: Jeffreys' scale for the Bayes factor of an effect off: above 3 substantial evidence it is off, below
 #: 1/10 strong evidence it is on
 BF_OFF, BF_NEEDED = 3.0, 0.1
-#: the prior ranges: each effect's own (`calib model show`), or what the model's heaps cover
-PRIORS = ("effects", "heaps")
+#: the prior ranges: the run's factor table (settings.toml [factors]: the ranges the user declares
+#: plausible for the material), each effect's own physical bounds (`calib model show`), or what the
+#: model's heaps cover
+PRIORS = ("settings", "effects", "heaps")
+#: with the settings' prior, heaps this far (a share of each range) beyond it still train the surrogates
+BOX_MARGIN = 0.05
 #: no verdict while the surrogate's variance at the posterior's draws exceeds the measured means' (its
 #: ratio r above this): the posterior's width is then the surrogate's ignorance, not the lab's evidence
 SURROGATE_RATIO_MAX = 1.0
@@ -128,12 +132,30 @@ def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
     return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
 
 
-def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE) -> GPSurrogate:
+def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE,
+                    scale: Optional[dict] = None) -> GPSurrogate:
     """The Gaussian process of the model's heaps (of their ``response``), fitted on every condition column
     the heaps have: it learns the ones that vary and records the ones they all shared (``constants_``),
-    at which a measured or suggested condition elsewhere is beyond what it knows."""
+    at which a measured or suggested condition elsewhere is beyond what it knows. Each parameter is
+    scaled by ``scale`` (the prior's ranges; default each effect's own)."""
     cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), response]
-    return GPSurrogate(model.parameters, COND_VARS, effect_ranges(model), response, seed=seed).fit(rows[cols])
+    return GPSurrogate(model.parameters, COND_VARS, scale or effect_ranges(model), response, seed=seed).fit(rows[cols])
+
+
+def settings_ranges(cfg: dict) -> dict[str, tuple[float, float]]:
+    """The factor table's ranges of a run's settings (``[factors]``): the prior the user declares."""
+    return {k: (float(v["low"]), float(v["high"])) for k, v in cfg.get("factors", {}).items()}
+
+
+def in_box(rows: pd.DataFrame, bounds: dict[str, tuple[float, float]], margin: float = BOX_MARGIN) -> pd.DataFrame:
+    """The heaps within the prior's box (widened by ``margin`` of each range): a surrogate of a narrow
+    prior learns nothing from heaps in other regimes of the heap (fills that stand, grains that bounce
+    off), only their misfit."""
+    keep = np.ones(len(rows), bool)
+    for p, (lo, hi) in bounds.items():
+        pad = margin * (hi - lo)
+        keep &= rows[p].between(lo - pad, hi + pad).to_numpy()
+    return rows[keep].reset_index(drop=True)
 
 
 # ------------------------------------------------------------------ the heap profile
@@ -169,10 +191,10 @@ def profile_available(run: Path, rows: pd.DataFrame, model: Model, cond_vars: li
 
 
 def second_response(run: Path, rows: pd.DataFrame, model: Model, conds: pd.DataFrame, seed: int,
-                    say: Say = _quiet) -> SecondResponse:
+                    say: Say = _quiet, scale: Optional[dict] = None) -> SecondResponse:
     """The heap profile's fullness as a second response: its surrogate and each condition's measured mean."""
     table, rho = measured_fullness(run, conds)
-    gp = model_surrogate(rows, model, seed, FULLNESS)
+    gp = model_surrogate(rows, model, seed, FULLNESS, scale)
     check_measured(conds, gp, run / "measure" / "conditions.parquet")  # its heaps may cover less than the angle's
     say(f"profile: each condition's photographs' mean fullness is evidence beside its angle (a photograph's two "
         f"correlate at {rho:+.2f} within a condition; a simulated pile's fullness scatters by {gp.noise_sd_:.3f})")
@@ -211,14 +233,15 @@ def measured_columns(run: Path, conds: pd.DataFrame) -> Optional[tuple[np.ndarra
     return per["sum"].to_numpy(float), per["count"].to_numpy(float)
 
 
-def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, seed: int = 0) -> tuple[
-        Optional[ColumnShare], str]:
+def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, seed: int = 0,
+                 box: Optional[dict] = None) -> tuple[Optional[ColumnShare], str]:
     """The share of piles that stood as columns as evidence (:class:`ColumnShare`), or None and why not:
-    no photographs' statuses, or no simulated heap of the model stood (or every one did)."""
+    no photographs' statuses, or no simulated heap of the model (within ``box``) stood, or every one did."""
     lab = measured_columns(run, conds)
     if lab is None:
         return None, "the angles were not measured on photographs"
     rows = model_rows(run, model, judged=True)
+    rows = in_box(rows, box) if box is not None and len(rows) else rows
     stands = (rows["status"] == "column").to_numpy() if "status" in rows.columns else np.zeros(0, bool)
     if not stands.any():
         return None, f"none of the model's {len(rows)} simulated fills stood as a column"
@@ -331,20 +354,34 @@ class PosteriorFit:
         return {"model_revision": self.model.revision, "model": list(self.model.effects),
                 "noise_sd": self.gp.noise_sd_, "length_scales": self.gp.length_scales_.to_dict(), "heaps": self.heaps,
                 "scatter": bool(self.evidence.get("scatter")), "profile": bool(self.evidence.get("profile")),
-                "columns": bool(self.evidence.get("columns")),
+                "columns": bool(self.evidence.get("columns")), "prior": self.evidence.get("prior"),
+                "bounds": self.evidence.get("bounds"),
                 "surrogate_ratios": self.ratios,
                 **({"profile_rho": s.rho, "profile_noise_sd": s.gp.noise_sd_} if s is not None else {})}
 
 
-def prior_bounds(rows: pd.DataFrame, model: Model, prior: str) -> dict[str, tuple[float, float]]:
-    """The uniform prior's ranges: the effects' own (``effects``) or what the heaps cover (``heaps``)."""
+def prior_bounds(model: Model, prior: str, rows: Optional[pd.DataFrame] = None,
+                 ranges: Optional[dict] = None) -> dict[str, tuple[float, float]]:
+    """The uniform prior's ranges (:data:`PRIORS`): the run's factor table (``ranges``, from
+    :func:`settings_ranges`; an effect it lacks takes its own bounds), each effect's own, or what the
+    heaps (``rows``) cover."""
     if prior not in PRIORS:
         raise CalibError(f"--prior must be one of {', '.join(PRIORS)}, got {prior!r}")
-    scale = effect_ranges(model)
-    return scale if prior == "effects" else {p: (float(rows[p].min()), float(rows[p].max())) for p in model.parameters}
+    own = effect_ranges(model)
+    if prior == "effects":
+        return own
+    if prior == "heaps":
+        return {p: (float(rows[p].min()), float(rows[p].max())) for p in model.parameters}
+    out = {p: tuple(map(float, (ranges or {}).get(p, own[p]))) for p in model.parameters}
+    bad = [p for p, (lo, hi) in out.items() if not (own[p][0] <= lo < hi <= own[p][1])]
+    if bad:
+        raise CalibError(f"the settings' factor range of {', '.join(bad)} ({'; '.join(f'{out[p][0]:g} to {out[p][1]:g}' for p in bad)}) "
+                         f"must lie within the effect's bounds ({'; '.join(f'{own[p][0]:g} to {own[p][1]:g}' for p in bad)}) "
+                         "and be increasing")
+    return out
 
 
-def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say):
+def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say, scale, box):
     """Which of the scatter, the profile and the column share the likelihood weighs (None: wherever they
     can be), the profile's second response and the column share; says why one is left out."""
     if profile is None:
@@ -355,7 +392,7 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
     second = None
     if profile:
         rows = profile_rows(run, rows, model, cond_vars, say)
-        second = second_response(run, rows, model, conds, seed, say)
+        second = second_response(run, rows, model, conds, seed, say, scale)
     use_scatter = gp.scatter_ is not None and scatter is not False
     if scatter and gp.scatter_ is None:
         say("[yellow]note:[/] the simulated piles scatter alike over every parameter, so the lab's scatter tells "
@@ -365,7 +402,7 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
             "parameters; it assumes the lab's piles scatter as the simulated ones do)")
     share = None
     if columns is not False:
-        share, why = column_share(run, model, gp, conds, seed)
+        share, why = column_share(run, model, gp, conds, seed, box)
         if share is None and columns:
             raise CalibError(f"the share of piles that stood as columns cannot be evidence: {why}")
         if share is None:
@@ -378,40 +415,54 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
 
 
 def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int = 32, steps: int = 5000, seed: int = 0,
-                  prior: str = "effects", scatter: Optional[bool] = None, profile: Optional[bool] = None,
-                  columns: Optional[bool] = None,
+                  prior: str = "settings", ranges: Optional[dict] = None, scatter: Optional[bool] = None,
+                  profile: Optional[bool] = None, columns: Optional[bool] = None,
                   rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
                   say: Say = _quiet) -> PosteriorFit:
     """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
-    on the run's heaps of the model (``rows``: else :func:`model_rows`). ``scatter`` / ``profile``: weigh
-    each condition's pile scatter / heap profile / share of piles that stood as columns too (None:
-    wherever the heaps and photographs allow).
-    ``held_out_by``: the surrogates whose held-out error is scored (none: empty)."""
+    on the run's heaps of the model (``rows``: else :func:`model_rows`) under a uniform ``prior``
+    (:func:`prior_bounds`; ``ranges`` the run's factor table). With the settings' prior the surrogates
+    learn from the heaps in its box and scale each parameter by it. ``scatter`` / ``profile`` /
+    ``columns``: weigh each condition's pile scatter / heap profile / share of piles that stood as
+    columns too (None: wherever the heaps and photographs allow). ``held_out_by``: the surrogates
+    whose held-out error is scored (none: empty)."""
     rows = model_rows(run, model) if rows is None else rows
+    bounds = prior_bounds(model, prior, rows, ranges)
+    scale = bounds if prior == "settings" else effect_ranges(model)
+    if prior == "settings":
+        inside = in_box(rows, bounds)
+        need = heaps_needed(model, informative_conditions(inside, COND_VARS))
+        if len(inside) < min(need, len(rows)):
+            box = "; ".join(f"{p} {lo:g} to {hi:g}" for p, (lo, hi) in bounds.items())
+            raise CalibError(f"only {len(inside)} of the {len(rows)} simulated heaps lie within the prior's ranges "
+                             f"(settings.toml [factors]: {box}); the surrogate needs {need}: simulate heaps there "
+                             "(`calib calibrate`), or give --prior effects")
+        if len(inside) < len(rows):
+            say(f"the surrogates learn from the {len(inside)} of {len(rows)} heaps within the prior's ranges")
+        rows = inside
     cond_vars = check_rows(run, rows, model)
-    params, scale = model.parameters, effect_ranges(model)
-    bounds = prior_bounds(rows, model, prior)
-    gp = model_surrogate(rows, model, seed)
+    params = model.parameters
+    gp = model_surrogate(rows, model, seed, scale=scale)
     check_measured(conds, gp, run / "measure" / "conditions.parquet")
     rows, second, share, evidence = _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
-                                              seed, say)
+                                              seed, say, scale, bounds if prior == "settings" else None)
     cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else [])]
     held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
     post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                scatter=evidence["scatter"], second=second, columns=share)
     ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
     table = verdicts(post.summary(), post.samples_, ratios["combined"])
+    evidence.update(prior=prior, bounds=bounds)
     return PosteriorFit(model, table, post.samples_.assign(log_prob=post.log_prob_), held, gp, second, rows, ratios,
                         evidence, post)
 
 
-def extrapolation_note(rows: pd.DataFrame, model: Model) -> str:
+def extrapolation_note(rows: pd.DataFrame, model: Model, bounds: dict[str, tuple[float, float]]) -> str:
     """Names the parameters whose prior range the heaps cover less than 80 % of ("" if none)."""
-    short = [f"{e.parameter} {rows[e.parameter].min():.3g} to {rows[e.parameter].max():.3g} of {e.low:g} to {e.high:g}"
-             for e in (EFFECTS[n] for n in model.effects)
-             if np.ptp(rows[e.parameter].to_numpy(float)) < 0.8 * (e.high - e.low)]
+    short = [f"{p} {rows[p].min():.3g} to {rows[p].max():.3g} of {lo:g} to {hi:g}" for p, (lo, hi) in bounds.items()
+             if np.ptp(np.clip(rows[p].to_numpy(float), lo, hi)) < 0.8 * (hi - lo)]
     return (f"[yellow]note:[/] the heaps cover {'; '.join(short)}: beyond them the surrogate knows nothing, and the "
-            "posterior there stays as wide as the prior (--prior heaps keeps it to what the heaps cover)"
+            "posterior there stays as wide as the prior (`calib calibrate` simulates heaps over the whole prior)"
             if short else "")
 
 

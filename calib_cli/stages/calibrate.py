@@ -27,9 +27,9 @@ from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
 from ..posterior.adaptive import RULES, acquire, first_design, stop_reason
 from ..posterior.calibrate import mean_variance
-from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_ranges, effect_verdict, fit_posterior,
-                                  heaps_needed, held_out, model_rows, model_surrogate, evidence_lock, profile_rows,
-                                  second_response, write_posterior)
+from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
+                                  heaps_needed, in_box, model_rows, model_surrogate, prior_bounds,
+                                  profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
 from ..requests import (COND_VARS, condition_from_row, content_seed, engine_settings, heap_engine, heap_preset,
                         heap_setup, modulus_settings)
@@ -51,18 +51,20 @@ class Plan:
     repeats: int = 2
     rule: str = "variance"
     walkers: int = 32
-    steps: int = 3000
+    steps: int = 2000
     seed: int = 0
     scatter: Optional[bool] = None
     profile: Optional[bool] = None
     columns: Optional[bool] = None
+    bounds: dict = field(default_factory=dict)  # the prior: the run's factor table
 
     def round_settings(self, model: Model) -> dict:
         """What a round's design and posterior depend on (not the budget: a larger budget goes on from
         the rounds a smaller one finished)."""
         return {"first": self.first, "batch": self.batch, "repeats": self.repeats, "rule": self.rule,
                 "walkers": self.walkers, "steps": self.steps, "seed": self.seed, "scatter": self.scatter,
-                "profile": self.profile, "columns": self.columns, "model": model.hash}
+                "profile": self.profile, "columns": self.columns, "model": model.hash,
+                "bounds": {k: list(v) for k, v in self.bounds.items()}}
 
 
 @dataclass
@@ -142,7 +144,7 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
     if st.up_to_date():
         return art.read_table(path)
     if prev is None:
-        design = first_design(effect_ranges(model), conds["condition_id"].astype(str).tolist(), pairs, plan.seed + k)
+        design = first_design(plan.bounds, conds["condition_id"].astype(str).tolist(), pairs, plan.seed + k)
     else:
         design = acquire(_surrogates(run, model, prev, conds, plan), prev.samples, conds, pairs, plan.repeats,
                          plan.rule, plan.seed + k)
@@ -158,12 +160,13 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
     if prev.fit is not None:
         gp, second = prev.fit.gp, prev.fit.second
     else:
-        rows = _until_round(model_rows(run, model), model, prev.index)
-        gp = model_surrogate(rows, model, plan.seed)
+        rows = in_box(_until_round(model_rows(run, model), model, prev.index), plan.bounds)
+        gp = model_surrogate(rows, model, plan.seed, scale=plan.bounds)
         second = None
         if prev.evidence.get("profile"):
             cond_vars = informative_conditions(rows, COND_VARS)
-            second = second_response(run, profile_rows(run, rows, model, cond_vars), model, conds, plan.seed)
+            second = second_response(run, profile_rows(run, rows, model, cond_vars), model, conds, plan.seed,
+                                     scale=plan.bounds)
     out = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_))]
     if second is not None:
         out.append((second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_)))
@@ -200,7 +203,7 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
                      art.read_table(d / "surrogates.parquet"), meta["surrogate_ratios"], int(meta["heaps"]),
                      {"scatter": meta["scatter"], "profile": meta["profile"]})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=plan.steps, seed=plan.seed,
-                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows,
+                        ranges=plan.bounds, scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows,
                         held_out_by=("gp",), say=say if first else _quiet)
     with st.commit() as out:
         write_posterior(out, fit, prefix=d.relative_to(st.dir).as_posix() + "/")
@@ -296,7 +299,7 @@ def _current_rows(run: Path, model: Model) -> Optional[pd.DataFrame]:
 
 @writes_run
 def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: Optional[int] = None,
-              repeats: int = 2, rule: str = "variance", walkers: int = 32, steps: int = 3000, seed: int = 0,
+              repeats: int = 2, rule: str = "variance", walkers: int = 32, steps: int = 2000, seed: int = 0,
               preset: Optional[str] = None, shear_modulus: Optional[float] = None, engine: Optional[str] = None,
               workers: int = 1, dask: Optional[str] = None, scatter: Optional[bool] = None,
               profile: Optional[bool] = None, columns: Optional[bool] = None, at_revision: Optional[int] = None,
@@ -320,7 +323,8 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     if conds.empty:
         raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")
     plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
-                 seed=seed, scatter=scatter, profile=profile, columns=columns)
+                 seed=seed, scatter=scatter, profile=profile, columns=columns,
+                 bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
     if at_revision is not None and model.revision != at_revision:
         say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
         return CalibrateResult(_final_stage(run, model, plan, setup, None), True)
@@ -360,7 +364,7 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         spent += len(design) * plan.repeats
         say(f"round {k}: {len(design)} points x {plan.repeats} piles ({rule})")
         _simulate(run, design, model, conds, setup, plan, workers, dask, on_heap)
-        have = len(_until_round(model_rows(run, model), model, k))
+        have = len(in_box(_until_round(model_rows(run, model), model, k), plan.bounds))
         short = max(need - have, 0)
         if short:
             say(f"round {k}: {have} heaps of the model formed a heap, the surrogate needs {need}: another "
@@ -378,31 +382,50 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         k += 1
 
 
-def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dict, rounds: list[Round],
-            spent: int, stop: str, say: Say) -> CalibrateResult:
-    """RUN/posterior/ from the last round (with every surrogate's held-out error), then RUN/calibrate/'s
-    rounds, figure and point under the calibration's lock."""
-    from ..plots import rounds_figure
+#: the final posterior (the answer) samples FINAL_LONGER times a round's steps, longer still where an effect's
+#: Bayes factor is only bounded above BF_RESOLUTION (no draw near its neutral value, and too few draws to say
+#: the bound is below Jeffreys' 0.1), at most MAX_LONGER times: on the hidden-cohesion lab a round's 3000 steps
+#: moved an interval's end by up to 0.03 against 18000 steps
+FINAL_LONGER, BF_RESOLUTION, MAX_LONGER = 3, 0.05, 6
 
-    last = rounds[-1]
+
+def _final_steps(last: Round, plan: Plan) -> int:
+    t = last.table
+    bound = t["bf_upper"].astype(bool) & (t["bf_off"] > BF_RESOLUTION)
+    need = math.ceil(float(t.loc[bound, "bf_off"].max()) / BF_RESOLUTION) if bound.any() else 1
+    return plan.steps * min(MAX_LONGER, max(FINAL_LONGER, need))
+
+
+def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, last: Round,
+                           say: Say) -> pd.DataFrame:
+    """RUN/posterior/: the last round's heaps and evidence, sampled longer (:func:`_final_steps`), with every
+    surrogate's held-out error; returns its draws."""
     rows = model_rows(run, model)
-    cond_vars = informative_conditions(rows, COND_VARS)
-    profile = bool(last.evidence.get("profile"))
-    used = profile_rows(run, rows, model, cond_vars) if profile else rows
-    cols = [*model.parameters, *cond_vars, RESPONSE, *([FULLNESS] if profile else [])]
-    say("the surrogates' held-out errors (GP, RSM, BP network) on every heap of the last round")
-    held = held_out(used[cols], model.parameters, effect_ranges(model), plan.seed, profile)
-    d = _dir(run, model, last.index)
+    cond_vars = informative_conditions(in_box(rows, plan.bounds), COND_VARS)
+    steps = _final_steps(last, plan)
+    say(f"the answer: the last round's posterior sampled {steps} steps (a round's {plan.steps}), with every "
+        "surrogate's held-out error")
     prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns)
     mfile = run / MODEL_FILE
     pst = stage(run, "posterior", "sample",
                 inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                         "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
-                settings={"calibrate": plan.round_settings(model), "round": last.index, **prof_set})
+                settings={"calibrate": plan.round_settings(model), "round": last.index, "steps": steps, **prof_set})
+    fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=steps, seed=plan.seed, ranges=plan.bounds,
+                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows)
     with pst.commit() as out:
-        for name in ("samples.parquet", "summary.parquet", "corner.png"):
-            out.bytes(name, (d / name).read_bytes())
-        out.table("surrogates.parquet", held)
+        write_posterior(out, fit)
+    return fit.samples
+
+
+def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dict, rounds: list[Round],
+            spent: int, stop: str, say: Say) -> CalibrateResult:
+    """RUN/posterior/ from the last round, then RUN/calibrate/'s rounds, figure and point (the final
+    posterior's most probable draw) under the calibration's lock."""
+    from ..plots import rounds_figure
+
+    last = rounds[-1]
+    samples = _write_final_posterior(run, model, conds, plan, last, say)
     table = pd.concat([_record(r, r.spent - (rounds[i - 1].spent if i else 0), model.revision)
                        for i, r in enumerate(rounds)], ignore_index=True)
     table.loc[table["round"] == last.index, "stop"] = stop
@@ -410,8 +433,8 @@ def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dic
     if old.is_file():
         prev = art.read_table(old)
         table = pd.concat([prev[prev["revision"] != model.revision], table], ignore_index=True)
-    best = last.samples.loc[[last.samples["log_prob"].idxmax()], model.parameters].reset_index(drop=True)
-    final = _final_stage(run, model, plan, setup, rows)
+    best = samples.loc[[samples["log_prob"].idxmax()], model.parameters].reset_index(drop=True)
+    final = _final_stage(run, model, plan, setup, model_rows(run, model))
     with final.commit() as out:
         out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)
         out.figure("rounds.png", rounds_figure(table[table["revision"] == model.revision]))

@@ -15,10 +15,10 @@ from ..campaign import RESULTS
 from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import MODEL_FILE, load_model
-from ..posterior.evidence import (PRIORS, RESPONSE, check_rows, extrapolation_note, fit_posterior, model_rows,
-                                  evidence_lock, write_posterior)
+from ..posterior.evidence import (PRIORS, RESPONSE, check_rows, evidence_lock, extrapolation_note, fit_posterior,
+                                  model_rows, prior_bounds, settings_ranges, write_posterior)
 from ..posterior.suggest import region_design
-from .common import Result, Say, check_run_dir, plain, stage, writes_run
+from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
 
 @dataclass
@@ -58,14 +58,15 @@ class PosteriorStageResult(Result):
 
 
 @writes_run
-def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "effects",
+def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "settings",
               force: bool = False, say: Optional[Say] = None, design: int = 0,
               scatter: Optional[bool] = None, profile: Optional[bool] = None,
               columns: Optional[bool] = None) -> PosteriorStageResult:
     """Sample the posterior of the current model's parameters given every measured condition, through
     Gaussian processes trained on the run's simulated heaps of the model
-    (:func:`~calib_cli.posterior.evidence.fit_posterior`); the prior is uniform over each effect's range
-    (``prior="effects"``) or over the range the heaps cover (``"heaps"``). Writes RUN/posterior/
+    (:func:`~calib_cli.posterior.evidence.fit_posterior`); the prior is uniform over the run's factor table
+    (``prior="settings"``: settings.toml's [factors]), each effect's range (``"effects"``) or the range the
+    heaps cover (``"heaps"``). Writes RUN/posterior/
     samples.parquet, summary.parquet, surrogates.parquet (held-out RMSE of the GP, RSM and BP network)
     and corner.png; with ``design`` N, also design.parquet: N points over the 90 % box
     (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``. ``scatter`` /
@@ -84,6 +85,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     rows = model_rows(run, model)
     cond_vars = check_rows(run, rows, model)
     used = rows[[*model.parameters, *cond_vars, RESPONSE]]
+    ranges = settings_ranges(resolve_settings(run, None, None))
+    bounds = prior_bounds(model, prior, rows, ranges)
     mfile = run / MODEL_FILE
     # a heap's fullness follows from its run hash (its side view) and the code's version: the rows and how many
     # of them have one stand for it
@@ -92,15 +95,17 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                inputs={"results": art.Rows(run / RESULTS, used), "conditions": run / "measure" / "conditions.parquet",
                        "model": mfile if mfile.is_file() else None, **prof_in},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "prior": prior,
+                         "bounds": bounds,
                          **({"design": design} if design else {}), "scatter": scatter, **prof_set})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
-    note = extrapolation_note(rows, model) if prior == "effects" else ""
+    note = extrapolation_note(rows, model, bounds) if prior != "heaps" else ""
     if note:
         say(note)
     say(f"posterior of model revision {model.revision} ({', '.join(model.parameters)}): a Gaussian process on "
         f"{len(rows)} simulated heaps, {len(conds)} measured condition(s), {walkers} walkers x {steps} steps")
-    fit = fit_posterior(run, model, conds, walkers=walkers, steps=steps, seed=seed, prior=prior, scatter=scatter,
+    fit = fit_posterior(run, model, conds, walkers=walkers, steps=steps, seed=seed, prior=prior, ranges=ranges,
+                        scatter=scatter,
                         profile=profile, columns=columns, rows=rows, say=say)
     with st.commit() as out:
         write_posterior(out, fit)

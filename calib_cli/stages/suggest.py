@@ -23,7 +23,7 @@ from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_r
 from ..requests import engine_settings, heap_setup, modulus_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from ..measurements import measured_conditions
-from ..posterior.evidence import RESPONSE, check_rows, model_rows, model_surrogate, profile_rows
+from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
 from .compare import model_and_theta
 from .diagnose import _signatures
@@ -91,6 +91,15 @@ def _diagnosed(run: Path, model: Model, measured: pd.DataFrame):
     return J, G
 
 
+def _scale(run: Path) -> Optional[dict]:
+    """The posterior's prior box where it was the settings' (its surrogates scaled by it and learnt from the
+    heaps inside it), else None (each effect's own ranges)."""
+    prov = art.read_provenance(run / "posterior" / "summary.parquet")
+    if prov.get("prior") != "settings" or not prov.get("bounds"):
+        return None
+    return {k: tuple(v) for k, v in prov["bounds"].items()}
+
+
 def _surrogate_at(gp: GPSurrogate, draws: pd.DataFrame, cand: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """The surrogate's angle at every posterior draw under each candidate (candidates, draws), and its
     own variance there (the mean over the draws); NaN where a candidate sets a condition variable
@@ -116,7 +125,7 @@ def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measu
     fullness scatter and its correlation with the angle, as a new condition would be measured."""
     table, rho = measured_fullness(run, measured)
     ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(table["sd"].to_numpy(float) ** 2))), rho
-    mu_f, _ = _surrogate_at(model_surrogate(rows, model, response=FULLNESS), ev.draws_frame(), cand)
+    mu_f, _ = _surrogate_at(model_surrogate(rows, model, response=FULLNESS, scale=_scale(run)), ev.draws_frame(), cand)
     return np.stack([mu, mu_f], axis=2)
 
 
@@ -323,6 +332,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say) \
         if simulate else None
     rows = model_rows(run, model)
+    scale = _scale(run)
+    rows = in_box(rows, scale) if scale else rows  # the heaps the posterior's surrogates learnt from
     cond_vars = check_rows(run, rows, model)
     sens, res = run / "diagnose" / "sensitivities.parquet", run / "compare" / "residuals.parquet"
     mfile = run / MODEL_FILE
@@ -342,7 +353,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if st.up_to_date() and not force:
         return SuggestResult(st, True, top=top)
     ev, notes = _evidence(run, model, measured, samples)
-    gp = model_surrogate(rows, model)
+    gp = model_surrogate(rows, model, scale=scale)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
         f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)"
         + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
