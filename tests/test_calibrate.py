@@ -288,3 +288,16 @@ def test_a_bayes_factor_only_bounded_is_resolved_by_sampling_the_final_posterior
     se = r.table.set_index("parameter").loc["surface_energy"]
     assert last["bf_upper"] and any("the answer: the last round's posterior sampled" in m for m in said)
     assert se["q05"] > 0.5 and se["bf_off"] < last["bf_off"]
+
+
+@pytest.mark.parametrize("argv", [["compare"], ["diagnose"], ["model", "add", "cohesion"]])
+def test_a_pipeline_step_for_another_revision_does_nothing(lab, argv):
+    """compare, diagnose and model add take --at-revision as calibrate does: a rerun of a whole loop's
+    pipeline skips the steps of the revisions it has passed instead of redoing them on the current one."""
+    from calib_cli.cli import app
+
+    run, calls = lab
+    r = CliRunner().invoke(app, [*argv, "--run", str(run), "--at-revision", "1"], env={"COLUMNS": "160"})
+    assert r.exit_code == 0, r.output
+    assert "the model is at revision 0, this step is for revision 1: nothing to do" in " ".join(r.output.split())
+    assert not calls and not (run / "model.toml").exists()

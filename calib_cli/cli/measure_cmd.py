@@ -18,7 +18,9 @@ def measure_angle(
     run: RunOpt,
     images: Annotated[Optional[Path], typer.Option(help="Folder of heap photographs (PNG/JPEG/TIFF/BMP).")] = None,
     conditions: Annotated[Optional[Path], typer.Option(help="CSV: image, condition_id [, condition variables, floor "
-                          "and its floor_* values]. Without it all images are one condition.")] = None,
+                          "and its floor_* values, pile]. pile names the pile a photograph shows, where each was "
+                          "photographed from several sides: a pile that stands as a column in one view is a column "
+                          "in all. Without the file all images are one condition.")] = None,
     angles: Annotated[Optional[Path], typer.Option(help="Instead of images: a CSV of angles already measured "
                       "(image, repose_angle in (0, 90) deg [, condition_id]), e.g. the paper's Table 1; "
                       "--conditions joins on its image column.")] = None,

@@ -115,14 +115,29 @@ def _signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, prese
 
 
 def _ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]:
-    """Each calibrated parameter's range, in the model's order: the BBD's, else the effect's own."""
+    """Each calibrated parameter's range, in the model's order: the BBD's, else the prior the posterior of
+    this revision sampled (``calibrate``'s: the settings' factor table), else the effect's own."""
     # the current parameters can absorb misfit only within the ranges the calibration searched
     sp = space_from_design(run / "bbd" / "design.parquet")
+    prior = _posterior_ranges(run, model)
     ranges = {}
     for e in model.effects:  # in J's column order
         q = EFFECTS[e].parameter
-        ranges[q] = (sp[q].low, sp[q].high) if sp is not None and q in sp.names else (EFFECTS[e].low, EFFECTS[e].high)
+        ranges[q] = ((sp[q].low, sp[q].high) if sp is not None and q in sp.names else prior.get(q)
+                     or (EFFECTS[e].low, EFFECTS[e].high))
     return ranges
+
+
+def _posterior_ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]:
+    """The prior ranges of the posterior of the current model revision (RUN/posterior/summary.parquet's
+    low and high), where there is one and no Box-Behnken design (the paper's chain) sets them."""
+    path = run / "posterior" / "summary.parquet"
+    if (run / "bbd" / "design.parquet").is_file() or not path.is_file():
+        return {}
+    if art.read_provenance(path).get("model_revision") != model.revision:
+        return {}
+    t = art.read_table(path)
+    return {r.parameter: (float(r.low), float(r.high)) for r in t.itertuples()}
 
 
 def _rank(run: Path, model: Model, theta: dict, res: pd.DataFrame, conds: pd.DataFrame, b, J, G, G_se, starts,
@@ -219,10 +234,12 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     conds = measured_conditions(run)
     res = current_residuals(run, model, conds)
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
+    prior = _posterior_ranges(run, model)  # in the lock only where they set the ranges: older locks stay valid
     st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
-                             **engine_settings(resolve_settings(run, None, None))})
+                             **engine_settings(resolve_settings(run, None, None)),
+                             **({"ranges": prior} if prior else {})})
     if st.up_to_date() and not force:
         return DiagnoseResult(st, True)
     cands = model.candidates
