@@ -118,11 +118,16 @@ def rounds_figure(rounds):
     for p in params:
         r = rounds[(rounds["parameter"] == p) & rounds["bf_off"].notna()]
         if len(r):
-            ax.semilogy(r["heaps"], r["bf_off"].clip(lower=1e-4), "o-", ms=3, label=f"Bayes factor off ({p})")
+            line, = ax.semilogy(r["heaps"], r["bf_off"].clip(lower=1e-4), "o-", ms=3, label=f"Bayes factor off ({p})")
+            bound = r[r["bf_upper"].astype(bool)] if "bf_upper" in r.columns else r.iloc[:0]
+            if len(bound):  # no draw near the neutral value: an upper bound, drawn hollow
+                ax.semilogy(bound["heaps"], bound["bf_off"].clip(lower=1e-4), "o", ms=6, mfc="white",
+                            color=line.get_color(), label="  (hollow: an upper bound)")
     ax.axhline(1.0, color="k", lw=0.6)
     ax.axhline(0.1, color="tab:red", lw=0.6, ls="--")
     ax.axhline(3.0, color="tab:green", lw=0.6, ls="--")
     ax.set_xlabel("heaps the posterior learnt from")
+    ax.set_title("ratio above 1: no verdict; Bayes factor below 0.1 (red): on, above 3 (green): off", fontsize=8)
     ax.legend(fontsize=7)
     for extra in list(axes.flat)[n:]:
         extra.axis("off")

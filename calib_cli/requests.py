@@ -64,6 +64,30 @@ def engine_settings(cfg: dict) -> dict:
     return {} if engine == "builtin" else {"engine": engine}
 
 
+def check_engine(engine: str, mpi: int = 1, shape: str = "sphere") -> tuple[str, ...]:
+    """The grain shapes, after checking that the engine can run them (its extra installed, a GPU there)."""
+    if engine not in ("builtin", "lammps", "gpu"):
+        raise CalibError(f"unknown engine {engine!r}: builtin, lammps or gpu")
+    if mpi > 1 and engine != "lammps":
+        raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
+    from .engines.clumps import parse_shapes
+
+    shapes = parse_shapes(shape)
+    if shapes != SPHERES and engine != "lammps":
+        raise CalibError("--shape needs --engine lammps: the built-in kernel and the GPU engine have spheres only")
+    if shapes != SPHERES and mpi > 1:
+        raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
+    if engine == "lammps":
+        from .engines.lammps import open_lammps
+
+        open_lammps().close()  # fail now, with the extra named, not after the first run
+    if engine == "gpu":
+        from .dem.gpu import cuda_module
+
+        cuda_module()  # fail now: no GPU, or no CUDA driver
+    return shapes
+
+
 def heap_setup(cfg: dict, preset: Optional[str], shear_modulus: Optional[float]) -> tuple[str, Optional[float]]:
     """The preset and shear modulus of a command's heaps: the option where given, else the run's
     settings (``[heap]`` preset and shear_modulus), else ``default`` at its own reduced modulus.

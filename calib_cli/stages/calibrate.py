@@ -31,8 +31,8 @@ from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdi
                                   heaps_needed, in_box, model_rows, model_surrogate, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
-from ..requests import (COND_VARS, condition_from_row, content_seed, engine_settings, heap_engine, heap_preset,
-                        heap_setup, modulus_settings)
+from ..requests import (COND_VARS, check_engine, condition_from_row, content_seed, engine_settings, heap_engine,
+                        heap_preset, heap_setup, modulus_settings)
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
 #: the results rows' design label of every heap a calibration's rounds simulate
@@ -314,20 +314,21 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     say = say or plain
     run = check_run_dir(run)
     model = load_model(run)
+    if at_revision is not None and model.revision != at_revision:
+        say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
+        return CalibrateResult(stage(run, "calibrate", f"rev{model.revision}"), True)
     cfg = resolve_settings(run, None, None)
     preset, g = heap_setup(cfg, preset, shear_modulus)
     setup = {"pre": heap_preset(preset, g), "preset": preset, "modulus": g, "engine": heap_engine(cfg, engine),
              "engine_settings": engine_settings(cfg) if engine is None else ({} if engine == "builtin"
                                                                               else {"engine": engine})}
+    check_engine(setup["engine"])
     conds = measured_conditions(run)
     if conds.empty:
         raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")
     plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
                  seed=seed, scatter=scatter, profile=profile, columns=columns,
                  bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
-    if at_revision is not None and model.revision != at_revision:
-        say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
-        return CalibrateResult(_final_stage(run, model, plan, setup, None), True)
     if _final_stage(run, model, plan, setup, _current_rows(run, model)).up_to_date() and not force:
         return CalibrateResult(_final_stage(run, model, plan, setup, _current_rows(run, model)), True)
     say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
@@ -339,7 +340,9 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
 
 def _next_pairs(plan: Plan, k: int, spent: int, short: int = 0) -> int:
     """The pairs of round k: round 0's, a top-up of half as many again as the heaps missing, or a batch;
-    never beyond the budget."""
+    never beyond the budget, and no later round of less than half a batch (a few heaps move nothing)."""
+    if k and not short and plan.budget - spent < plan.batch / 2:
+        return 0
     want = plan.first if k == 0 else max(math.ceil(1.5 * short), 2 * plan.repeats) if short else plan.batch
     return min(want, plan.budget - spent) // plan.repeats
 

@@ -14,7 +14,8 @@ from .. import artifacts as art
 from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
 from ..dem.heap import PARAMETERS, Preset, interactions
 from ..errors import CalibError
-from ..requests import (build_requests, heap_engine, heap_preset, heap_setup, make_condition, modulus_note, parse_pairs,
+from ..requests import (build_requests, check_engine, heap_engine, heap_preset, heap_setup, make_condition, modulus_note,
+                        parse_pairs,
                         parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
@@ -108,30 +109,6 @@ class SimulateResult:
         return out
 
 
-def _engine(engine: str, mpi: int, shape: str) -> tuple[str, ...]:
-    """The grain shapes, after checking that the engine can run them."""
-    if engine not in ("builtin", "lammps", "gpu"):
-        raise CalibError(f"unknown engine {engine!r}: builtin, lammps or gpu")
-    if mpi > 1 and engine != "lammps":
-        raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
-    from ..engines.clumps import SPHERES, parse_shapes
-
-    shapes = parse_shapes(shape)
-    if shapes != SPHERES and engine != "lammps":
-        raise CalibError("--shape needs --engine lammps: the built-in kernel and the GPU engine have spheres only")
-    if shapes != SPHERES and mpi > 1:
-        raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
-    if engine == "lammps":
-        from ..engines.lammps import open_lammps
-
-        open_lammps().close()  # fail now, with the extra named, not after the first run
-    if engine == "gpu":
-        from ..dem.gpu import cuda_module
-
-        cuda_module()  # fail now: no GPU, or no CUDA driver
-    return shapes
-
-
 def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[int, dict]], str, str]:
     """(run id, parameters) of every design row (the fixed values for what it lacks), or of one point;
     with absent effects pinned at their neutral values once the run has a model file."""
@@ -192,7 +169,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     run = check_run_dir(run)
     cfg = resolve_settings(run, None, None)
     engine = heap_engine(cfg, engine)
-    shapes = _engine(engine, mpi, shape)
+    shapes = check_engine(engine, mpi, shape)
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus)
     cond = make_condition(pre.condition, pairs(condition, "condition"))
