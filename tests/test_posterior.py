@@ -703,3 +703,45 @@ def test_a_pile_that_stands_in_one_view_is_a_column_in_all(tmp_path):
     art.write_table(tmp_path / "measure" / "angles.parquet", out)
     k, n = measured_columns(tmp_path, pd.DataFrame({"condition_id": ["c1"]}))
     assert (k[0], n[0]) == (1.0, 3.0)
+
+
+# ------------------------------------------------------------------ averaging over an effect on and off
+def test_the_answer_averages_an_effect_on_and_off_by_its_bayes_factor():
+    """A lab with no cohesion whose angle rolling friction and surface energy raise alike: with surface
+    energy free (>= 0) the posterior trades a little cohesion for less rolling friction and its interval
+    can miss the truth; averaged by P(off) = B / (1 + B) it holds rolling friction's truth and surface
+    energy's zero, keeps the Bayes factor of the model with it free, and its most probable draw is the
+    off model's."""
+    from calib_cli.posterior.evidence import PosteriorFit, averaged, most_probable, verdicts
+
+    rng = np.random.default_rng(3)
+    bounds = {"rolling_friction": (0.05, 0.3), "surface_energy": (0.0, 1.0)}
+    angle = lambda rf, se, h: 22 + 40 * rf + 8 * se + 0.05 * h  # noqa: E731
+    rf, se = rng.uniform(0.05, 0.3, 60), rng.uniform(0.0, 1.0, 60)
+    rows = pd.DataFrame([{"rolling_friction": r, "surface_energy": s, "fill_height_mm": h, "particle_d_min_mm": 4.0,
+                          "repose_angle": angle(r, s, h) + rng.normal(0, 1.0)} for r, s in zip(rf, se) for h in HEIGHTS])
+    gp = GPSurrogate(list(bounds), ["particle_d_min_mm", "fill_height_mm"], bounds).fit(rows)
+    measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "particle_d_min_mm": 4.0, "sd": 1.0, "n": 10,
+                             "mean": angle(0.15, 0.0, HEIGHTS)})
+    post = calibrate_posterior(gp, measured, bounds, n_walkers=16, n_steps=1500, seed=0)
+    table = verdicts(post.summary(), post.samples_, 0.3)
+    fit = PosteriorFit(None, table, post.samples_.assign(log_prob=post.log_prob_), pd.DataFrame(), gp, None, rows,
+                       {"combined": 0.3}, {"scatter": False}, post)
+    bf = float(table.set_index("parameter").loc["surface_energy", "bf_off"])
+    assert table.set_index("parameter").loc["rolling_friction", "q95"] < 0.15  # the free model misses it
+    assert bf > 1 and not table.set_index("parameter").loc["surface_energy", "bf_upper"]
+    avg = averaged(fit, measured, bounds, None, walkers=16, steps=1500, seed=0)
+    t = avg.table.set_index("parameter")
+    p_off = bf / (1 + bf)
+    assert avg.averaged["p_off"] == pytest.approx(p_off) and t.loc["surface_energy", "p_off"] == pytest.approx(p_off)
+    assert t.loc["surface_energy", "bf_off"] == pytest.approx(bf)  # the free model's factor, unchanged
+    assert avg.samples["off"].mean() == pytest.approx(p_off, abs=1 / len(avg.samples) + 1e-9)
+    assert (avg.samples.loc[avg.samples["off"], "surface_energy"] == 0).all()
+    assert t.loc["rolling_friction", "q05"] <= 0.15 <= t.loc["rolling_friction", "q95"]
+    assert t.loc["surface_energy", "q05"] == 0.0 and "average cohesion on and off" in t.loc["surface_energy", "verdict"]
+    best = most_probable(avg.samples, list(bounds))
+    assert best.loc[0, "surface_energy"] == (0.0 if p_off > 0.5 else best.loc[0, "surface_energy"])
+    # a Bayes factor that is only a bound averages nothing
+    bound = fit.table.assign(bf_upper=True)
+    from dataclasses import replace
+    assert averaged(replace(fit, table=bound), measured, bounds, None, walkers=16, steps=200, seed=0).averaged == {}

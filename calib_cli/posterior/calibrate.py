@@ -89,6 +89,35 @@ class PosteriorResult:
         return pd.DataFrame(rows)
 
 
+def averaged_draws(on: pd.DataFrame, off: pd.DataFrame, p_off: float, seed: int = 0) -> pd.DataFrame:
+    """Draws of the posterior averaged over an effect on and off (Bayesian model averaging): a share
+    ``p_off`` of them from the posterior with the effect switched off (``off``, its parameter at the
+    neutral value), the rest from the one with it free (``on``), as many as ``on`` holds. Column
+    ``off`` says which."""
+    rng = np.random.default_rng(seed)
+    n = len(on)
+    k = int(round(np.clip(p_off, 0.0, 1.0) * n))
+    take = lambda df, m: df.iloc[rng.choice(len(df), m, replace=m > len(df))] if m else df.iloc[:0]  # noqa: E731
+    return pd.concat([take(on, n - k).assign(off=False), take(off, k).assign(off=True)], ignore_index=True)
+
+
+def summarise(draws: pd.DataFrame, bounds: Mapping[str, tuple[float, float]], chains: pd.DataFrame,
+              threshold: float = IDENTIFIABLE_FRACTION) -> pd.DataFrame:
+    """:meth:`PosteriorResult.summary` of other draws (an averaged posterior's): their quantiles, the chains'
+    diagnostics (autocorrelation time, effective draws, acceptance) from ``chains``, a summary."""
+    diag = chains.set_index("parameter")
+    rows = []
+    for p, (lo, hi) in bounds.items():
+        s = draws[p].to_numpy(float)
+        q05, q50, q95 = np.quantile(s, [0.05, 0.5, 0.95])
+        rel = (q95 - q05) / (hi - lo)
+        rows.append({"parameter": p, "mean": float(s.mean()), "median": float(q50), "q05": float(q05),
+                     "q95": float(q95), "low": lo, "high": hi, "rel_width": float(rel),
+                     "identified": bool(rel <= threshold),
+                     **{c: diag.loc[p, c] for c in ("autocorr_time", "n_eff", "chain_ok", "acceptance")}})
+    return pd.DataFrame(rows)
+
+
 def savage_dickey(draws, value: float, low: float, high: float, width: float = 0.02) -> float:
     """The Bayes factor of theta = ``value`` (an effect switched off) against theta free under its uniform
     prior on [low, high], by the Savage-Dickey ratio: the posterior density at the value over the prior's,

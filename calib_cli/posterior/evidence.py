@@ -10,7 +10,7 @@ the run directory and writes nothing (docs/method.md, "The posterior").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -21,8 +21,8 @@ from ..campaign import RESULTS, current_results, heap_setups
 from ..errors import CalibError
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
 from ..requests import COND_VARS
-from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, bayes_factor_off, calibrate_posterior,
-                        mean_variance)
+from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
+                        calibrate_posterior, mean_variance, summarise)
 from .gp import ColumnModel, GPSurrogate, holdout_rmse, informative_conditions
 from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
 
@@ -343,6 +343,7 @@ class PosteriorFit:
     ratios: dict[str, float]
     evidence: dict = field(default_factory=dict)
     result: Optional[PosteriorResult] = None
+    averaged: dict = field(default_factory=dict)
 
     @property
     def heaps(self) -> int:
@@ -356,7 +357,7 @@ class PosteriorFit:
                 "scatter": bool(self.evidence.get("scatter")), "profile": bool(self.evidence.get("profile")),
                 "columns": bool(self.evidence.get("columns")), "prior": self.evidence.get("prior"),
                 "bounds": self.evidence.get("bounds"),
-                "surrogate_ratios": self.ratios,
+                "surrogate_ratios": self.ratios, **({"averaged": self.averaged} if self.averaged else {}),
                 **({"profile_rho": s.rho, "profile_noise_sd": s.gp.noise_sd_} if s is not None else {})}
 
 
@@ -418,14 +419,15 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
                   prior: str = "settings", ranges: Optional[dict] = None, scatter: Optional[bool] = None,
                   profile: Optional[bool] = None, columns: Optional[bool] = None,
                   rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
-                  say: Say = _quiet) -> PosteriorFit:
+                  average: bool = False, say: Say = _quiet) -> PosteriorFit:
     """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
     on the run's heaps of the model (``rows``: else :func:`model_rows`) under a uniform ``prior``
     (:func:`prior_bounds`; ``ranges`` the run's factor table). With the settings' prior the surrogates
     learn from the heaps in its box and scale each parameter by it. ``scatter`` / ``profile`` /
     ``columns``: weigh each condition's pile scatter / heap profile / share of piles that stood as
     columns too (None: wherever the heaps and photographs allow). ``held_out_by``: the surrogates
-    whose held-out error is scored (none: empty)."""
+    whose held-out error is scored (none: empty). ``average``: over the effect the model gained, on and
+    off (:func:`averaged`)."""
     rows = model_rows(run, model) if rows is None else rows
     bounds = prior_bounds(model, prior, rows, ranges)
     scale = bounds if prior == "settings" else effect_ranges(model)
@@ -453,8 +455,50 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
     table = verdicts(post.summary(), post.samples_, ratios["combined"])
     evidence.update(prior=prior, bounds=bounds)
-    return PosteriorFit(model, table, post.samples_.assign(log_prob=post.log_prob_), held, gp, second, rows, ratios,
-                        evidence, post)
+    fit = PosteriorFit(model, table, post.samples_.assign(log_prob=post.log_prob_), held, gp, second, rows, ratios,
+                       evidence, post)
+    if average:
+        fit = averaged(fit, conds, bounds, share, walkers=walkers, steps=steps, seed=seed, say=say)
+    return fit
+
+
+def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Optional[ColumnShare], *,
+             walkers: int, steps: int, seed: int, say: Say = _quiet) -> PosteriorFit:
+    """The posterior averaged over the one effect the model gained, on and off (Bayesian model averaging,
+    even prior odds): P(off | data) = B / (1 + B) with B the Savage-Dickey Bayes factor of "off", and that
+    share of the draws from the posterior with the effect's parameter held at its neutral value. Without it,
+    a free effect's boundary (surface energy >= 0) pulls the other parameters (rolling friction trades for a
+    little cohesion) even where the data favour it off. The Bayes factor and the verdicts stay those of the
+    model with the effect free; a bound (no draw near neutral) averages nothing: P(off) < B / (1 + B)."""
+    t = fit.table
+    eff = t[np.isfinite(t["bf_off"].to_numpy(float))]
+    if len(eff) != 1 or bool(eff["bf_upper"].iloc[0]):
+        return fit
+    r = eff.iloc[0]
+    p_off = float(r.bf_off / (1.0 + r.bf_off))
+    res = fit.result
+    off = calibrate_posterior(fit.gp, conds, {p: b for p, b in bounds.items() if p != r.parameter},
+                              fixed={r.parameter: r.neutral}, n_walkers=walkers, n_steps=steps, seed=seed + 1,
+                              scatter=fit.evidence["scatter"], second=fit.second, columns=share)
+    draws = averaged_draws(fit.samples, off.samples_.assign(**{r.parameter: r.neutral}, log_prob=off.log_prob_),
+                           p_off, seed)
+    table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"])
+    table["p_off"] = np.where(table["parameter"] == r.parameter, p_off, np.nan)
+    name = next(e.name for e in EFFECTS.values() if e.parameter == r.parameter)
+    table["verdict"] = [w + (f"; the intervals average {name} on and off (probability off {p_off:.2g})"
+                             if p == r.parameter else "") for p, w in zip(table["parameter"], table["verdict"])]
+    say(f"the answer averages {name} on and off: the data give it off a probability of {p_off:.2g}")
+    info = {"effect": name, "parameter": r.parameter, "p_off": p_off, "neutral": float(r.neutral)}
+    return replace(fit, table=table, samples=draws, averaged=info)
+
+
+def most_probable(samples: pd.DataFrame, params: list[str]) -> pd.DataFrame:
+    """The most probable draw (one row of ``params``); of an averaged posterior, the more probable model's
+    (log densities of the model with and without the effect are not comparable)."""
+    if "off" in samples.columns and samples["off"].any():
+        keep = samples["off"] == (samples["off"].mean() > 0.5)
+        samples = samples[keep] if keep.any() else samples
+    return samples.loc[[samples["log_prob"].idxmax()], params].reset_index(drop=True)
 
 
 def extrapolation_note(rows: pd.DataFrame, model: Model, bounds: dict[str, tuple[float, float]]) -> str:
@@ -474,7 +518,7 @@ def write_posterior(out, fit: PosteriorFit, prefix: str = "") -> None:
     res = fit.result
     out.table(f"{prefix}samples.parquet", fit.samples, discard=res.discard_, thin=res.thin_)
     out.table(f"{prefix}surrogates.parquet", fit.held)
-    out.figure(f"{prefix}corner.png", corner(fit.samples.drop(columns="log_prob"), fit.table))
+    out.figure(f"{prefix}corner.png", corner(fit.samples.drop(columns=["log_prob", "off"], errors="ignore"), fit.table))
     out.table(f"{prefix}summary.parquet", fit.table, **fit.provenance())
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pandas as pd
 
 from ..model import EFFECTS
@@ -153,10 +156,13 @@ def _effects_table(post: pd.DataFrame) -> str:
     eff = post[post["bf_off"].notna()] if "bf_off" in post.columns else post.iloc[:0]
     if eff.empty:
         return ""
+    p_off = lambda r: getattr(r, "p_off", math.nan)  # noqa: E731  (a posterior averaged over it on and off)
     rows = [[esc(owner.get(r.parameter, r.parameter)), bf_text(r.bf_off, bool(getattr(r, "bf_upper", False))),
+             num(p_off(r), 2) if np.isfinite(p_off(r)) else "&ndash;",
              _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
             for r in eff.itertuples(index=False)]
-    return rows_table(["effect", "Bayes factor of off", ""], rows, "compact")
+    return rows_table(["effect", "Bayes factor of off", "probability off (the intervals average it)", ""], rows,
+                      "compact")
 
 
 def _rounds_note(f: RunFiles, rev) -> str:

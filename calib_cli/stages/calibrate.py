@@ -28,7 +28,7 @@ from ..model import MODEL_FILE, Model, load_model
 from ..posterior.adaptive import RULES, acquire, first_design, stop_reason
 from ..posterior.calibrate import mean_variance
 from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
-                                  heaps_needed, in_box, model_rows, model_surrogate, prior_bounds,
+                                  heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
 from ..requests import (COND_VARS, check_engine, condition_from_row, content_seed, engine_settings, heap_engine,
@@ -283,7 +283,7 @@ def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optiona
         cond_vars = informative_conditions(rows, COND_VARS)
         used = art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]])
     prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns) if rows is not None else ({}, {})
-    return stage(run, "calibrate", f"rev{model.revision}",
+    return stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer",
                  inputs={"results": used, "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None,
                          **prof_in},
                  settings={**plan.round_settings(model), "budget": plan.budget, "preset": setup["preset"],
@@ -316,7 +316,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     model = load_model(run)
     if at_revision is not None and model.revision != at_revision:
         say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
-        return CalibrateResult(stage(run, "calibrate", f"rev{model.revision}"), True)
+        return CalibrateResult(stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer"), True)
     cfg = resolve_settings(run, None, None)
     preset, g = heap_setup(cfg, preset, shear_modulus)
     setup = {"pre": heap_preset(preset, g), "preset": preset, "modulus": g, "engine": heap_engine(cfg, engine),
@@ -415,7 +415,7 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
                         "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
                 settings={"calibrate": plan.round_settings(model), "round": last.index, "steps": steps, **prof_set})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=steps, seed=plan.seed, ranges=plan.bounds,
-                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows)
+                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows, average=True, say=say)
     with pst.commit() as out:
         write_posterior(out, fit)
     return fit.samples
@@ -436,7 +436,7 @@ def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dic
     if old.is_file():
         prev = art.read_table(old)
         table = pd.concat([prev[prev["revision"] != model.revision], table], ignore_index=True)
-    best = samples.loc[[samples["log_prob"].idxmax()], model.parameters].reset_index(drop=True)
+    best = most_probable(samples, model.parameters)
     final = _final_stage(run, model, plan, setup, model_rows(run, model))
     with final.commit() as out:
         out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)

@@ -43,12 +43,14 @@ R = TypeVar("R")
 #: posterior 6: the scatter and the profile weighed wherever they can be; no verdict while the surrogate is unsure;
 #: a Bayes factor with no draw near its value is an upper bound
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 6, "suggest": 5, "calibrate": 1}
+                 "diagnose": 2, "posterior": 7, "suggest": 5, "calibrate": 1,
+                 "calibrate-answer": 2}
 
 
-def stage(run: Path, group: str, name: str, **kwargs) -> art.Stage:
-    """The :class:`~calib_cli.artifacts.Stage` of a stage function, at its code's version."""
-    return art.Stage(run, group, name, code=CODE_VERSIONS[group], **kwargs)
+def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
+    """The :class:`~calib_cli.artifacts.Stage` of a stage function, at its code's version (that of
+    ``version`` where a group's stages change apart)."""
+    return art.Stage(run, group, name, code=CODE_VERSIONS[version or group], **kwargs)
 
 
 def writes_run(fn: Callable[..., R]) -> Callable[..., R]:

@@ -106,7 +106,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
         f"{len(rows)} simulated heaps, {len(conds)} measured condition(s), {walkers} walkers x {steps} steps")
     fit = fit_posterior(run, model, conds, walkers=walkers, steps=steps, seed=seed, prior=prior, ranges=ranges,
                         scatter=scatter,
-                        profile=profile, columns=columns, rows=rows, say=say)
+                        profile=profile, columns=columns, rows=rows, average=True, say=say)
     with st.commit() as out:
         write_posterior(out, fit)
         if design:  # run ids after every id the run's heaps already use above 100 (earlier rounds, a design
