@@ -175,6 +175,32 @@ def test_a_stopped_calibration_goes_on_from_its_last_finished_round(lab, tmp_pat
     assert r.rounds["calibration_heaps"].max() == 100 and "budget" in r.stop
 
 
+def _as_compare(rows: pd.DataFrame, tag: str) -> pd.DataFrame:
+    """The rows as if compare had simulated them: another design, other heaps."""
+    return rows.assign(design="compare", run_hash=[f"{tag}{i}" for i in range(len(rows))], run_id=1)
+
+
+def test_heaps_added_after_a_calibration_leave_it_as_it_went_and_those_before_it_join_it(lab):
+    """compare's heaps, added after the calibration, do not make a rerun recalibrate (a pipeline run twice
+    does nothing the second time); the heaps at hand when a calibration begins are recorded and learnt from."""
+    from calib_cli.stages.calibrate import calibrate
+
+    run, calls = lab
+    r = calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    rows = pd.read_parquet(run / "simulate" / "results.parquet")
+    assert art.read_table(run / "calibrate" / "rev0" / "round-00" / "reused.parquet").empty
+    append_index(run, _as_compare(rows.head(24), "late").to_dict("records"))
+    n = len(calls)
+    again = calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    assert again.skipped and len(calls) == n
+    other = tmp_run(run)
+    append_index(other, _as_compare(rows.head(24), "early").to_dict("records"))
+    r2 = calibrate(other, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    reused = art.read_table(other / "calibrate" / "rev0" / "round-00" / "reused.parquet")
+    assert len(reused) == 24 and (reused["design"] == "compare").all()
+    assert r2.rounds["heaps"].iloc[0] == r.rounds["heaps"].iloc[0] + 24
+
+
 def test_heaps_that_form_no_heap_are_made_up_by_a_space_filling_top_up(lab, monkeypatch):
     """A fifth of the prior box stands as a column: round 0's 40 heaps leave the surrogate short of its 40
     (10 per input), so round 1 adds space-filling heaps before any posterior; a budget that cannot make

@@ -234,13 +234,14 @@ def measured_columns(run: Path, conds: pd.DataFrame) -> Optional[tuple[np.ndarra
 
 
 def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, seed: int = 0,
-                 box: Optional[dict] = None) -> tuple[Optional[ColumnShare], str]:
+                 box: Optional[dict] = None, judged: Optional[pd.DataFrame] = None) -> tuple[Optional[ColumnShare], str]:
     """The share of piles that stood as columns as evidence (:class:`ColumnShare`), or None and why not:
-    no photographs' statuses, or no simulated heap of the model (within ``box``) stood, or every one did."""
+    no photographs' statuses, or no simulated heap of the model (within ``box``) stood, or every one did.
+    ``judged``: the heaps to learn from (else every judged heap of the model)."""
     lab = measured_columns(run, conds)
     if lab is None:
         return None, "the angles were not measured on photographs"
-    rows = model_rows(run, model, judged=True)
+    rows = model_rows(run, model, judged=True) if judged is None else judged
     rows = in_box(rows, box) if box is not None and len(rows) else rows
     stands = (rows["status"] == "column").to_numpy() if "status" in rows.columns else np.zeros(0, bool)
     if not stands.any():
@@ -302,7 +303,7 @@ def bf_text(bf: float, upper: bool) -> str:
 
 def _words(r, owner, unsure: bool) -> str:
     if unsure:
-        w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.2g}x "
+        w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.3g}x "
              f"the measured means'); 90 % between {r.q05:.3g} and {r.q95:.3g}: simulate heaps where the posterior "
              "lies (`calib calibrate`)")
     elif r.identified:
@@ -382,7 +383,7 @@ def prior_bounds(model: Model, prior: str, rows: Optional[pd.DataFrame] = None,
     return out
 
 
-def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say, scale, box):
+def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say, scale, box, judged=None):
     """Which of the scatter, the profile and the column share the likelihood weighs (None: wherever they
     can be), the profile's second response and the column share; says why one is left out."""
     if profile is None:
@@ -403,7 +404,7 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
             "parameters; it assumes the lab's piles scatter as the simulated ones do)")
     share = None
     if columns is not False:
-        share, why = column_share(run, model, gp, conds, seed, box)
+        share, why = column_share(run, model, gp, conds, seed, box, judged)
         if share is None and columns:
             raise CalibError(f"the share of piles that stood as columns cannot be evidence: {why}")
         if share is None:
@@ -419,14 +420,15 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
                   prior: str = "settings", ranges: Optional[dict] = None, scatter: Optional[bool] = None,
                   profile: Optional[bool] = None, columns: Optional[bool] = None,
                   rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
-                  average: bool = False, say: Say = _quiet) -> PosteriorFit:
+                  judged: Optional[pd.DataFrame] = None, average: bool = False, say: Say = _quiet) -> PosteriorFit:
     """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
     on the run's heaps of the model (``rows``: else :func:`model_rows`) under a uniform ``prior``
     (:func:`prior_bounds`; ``ranges`` the run's factor table). With the settings' prior the surrogates
     learn from the heaps in its box and scale each parameter by it. ``scatter`` / ``profile`` /
     ``columns``: weigh each condition's pile scatter / heap profile / share of piles that stood as
     columns too (None: wherever the heaps and photographs allow). ``held_out_by``: the surrogates
-    whose held-out error is scored (none: empty). ``average``: over the effect the model gained, on and
+    whose held-out error is scored (none: empty). ``judged``: the heaps the column share learns from (those
+    that stood too; else every such heap of the model). ``average``: over the effect the model gained, on and
     off (:func:`averaged`)."""
     rows = model_rows(run, model) if rows is None else rows
     bounds = prior_bounds(model, prior, rows, ranges)
@@ -447,7 +449,7 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     gp = model_surrogate(rows, model, seed, scale=scale)
     check_measured(conds, gp, run / "measure" / "conditions.parquet")
     rows, second, share, evidence = _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
-                                              seed, say, scale, bounds if prior == "settings" else None)
+                                              seed, say, scale, bounds if prior == "settings" else None, judged)
     cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else [])]
     held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
     post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
@@ -523,10 +525,11 @@ def write_posterior(out, fit: PosteriorFit, prefix: str = "") -> None:
 
 
 def evidence_lock(run: Path, model: Model, rows: pd.DataFrame, profile: Optional[bool],
-                  columns: Optional[bool] = None) -> tuple[dict, dict]:
+                  columns: Optional[bool] = None, judged: Optional[pd.DataFrame] = None) -> tuple[dict, dict]:
     """The lock inputs and settings of a stage that may weigh the heap profile and the column share: the
     measured files they read, how many heaps have a profile (heaps whose side views arrive later rerun
-    the stage) and how many stood as columns. With ``profile`` / ``columns`` None, wherever they can be."""
+    the stage) and how many stood as columns (of ``judged``, else of every heap of the model). With
+    ``profile`` / ``columns`` None, wherever they can be."""
     inputs, settings = {}, {"profile": profile, "columns": columns}
     angles = run / "measure" / "angles.parquet"
     if profile is not False:
@@ -538,6 +541,6 @@ def evidence_lock(run: Path, model: Model, rows: pd.DataFrame, profile: Optional
                 raise
     if columns is not False and angles.is_file():
         inputs["angles"] = angles
-        judged = model_rows(run, model, judged=True)
+        judged = model_rows(run, model, judged=True) if judged is None else judged
         settings["columns_at_hand"] = int((judged["status"] == "column").sum()) if "status" in judged.columns else 0
     return inputs, settings

@@ -151,6 +151,9 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
     design.insert(0, "run_id", np.arange(pairs) + 1000 * (k + 1))
     with st.commit() as out:
         out.table(path.relative_to(st.dir).as_posix(), design, model_revision=model.revision, round=k)
+        if k == 0:
+            out.table((path.parent / "reused.parquet").relative_to(st.dir).as_posix(), _at_hand(run, model),
+                      model_revision=model.revision)
     return design
 
 
@@ -160,7 +163,7 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
     if prev.fit is not None:
         gp, second = prev.fit.gp, prev.fit.second
     else:
-        rows = in_box(_until_round(model_rows(run, model), model, prev.index), plan.bounds)
+        rows = in_box(_until_round(model_rows(run, model), model, prev.index, _reused(run, model)), plan.bounds)
         gp = model_surrogate(rows, model, plan.seed, scale=plan.bounds)
         second = None
         if prev.evidence.get("profile"):
@@ -188,9 +191,11 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
                      plan: Plan, force: bool, say: Say, first: bool = False) -> Round:
     """The posterior after round k (locked): every heap of the model so far, the surrogates' held-out
     error scored for the Gaussian processes alone (the last round's is scored for every surrogate)."""
-    rows = _until_round(model_rows(run, model), model, k)
+    reused = _reused(run, model)
+    rows = _until_round(model_rows(run, model), model, k, reused)
+    judged = _until_round(model_rows(run, model, judged=True), model, k, reused)
     cond_vars = informative_conditions(rows, COND_VARS)
-    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns)
+    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns, judged)
     mfile = run / MODEL_FILE
     st = stage(run, "calibrate", f"rev{model.revision}-round-{k:02d}",
                inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
@@ -204,7 +209,7 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
                      {"scatter": meta["scatter"], "profile": meta["profile"]})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=plan.steps, seed=plan.seed,
                         ranges=plan.bounds, scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows,
-                        held_out_by=("gp",), say=say if first else _quiet)
+                        judged=judged, held_out_by=("gp",), say=say if first else _quiet)
     with st.commit() as out:
         write_posterior(out, fit, prefix=d.relative_to(st.dir).as_posix() + "/")
     return Round(k, rule, design, fit.table, fit.samples, fit.held, fit.ratios, fit.heaps, fit.evidence, fit)
@@ -214,13 +219,45 @@ def _quiet(message: str, err: bool = False) -> None:
     pass
 
 
-def _until_round(rows: pd.DataFrame, model: Model, k: int) -> pd.DataFrame:
-    """The heaps a round's posterior learns from: every heap of the model but those of this calibration's
-    later rounds (a run stopped after simulating them must resume as it would have gone on)."""
+HEAP_KEYS = ["run_hash", "design", "run_id", "repeat", "condition_id"]  # a heap's row, as the index keys it
+
+
+def _own(rows: pd.DataFrame, model: Model) -> np.ndarray:
     if not {"design", "model", "run_id"} <= set(rows.columns):
-        return rows
-    later = (rows["design"] == DESIGN) & (rows["model"] == model.hash) & (rows["run_id"] >= 1000 * (k + 2))
-    return rows[~later.to_numpy()].reset_index(drop=True)
+        return np.zeros(len(rows), bool)
+    return ((rows["design"] == DESIGN) & (rows["model"] == model.hash)).to_numpy()
+
+
+def _until_round(rows: pd.DataFrame, model: Model, k: Optional[int], reused: Optional[pd.DataFrame]) -> pd.DataFrame:
+    """The heaps a round's posterior learns from (``k`` None: the whole calibration's): those at hand when the
+    calibration began (``reused``, recorded by round 0; None: every heap not its own) and its own rounds' up
+    to round k. Heaps that compare, diagnose or a later command add do not join, so a calibration resumed or
+    run again after them goes as it went (a new model revision begins from every heap at hand)."""
+    own = _own(rows, model)
+    keep = own if k is None else own & (rows["run_id"] < 1000 * (k + 2)).to_numpy()
+    if reused is None:
+        keep = keep | ~own
+    elif len(rows):
+        keys = [c for c in HEAP_KEYS if c in rows.columns]
+        at_hand = rows[keys].merge(reused[keys].drop_duplicates(), how="left", on=keys, indicator=True)
+        keep = keep | ((at_hand["_merge"] == "both").to_numpy() & ~own)
+    return rows[keep].reset_index(drop=True)
+
+
+def _reused(run: Path, model: Model) -> Optional[pd.DataFrame]:
+    """The heaps at hand when this model's calibration began (round 0's record), None before it."""
+    path = _dir(run, model, 0) / "reused.parquet"
+    return art.read_table(path) if path.is_file() else None
+
+
+def _at_hand(run: Path, model: Model) -> pd.DataFrame:
+    """The keys of every heap of the model (judged ones too) that is not this calibration's own."""
+    try:
+        rows = model_rows(run, model, judged=True)
+    except CalibError:
+        return pd.DataFrame(columns=HEAP_KEYS)
+    keys = [c for c in HEAP_KEYS if c in rows.columns]
+    return rows.loc[~_own(rows, model), keys].reset_index(drop=True)
 
 
 def _effect_words(table: pd.DataFrame) -> list[str]:
@@ -282,7 +319,8 @@ def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optiona
     if rows is not None and len(rows):
         cond_vars = informative_conditions(rows, COND_VARS)
         used = art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]])
-    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns) if rows is not None else ({}, {})
+    prof_in, prof_set = (evidence_lock(run, model, rows, plan.profile, plan.columns, _judged_rows(run, model))
+                         if rows is not None else ({}, {}))
     return stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer",
                  inputs={"results": used, "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None,
                          **prof_in},
@@ -290,9 +328,14 @@ def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optiona
                            **modulus_settings(setup["modulus"]), **setup["engine_settings"], **prof_set})
 
 
+def _judged_rows(run: Path, model: Model) -> pd.DataFrame:
+    """Every heap the calibration judges (those that stood as columns too): :func:`_until_round`'s."""
+    return _until_round(model_rows(run, model, judged=True), model, None, _reused(run, model))
+
+
 def _current_rows(run: Path, model: Model) -> Optional[pd.DataFrame]:
     try:
-        return model_rows(run, model)
+        return _until_round(model_rows(run, model), model, None, _reused(run, model))
     except CalibError:  # no heaps yet
         return None
 
@@ -367,7 +410,7 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         spent += len(design) * plan.repeats
         say(f"round {k}: {len(design)} points x {plan.repeats} piles ({rule})")
         _simulate(run, design, model, conds, setup, plan, workers, dask, on_heap)
-        have = len(in_box(_until_round(model_rows(run, model), model, k), plan.bounds))
+        have = len(in_box(_until_round(model_rows(run, model), model, k, _reused(run, model)), plan.bounds))
         short = max(need - have, 0)
         if short:
             say(f"round {k}: {have} heaps of the model formed a heap, the surrogate needs {need}: another "
@@ -403,19 +446,20 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
                            say: Say) -> pd.DataFrame:
     """RUN/posterior/: the last round's heaps and evidence, sampled longer (:func:`_final_steps`), with every
     surrogate's held-out error; returns its draws."""
-    rows = model_rows(run, model)
+    rows, judged = _current_rows(run, model), _judged_rows(run, model)
     cond_vars = informative_conditions(in_box(rows, plan.bounds), COND_VARS)
     steps = _final_steps(last, plan)
     say(f"the answer: the last round's posterior sampled {steps} steps (a round's {plan.steps}), with every "
         "surrogate's held-out error")
-    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns)
+    prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns, judged)
     mfile = run / MODEL_FILE
     pst = stage(run, "posterior", "sample",
                 inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                         "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
                 settings={"calibrate": plan.round_settings(model), "round": last.index, "steps": steps, **prof_set})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=steps, seed=plan.seed, ranges=plan.bounds,
-                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows, average=True, say=say)
+                        scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows, judged=judged,
+                        average=True, say=say)
     with pst.commit() as out:
         write_posterior(out, fit)
     return fit.samples
@@ -437,7 +481,7 @@ def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dic
         prev = art.read_table(old)
         table = pd.concat([prev[prev["revision"] != model.revision], table], ignore_index=True)
     best = most_probable(samples, model.parameters)
-    final = _final_stage(run, model, plan, setup, model_rows(run, model))
+    final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     with final.commit() as out:
         out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)
         out.figure("rounds.png", rounds_figure(table[table["revision"] == model.revision]))
