@@ -105,7 +105,7 @@ def test_first_screen_degrades_on_the_paper_and_smoke_runs():
 def test_side_view_of_a_kept_compare_heap_and_validation_fallback(tmp_path):
     """A compare heap whose folder is kept shows beside its condition's photograph; without compare,
     the fit is the validation heaps of the chosen refinement round."""
-    src, run = RUNS / "hidden-effect", tmp_path / "run"
+    src, run = RUNS / "hidden-wall", tmp_path / "run"  # a run of the paper's chain: invert's validation heaps
     for stage in ("measure", "invert", "simulate"):
         shutil.copytree(src / stage, run / stage)
     rows = art.read_table(run / "simulate" / "results.parquet")
@@ -116,7 +116,7 @@ def test_side_view_of_a_kept_compare_heap_and_validation_fallback(tmp_path):
     top = summary_of(build_report(run))
     assert f'src="simulate/runs/{last["run_hash"]}/side.png"' in top
     assert "for 5 of 6 conditions" in top
-    assert "validation heaps at the solution (refinement round 2)" in top
+    assert "validation heaps at the solution (refinement round 0)" in top
     assert re.search(r"The validation heaps at the solution (reproduce|miss) ", top)
     assert "Not run yet: <code>calib compare</code>" in top
 

@@ -109,7 +109,8 @@ def acquire(surrogates: Sequence[tuple[object, np.ndarray]], samples: pd.DataFra
     for gp, v in surrogates:
         XE, XC = _points(gp, theta, names, measured), _points(gp, theta[:n_cand], names, measured)
         P.append(gp.latent_cov(np.vstack([XE, XC])))
-        w.append(np.r_[np.tile(1.0 / np.maximum(v, 1e-12), n_eval) / (n_eval * C), np.tile(1.0 / v, n_cand)])
+        iv = 1.0 / np.maximum(v, 1e-12)
+        w.append(np.r_[np.tile(iv, n_eval) / (n_eval * C), np.tile(iv, n_cand)])
         tau2.append(gp.pile_sd(XC) ** 2 / repeats)
     chosen = _greedy(P, w, tau2, n_eval * C, pairs, integrated=rule == "variance")
     idx = np.array(chosen)

@@ -95,9 +95,10 @@ class CalibrateResult(Result):
     table: Optional[pd.DataFrame] = None
     stop: str = ""
     revision: int = 0
+    elsewhere: bool = False  # a step for another model revision: nothing to show
 
     def __post_init__(self):
-        if self.rounds is None and (self.dir / "rounds.parquet").is_file():
+        if self.rounds is None and not self.elsewhere and (self.dir / "rounds.parquet").is_file():
             rounds = art.read_table(self.dir / "rounds.parquet")
             self.revision = int(art.read_provenance(self.dir / "rounds.parquet").get("model_revision", 0))
             self.rounds = rounds[rounds["revision"] == self.revision].reset_index(drop=True)
@@ -151,9 +152,10 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
     design.insert(0, "run_id", np.arange(pairs) + 1000 * (k + 1))
     with st.commit() as out:
         out.table(path.relative_to(st.dir).as_posix(), design, model_revision=model.revision, round=k)
-        if k == 0:
-            out.table((path.parent / "reused.parquet").relative_to(st.dir).as_posix(), _at_hand(run, model),
-                      model_revision=model.revision)
+        if k == 0:  # kept where a changed setting redesigns round 0: heaps added since stay out
+            at_hand = _reused(run, model)
+            out.table((path.parent / "reused.parquet").relative_to(st.dir).as_posix(),
+                      _at_hand(run, model) if at_hand is None else at_hand, model_revision=model.revision)
     return design
 
 
@@ -234,7 +236,7 @@ def _until_round(rows: pd.DataFrame, model: Model, k: Optional[int], reused: Opt
     to round k. Heaps that compare, diagnose or a later command add do not join, so a calibration resumed or
     run again after them goes as it went (a new model revision begins from every heap at hand)."""
     own = _own(rows, model)
-    keep = own if k is None else own & (rows["run_id"] < 1000 * (k + 2)).to_numpy()
+    keep = own if k is None or not own.any() else own & (rows["run_id"] < 1000 * (k + 2)).to_numpy()
     if reused is None:
         keep = keep | ~own
     elif len(rows):
@@ -321,9 +323,10 @@ def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optiona
         used = art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]])
     prof_in, prof_set = (evidence_lock(run, model, rows, plan.profile, plan.columns, _judged_rows(run, model))
                          if rows is not None else ({}, {}))
+    answer = run / "posterior" / "summary.parquet"  # another command's posterior there: the answer is redone
     return stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer",
                  inputs={"results": used, "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None,
-                         **prof_in},
+                         "answer": answer if answer.is_file() else None, **prof_in},
                  settings={**plan.round_settings(model), "budget": plan.budget, "preset": setup["preset"],
                            **modulus_settings(setup["modulus"]), **setup["engine_settings"], **prof_set})
 
@@ -359,7 +362,8 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     model = load_model(run)
     if at_revision is not None and model.revision != at_revision:
         say(f"the model is at revision {model.revision}, this step calibrates revision {at_revision}: nothing to do")
-        return CalibrateResult(stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer"), True)
+        return CalibrateResult(stage(run, "calibrate", f"rev{model.revision}", version="calibrate-answer"), True,
+                               elsewhere=True)
     cfg = resolve_settings(run, None, None)
     preset, g = heap_setup(cfg, preset, shear_modulus)
     setup = {"pre": heap_preset(preset, g), "preset": preset, "modulus": g, "engine": heap_engine(cfg, engine),
@@ -372,8 +376,9 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
                  seed=seed, scatter=scatter, profile=profile, columns=columns,
                  bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
-    if _final_stage(run, model, plan, setup, _current_rows(run, model)).up_to_date() and not force:
-        return CalibrateResult(_final_stage(run, model, plan, setup, _current_rows(run, model)), True)
+    final = _final_stage(run, model, plan, setup, _current_rows(run, model))
+    if final.up_to_date() and not force:
+        return CalibrateResult(final, True)
     say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
         f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
         f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}")
@@ -446,7 +451,9 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
                            say: Say) -> pd.DataFrame:
     """RUN/posterior/: the last round's heaps and evidence, sampled longer (:func:`_final_steps`), with every
     surrogate's held-out error; returns its draws."""
-    rows, judged = _current_rows(run, model), _judged_rows(run, model)
+    reused = _reused(run, model)
+    rows = _until_round(model_rows(run, model), model, last.index, reused)
+    judged = _until_round(model_rows(run, model, judged=True), model, last.index, reused)
     cond_vars = informative_conditions(in_box(rows, plan.bounds), COND_VARS)
     steps = _final_steps(last, plan)
     say(f"the answer: the last round's posterior sampled {steps} steps (a round's {plan.steps}), with every "
