@@ -96,10 +96,11 @@ def corner(samples, table):
     return fig
 
 
-def rounds_figure(rounds):
+def rounds_figure(rounds, answer=None):
     """calibrate's rounds: each parameter's 90 % interval and median against the heaps its posterior
     learnt from, over its prior range; and the surrogates' variance at the posterior's draws over the
-    measured means' (below 1 a verdict can be given) with each effect's Bayes factor of "off"."""
+    measured means' (below 1 a verdict can be given) with each effect's Bayes factor of "off". ``answer``
+    (the final posterior's summary, sampled longer) is drawn in black after the last round."""
     params = list(dict.fromkeys(rounds["parameter"]))
     n = len(params) + 1
     cols = min(n, 3)
@@ -109,6 +110,10 @@ def rounds_figure(rounds):
         r = rounds[rounds["parameter"] == p]
         ax.fill_between(r["heaps"], r["q05"], r["q95"], color="tab:blue", alpha=0.25, step=None, label="90 %")
         ax.plot(r["heaps"], r["median"], "o-", color="tab:blue", ms=3, label="median")
+        if answer is not None and p in set(answer["parameter"]):
+            a = answer.set_index("parameter").loc[p]
+            ax.errorbar([r["heaps"].iloc[-1]], [a["median"]], yerr=[[a["median"] - a["q05"]], [a["q95"] - a["median"]]],
+                        fmt="D", color="k", ms=4, capsize=3, label="the answer")
         ax.set_ylim(r["low"].iloc[0], r["high"].iloc[0])
         ax.set_title(p)
         ax.set_xlabel("heaps the posterior learnt from")
@@ -123,13 +128,22 @@ def rounds_figure(rounds):
             if len(bound):  # no draw near the neutral value: an upper bound, drawn hollow
                 ax.semilogy(bound["heaps"], bound["bf_off"].clip(lower=1e-4), "o", ms=6, mfc="white",
                             color=line.get_color(), label="  (hollow: an upper bound)")
+            fin = answer[answer["parameter"] == p] if answer is not None and "bf_off" in answer.columns else r.iloc[:0]
+            if len(fin) and np.isfinite(fin["bf_off"].iloc[0]):
+                upper = bool(fin["bf_upper"].iloc[0]) if "bf_upper" in fin.columns else False
+                ax.semilogy([r["heaps"].iloc[-1]], [max(float(fin["bf_off"].iloc[0]), 1e-4)], "D", ms=6, color="k",
+                            mfc="white" if upper else "k", label="  the answer (sampled longer)")
     ax.axhline(1.0, color="k", lw=0.6)
     ax.axhline(0.1, color="tab:red", lw=0.6, ls="--")
     ax.axhline(3.0, color="tab:green", lw=0.6, ls="--")
     ax.set_xlabel("heaps the posterior learnt from")
     ax.set_title("ratio above 1: no verdict; Bayes factor below 0.1 (red): on, above 3 (green): off", fontsize=8)
-    ax.legend(fontsize=7)
-    for extra in list(axes.flat)[n:]:
+    spare = list(axes.flat)[n:]
+    if spare:  # the curves fill their panel: the legend goes in the empty one beside it
+        spare[0].legend(*ax.get_legend_handles_labels(), loc="center left", fontsize=8, frameon=False)
+    else:
+        ax.legend(fontsize=7)
+    for extra in spare:
         extra.axis("off")
     fig.suptitle(f"calibrate, model revision {int(rounds['revision'].iloc[0])}: the posterior round by round")
     fig.tight_layout()

@@ -199,6 +199,10 @@ def test_heaps_added_after_a_calibration_leave_it_as_it_went_and_those_before_it
     reused = art.read_table(other / "calibrate" / "rev0" / "round-00" / "reused.parquet")
     assert len(reused) == 24 and (reused["design"] == "compare").all()
     assert r2.rounds["heaps"].iloc[0] == r.rounds["heaps"].iloc[0] + 24
+    # --force begins again from every heap at hand: the late compare heaps join round 0
+    forced = calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, force=True, **QUIET)
+    assert len(art.read_table(run / "calibrate" / "rev0" / "round-00" / "reused.parquet")) == 24
+    assert forced.rounds["heaps"].iloc[0] == r.rounds["heaps"].iloc[0] + 24
 
 
 def test_heaps_that_form_no_heap_are_made_up_by_a_space_filling_top_up(lab, monkeypatch):

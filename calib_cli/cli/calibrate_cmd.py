@@ -56,10 +56,12 @@ def calibrate(
     90 % interval and verdict is stable or --budget heaps are simulated (docs/method.md, 'Calibrating
     in rounds').
 
-    Reads RUN/measure/ and RUN/model.toml; every heap of the model already in the run is used. Writes
-    RUN/calibrate/rev<N>/round-<k>/ (each round's design and posterior), RUN/calibrate/rounds.parquet,
-    rounds.png, point.parquet (the most probable draw: what compare and diagnose simulate) and
-    RUN/posterior/. A rerun goes on from the last finished round; Ctrl-C loses only the heaps in flight.
+    Reads RUN/measure/ and RUN/model.toml; every heap of the model already in the run when the
+    calibration begins is used (heaps compare or diagnose add later join only with --force, which
+    calibrates again from every heap at hand). Writes RUN/calibrate/rev<N>/round-<k>/ (each round's
+    design and posterior), RUN/calibrate/rounds.parquet, rounds.png, point.parquet (the most probable
+    draw: what compare and diagnose simulate) and RUN/posterior/. A rerun goes on from the last
+    finished round; Ctrl-C loses only the heaps in flight.
     """
     from ..stages.calibrate import calibrate as run_calibration
 

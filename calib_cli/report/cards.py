@@ -157,7 +157,7 @@ def _effects_table(post: pd.DataFrame) -> str:
     if eff.empty:
         return ""
     p_off = lambda r: getattr(r, "p_off", math.nan)  # noqa: E731  (a posterior averaged over it on and off)
-    rows = [[esc(owner.get(r.parameter, r.parameter)), bf_text(r.bf_off, bool(getattr(r, "bf_upper", False))),
+    rows = [[esc(owner.get(r.parameter, r.parameter)), esc(bf_text(r.bf_off, bool(getattr(r, "bf_upper", False)))),
              num(p_off(r), 2) if np.isfinite(p_off(r)) else "&ndash;",
              _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
             for r in eff.itertuples(index=False)]

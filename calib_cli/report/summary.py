@@ -171,12 +171,13 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
         (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "")
     owner = {e.parameter: e.name for e in EFFECTS.values()}
-    said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide"}
+    said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide",
+            "undecided": "undecided, the surrogate is unsure where the posterior lies"}
     for r in post[post["bf_off"].notna()].itertuples(index=False) if "bf_off" in post.columns else []:
         upper = bool(getattr(r, "bf_upper", False))
-        word = effect_verdict(r.bf_off, upper, True)
+        word = effect_verdict(r.bf_off, upper, bool(getattr(r, "decided", True)))
         text += (f" {esc(owner.get(r.parameter, r.parameter)).capitalize()}: {said.get(word, '')} "
-                 f"(Bayes factor of off {bf_text(r.bf_off, upper)}).")
+                 f"(Bayes factor of off {esc(bf_text(r.bf_off, upper))}).")
     return text
 
 

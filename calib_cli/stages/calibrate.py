@@ -142,7 +142,7 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
                inputs={"conditions": run / CONDITIONS, "posterior": prev_dir / "samples.parquet" if prev_dir else None},
                settings={**plan.round_settings(model), "pairs": pairs})
     path = _dir(run, model, k) / "design.parquet"
-    if st.up_to_date():
+    if st.up_to_date() and (k or _reused(run, model) is not None):
         return art.read_table(path)
     if prev is None:
         design = first_design(plan.bounds, conds["condition_id"].astype(str).tolist(), pairs, plan.seed + k)
@@ -234,7 +234,7 @@ def _until_round(rows: pd.DataFrame, model: Model, k: Optional[int], reused: Opt
     """The heaps a round's posterior learns from (``k`` None: the whole calibration's): those at hand when the
     calibration began (``reused``, recorded by round 0; None: every heap not its own) and its own rounds' up
     to round k. Heaps that compare, diagnose or a later command add do not join, so a calibration resumed or
-    run again after them goes as it went (a new model revision begins from every heap at hand)."""
+    run again after them goes as it went (``--force``, or a new model revision, begins from every heap at hand)."""
     own = _own(rows, model)
     keep = own if k is None or not own.any() else own & (rows["run_id"] < 1000 * (k + 2)).to_numpy()
     if reused is None:
@@ -382,6 +382,8 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
         f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
         f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}")
+    if force:  # begin again from every heap at hand now: compare's and diagnose's join
+        (_dir(run, model, 0) / "reused.parquet").unlink(missing_ok=True)
     rounds, spent, stop = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
     return _finish(run, model, conds, plan, setup, rounds, spent, stop, say)
 
@@ -491,7 +493,8 @@ def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dic
     final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     with final.commit() as out:
         out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)
-        out.figure("rounds.png", rounds_figure(table[table["revision"] == model.revision]))
+        out.figure("rounds.png", rounds_figure(table[table["revision"] == model.revision],
+                                               art.read_table(run / "posterior" / "summary.parquet")))
         out.table("point.parquet", best, model_revision=model.revision, model=list(model.effects),
                   how="the posterior's most probable draw")
     say(f"stopped after round {last.index}: {stop}")
