@@ -69,23 +69,24 @@ def test_every_committed_run_renders_its_sections_in_order(name):
 
 
 def test_first_screen_of_a_run_with_diagnose():
-    """hidden-effect: calibrated with cohesion after diagnose ranked it; no side view is committed."""
+    """hidden-effect: the loop calibrated in rounds; cohesion added after diagnose ranked it; the first
+    screen leads with the posterior (no GA point, nothing called pinned); no side view is committed."""
     top = summary_of(build_report(RUNS / "hidden-effect"))
-    assert "The surrogate&#x27;s best fit (GA) of static friction, rolling friction and surface energy" in top \
-        or "The surrogate's best fit (GA) of static friction, rolling friction and surface energy" in top
     assert "60 photographed heaps under 6 conditions" in top
     assert "Model revision 1 reproduces all 6 conditions" in top and "badge pass" in top
-    assert "ranked cohesion significant; revision 1 adds cohesion" in top
-    # the GA point with its near-optimal ranges, never called pinned without a posterior that pins it
-    assert "0.3679" in top and "narrow" in top and "loose" in top and "Held fixed: restitution = 0.3" in top
-    assert ">pinned<" not in top and "Not run yet: <code>calib calibrate</code>" in top
+    assert "ranked capillary and cohesion significant; revision 1 adds cohesion" in top
+    assert top.index("Calibrated parameters: the posterior") < top.index("Fit per condition")
+    assert "Cohesion: the data call for it (Bayes factor of off &lt; 0.066)" in top
+    assert "surface_energy</td><td>0.491</td><td>0.333 &ndash; 1.01</td><td>J/m2</td>" in top
+    assert ">pinned<" not in top and "best fit (GA)" not in top
+    assert "8 rounds, 240 heaps simulated, the posterior on 372" in top
     # fit per condition: one chart row per condition, all passing, from compare's residuals
     sol = art.read_table(RUNS / "hidden-effect" / "compare" / "residuals.parquet")
     chart = top[top.index("<svg"):top.index("</svg>")]
     assert all(c in chart for c in sol["condition_id"]) and chart.count(">pass<") == len(sol)
     # error history and ranking with verdicts
-    assert "+ cohesion" in top and "3 of 6 fail" in top and "0 of 6 fail" in top
-    assert "significant" in top and "unresolved" in top and "not significant" in top
+    assert "+ cohesion" in top and "2 of 6 fail" in top and "0 of 6 fail" in top
+    assert ">significant<" in top and "not significant" in top
     # one photograph per condition, and an honest word about the missing simulated side views
     assert top.count('src="measure/overlays/') == len(sol)
     assert "No simulated side view is kept in this run directory for any condition" in top

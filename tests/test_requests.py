@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 from calib_cli.campaign import CACHE_SOURCE, Request, derive_seed
 from calib_cli.cli import app
 from calib_cli.dem.heap import HeapCondition, Numerics
-from calib_cli.requests import (build_requests, condition_from_row, heap_preset, request_from_row, seed_index,
-                                table_conditions)
+from calib_cli.requests import (build_requests, condition_from_row, content_seed, heap_preset, request_from_row,
+                                seed_index, table_conditions)
 from calib_cli.settings import load_settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,6 +36,9 @@ def _rebuilt(run: Path, rows: pd.DataFrame, row) -> Request:
     cid, design = str(row["condition_id"]), str(row["design"])
     cond = condition_from_row(pre.condition, row)
     kw = dict(numerics=pre.numerics, preset=row["preset"], design=design, model=row["model"])
+    if design == "calibrate":  # calib calibrate: seeded by what the heap simulates, base seed 0
+        return Request(params, cond, pre.numerics, content_seed(0, params, cond, int(row["repeat"])), row["preset"],
+                       design, int(row["run_id"]), int(row["repeat"]), row["model"], cid, row.get("engine", "builtin"))
     if design == "validate":  # invert --validate: one point at the measured conditions, seeded by invert.seed
         n = rows.loc[rows["design"] == "validate", "condition_id"].nunique()
         seed = int(load_settings([run / "settings.toml"])["invert"]["seed"])

