@@ -50,7 +50,8 @@ def summary_of(page: str) -> str:
     return page[page.index("<section id=summary>"):page.index("<section id=screening>")]
 
 
-@pytest.mark.parametrize("name", ["paper", "smoke", "calibration", "hidden-effect", "hidden-wall"])
+@pytest.mark.parametrize("name", ["paper", "smoke", "calibration", "hidden-effect", "hidden-wall", "control-lab",
+                                  "foreign-lab"])
 def test_every_committed_run_renders_its_sections_in_order(name):
     page = build_report(RUNS / name)
     ids = ["summary"] + [a for a, _ in SECTIONS]
