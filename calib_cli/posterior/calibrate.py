@@ -77,16 +77,20 @@ class PosteriorResult:
         (emcee's rule for a trusted tau), and the acceptance fraction."""
         rows = []
         for p, (lo, hi) in self.bounds.items():
-            s = self.samples_[p].to_numpy()
-            q05, q50, q95 = np.quantile(s, [0.05, 0.5, 0.95])
             tau = float(self.autocorr_time_[p])
-            rel = (q95 - q05) / (hi - lo)
-            rows.append({"parameter": p, "mean": float(s.mean()), "median": float(q50), "q05": float(q05),
-                         "q95": float(q95), "low": lo, "high": hi, "rel_width": float(rel),
-                         "identified": bool(rel <= self.threshold), "autocorr_time": tau,
+            rows.append({**_interval(p, self.samples_[p].to_numpy(), lo, hi, self.threshold), "autocorr_time": tau,
                          "n_eff": self.n_walkers * (self.n_steps - self.discard_) / tau,
                          "chain_ok": bool(self.n_steps >= CHAIN_TAUS * tau), "acceptance": self.acceptance_})
         return pd.DataFrame(rows)
+
+
+def _interval(p: str, s: np.ndarray, lo: float, hi: float, threshold: float) -> dict:
+    """A parameter's summary row from its draws ``s``: mean, median, the 90 % interval, its width over the
+    prior range [lo, hi] and whether that is narrow enough to call it identified."""
+    q05, q50, q95 = np.quantile(s, [0.05, 0.5, 0.95])
+    rel = (q95 - q05) / (hi - lo)
+    return {"parameter": p, "mean": float(s.mean()), "median": float(q50), "q05": float(q05), "q95": float(q95),
+            "low": lo, "high": hi, "rel_width": float(rel), "identified": bool(rel <= threshold)}
 
 
 def averaged_draws(on: pd.DataFrame, off: pd.DataFrame, p_off: float, seed: int = 0) -> pd.DataFrame:
@@ -106,16 +110,9 @@ def summarise(draws: pd.DataFrame, bounds: Mapping[str, tuple[float, float]], ch
     """:meth:`PosteriorResult.summary` of other draws (an averaged posterior's): their quantiles, the chains'
     diagnostics (autocorrelation time, effective draws, acceptance) from ``chains``, a summary."""
     diag = chains.set_index("parameter")
-    rows = []
-    for p, (lo, hi) in bounds.items():
-        s = draws[p].to_numpy(float)
-        q05, q50, q95 = np.quantile(s, [0.05, 0.5, 0.95])
-        rel = (q95 - q05) / (hi - lo)
-        rows.append({"parameter": p, "mean": float(s.mean()), "median": float(q50), "q05": float(q05),
-                     "q95": float(q95), "low": lo, "high": hi, "rel_width": float(rel),
-                     "identified": bool(rel <= threshold),
-                     **{c: diag.loc[p, c] for c in ("autocorr_time", "n_eff", "chain_ok", "acceptance")}})
-    return pd.DataFrame(rows)
+    return pd.DataFrame([{**_interval(p, draws[p].to_numpy(float), lo, hi, threshold),
+                          **{c: diag.loc[p, c] for c in ("autocorr_time", "n_eff", "chain_ok", "acceptance")}}
+                         for p, (lo, hi) in bounds.items()])
 
 
 def savage_dickey(draws, value: float, low: float, high: float, width: float = 0.02) -> float:
