@@ -1,10 +1,13 @@
-"""GPU engine throughput against batch size, beside the CPU kernel on every core of the same machine,
-in one run (issue: a GPU engine that runs a whole design at once).
+"""GPU engine throughput against batch size and stepping mode, beside the CPU kernel on every core of
+the same machine, in one run.
 
 Each batch is B heaps of the preset's fill (seeds 0..B-1, the paper's Table 6 centre point), settled
-for a warm-up (and the kernels' compilation), then timed over --steps steps; the CPU kernel steps the
-same fills two ways: one after another on all its threads, and a heap per core at once (one thread each,
-as a campaign's --workers run). Prints particle-steps per second and the ratios.
+for a warm-up (and the kernels' compilation), then timed over --steps steps, once per stepping mode
+(calib_cli.dem.gpu.MODES: a kernel a phase launched from Python with the host's look at the rebuild flag,
+the same without it, those launches replayed from a CUDA graph, one persistent cooperative kernel a
+chunk), each mode from the same fills; the CPU kernel steps the same fills two ways: one after another on
+all its threads, and a heap per core at once (one thread each, as a campaign's --workers run). Prints
+particle-steps per second, the time a step and the ratios.
 
     python benchmarks/gpu_throughput.py                       # 1, 4, 16, 64, 256 default heaps; 1, 4 paper
     NUMBA_ENABLE_CUDASIM=1 python benchmarks/gpu_throughput.py --preset smoke --batches 1,2 --steps 20 \\
@@ -29,8 +32,8 @@ def systems(preset: str, count: int):
     return [heap_system(PARAMS, pre.condition, pre.numerics, seed) for seed in range(count)]
 
 
-def gpu_rate(preset: str, count: int, steps: int, warmup: int) -> tuple[float, int]:
-    batch = gpu.Batch(systems(preset, count))
+def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, int]:
+    batch = gpu.Batch(fills, mode=mode)
     batch.advance(warmup)
     t = time.perf_counter()
     status = batch.advance(steps)
@@ -87,6 +90,7 @@ def main():
     ap.add_argument("--preset", default="default")
     ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
+    ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
@@ -99,14 +103,20 @@ def main():
     cpu = {p: cpu_rate(p, a.cpu_heaps, a.steps, a.warmup) for p in presets}
     pool = {p: cpu_pool_rate(p, a.cpu_workers, a.steps, a.warmup) if a.cpu_workers else np.nan for p in presets}
     print("CPU 1 heap: one heap at a time on every thread; CPU per core: a heap per core at once (a campaign)")
-    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'GPU p-steps/s':>14} {'CPU 1 heap':>11} {'GPU/that':>8} "
-          f"{'CPU per core':>12} {'GPU/that':>8}")
+    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'mode':>10} {'GPU p-steps/s':>14} {'a step [us]':>11} "
+          f"{'CPU 1 heap':>11} {'GPU/that':>8} {'CPU per core':>12} {'GPU/that':>8}")
     runs = [(a.preset, int(b)) for b in a.batches.split(",") if b] + \
            [("paper", int(b)) for b in a.paper_batches.split(",") if b]
     for preset, count in runs:
-        rate, n = gpu_rate(preset, count, a.steps, a.warmup)
-        print(f"{preset:8} {count:5d} {n:9d} {rate:14.3g} {cpu[preset]:11.3g} {rate / cpu[preset]:8.1f} "
-              f"{pool[preset]:12.3g} {rate / pool[preset]:8.1f}", flush=True)
+        fills = systems(preset, count)  # each mode steps copies of the same fills (a batch packs their state)
+        for mode in a.modes.split(","):
+            try:
+                rate, n = gpu_rate(fills, a.steps, a.warmup, mode)
+            except Exception as e:  # noqa: BLE001 - a mode that fails on this machine is reported, the rest go on
+                print(f"{preset:8} {count:5d} {'':9} {mode:>10} FAILED {type(e).__name__}: {str(e)[:300]}", flush=True)
+                continue
+            print(f"{preset:8} {count:5d} {n:9d} {mode:>10} {rate:14.3g} {n / rate * 1e6:11.1f} {cpu[preset]:11.3g} "
+                  f"{rate / cpu[preset]:8.1f} {pool[preset]:12.3g} {rate / pool[preset]:8.1f}", flush=True)
 
 
 if __name__ == "__main__":

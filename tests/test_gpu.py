@@ -23,6 +23,9 @@ MAT = Material(5e6, 0.25, 2600)
 #: on a GPU the tolerances widen by this factor (atomic sums in varying order, fused multiply-adds): the
 #: simulator checks the arithmetic, a GPU that the engine runs the same heap
 LOOSE = 1.0 if gpu.SIMULATOR else 1e4
+#: the stepping modes a test runs: under the simulator "graph" is "device"'s launches (no graphs there), and
+#: "launch" differs from "device" only in the host's look at the rebuild flag (the collision test runs it)
+MODES = ["persistent", "device"] if gpu.SIMULATOR else list(gpu.MODES)
 
 
 def pair():
@@ -63,21 +66,23 @@ def run_both(cpu: list[System], on_gpu: list[System], steps: int, chunk: int, **
     return status
 
 
-def test_a_collision_matches_the_cpu_kernel_to_the_last_bit():
+@pytest.mark.parametrize("mode", ["persistent", "launch"] if gpu.SIMULATOR else gpu.MODES)
+def test_a_collision_matches_the_cpu_kernel_to_the_last_bit(mode):
     cpu, on_gpu = pair(), pair()
-    status = run_both([cpu], [on_gpu], 300, 300)
+    status = run_both([cpu], [on_gpu], 300, 300, mode=mode)
     assert list(status) == [gpu.OK]
     same_state(cpu, on_gpu, 1e-12 * LOOSE)
     assert np.abs(cpu.particles.omg).max() > 1.0  # the grains spun: tangential and rolling laws took part
 
 
-@pytest.mark.parametrize("gamma", [0.0, 0.5], ids=["hertz", "jkr"])
-def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma):
+@pytest.mark.parametrize("gamma,mode", [(g, m) for g in (0.0, 0.5) for m in MODES if g or m == "persistent"]
+                         if gpu.SIMULATOR else [(g, m) for g in (0.0, 0.5) for m in MODES])
+def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma, mode):
     """Floor, cylinder, the lift, neighbour-list rebuilds and history carried over them: each heap of
-    the batch as the CPU kernel steps it alone, with its own friction."""
+    the batch as the CPU kernel steps it alone, with its own friction, whichever way the steps launch."""
     cpu = [column(0, 0.3, gamma), column(1, 0.7, gamma)]
     on_gpu = [column(0, 0.3, gamma), column(1, 0.7, gamma)]
-    status = run_both(cpu, on_gpu, 300, 100)
+    status = run_both(cpu, on_gpu, 300, 100, mode=mode)
     assert list(status) == [gpu.OK, gpu.OK]
     for a, b in zip(cpu, on_gpu):
         assert a.n_rebuilds >= 4 and a.rim_height > 0  # the lists were rebuilt and the rim rose
@@ -85,9 +90,10 @@ def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma):
         assert b.max_overlap == pytest.approx(a.max_overlap, rel=1e-12 * LOOSE)
 
 
-def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun():
+@pytest.mark.parametrize("mode", MODES)
+def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun(mode):
     cpu, on_gpu = [column(2, 0.5)], [column(2, 0.5)]
-    b = gpu.Batch(on_gpu, width=1, cell_cap=1)
+    b = gpu.Batch(on_gpu, width=1, cell_cap=1, mode=mode)
     for _ in range(2):
         cpu[0].advance(100)
         b.advance(100)
@@ -96,10 +102,11 @@ def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun():
     same_state(cpu[0], on_gpu[0], 1e-9 * LOOSE)
 
 
-def test_a_heap_that_blows_up_stops_alone():
+@pytest.mark.parametrize("mode", MODES)
+def test_a_heap_that_blows_up_stops_alone(mode):
     wild = column(3, 0.5, kick=80.0)  # faster than any heap test: above the speed limit at once
     calm_cpu, calm = column(4, 0.5), column(4, 0.5)
-    b = gpu.Batch([wild, calm])
+    b = gpu.Batch([wild, calm], mode=mode)
     status = b.advance(50)
     calm_cpu.advance(50)
     b.pull()
@@ -107,9 +114,12 @@ def test_a_heap_that_blows_up_stops_alone():
     same_state(calm_cpu, calm, 1e-9 * LOOSE)
 
 
-def test_one_composition_a_batch():
+def test_one_composition_a_batch_and_a_known_stepping_mode(monkeypatch):
     with pytest.raises(CalibError, match="one composition"):
         gpu.Batch([column(0, 0.3), column(0, 0.3, gamma=0.5)])
+    monkeypatch.setenv("CALIB_GPU_STEP", "graphs")
+    with pytest.raises(CalibError, match="unknown GPU stepping mode 'graphs'.*persistent"):
+        gpu.Batch([column(0, 0.3)])
 
 
 def test_without_a_gpu_the_engine_says_so_in_one_line(monkeypatch):

@@ -1,12 +1,13 @@
 """Many heaps advanced together on a GPU (numba's CUDA target, the ``[gpu]`` extra: numba-cuda).
 
 A batch holds every heap's grains in one set of arrays, heap by heap (``first[h]:first[h+1]``), each
-heap with its own time step, parameter rows, walls, neighbour grid and state; one launch sequence
-per step advances them all, and a heap whose work is done is switched off (``active``). A step is the
-CPU kernel's (:func:`.integrate.run_steps`): half kick and drift, a Verlet-list rebuild where a grain
-moved half the skin, the rim's height, forces, half kick, the overlap and speed checks. A step is bound
-by its launches from Python (~70 us each on an H200, docs/performance.md), so it is three of them
-(``kick_drift``, ``forces``, ``kick``), and the rebuild's four only where a heap asks for one.
+heap with its own time step, parameter rows, walls, neighbour grid and state; a heap whose work is done
+is switched off (``active``). A step is the CPU kernel's (:func:`.integrate.run_steps`): half kick and
+drift, a Verlet-list rebuild where a grain moved half the skin, the rim's height, forces, half kick, the
+overlap and speed checks. Each phase is a device function of one grain (or cell); how the phases are
+launched is the batch's mode (:data:`MODES`): a kernel a phase launched from Python every step (bound by
+the launches, ~70 us each on an H200), the same captured in a CUDA graph, or one persistent cooperative
+kernel a chunk, whose grid waits for itself between phases (docs/performance.md measures each).
 
 One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
 run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
@@ -108,21 +109,22 @@ def _build(contact) -> dict:
 
 @cuda.jit(device=True)
 def _half_kick(i, half, vel, omg, force, torque, mass, inv_inertia):
-    """Grain i's half step of velocity Verlet: v += (dt/2) F/m, w += (dt/2) T/I (both kernels below)."""
+    """Grain i's half step of velocity Verlet: v += (dt/2) F/m, w += (dt/2) T/I (both halves below)."""
     im = 1.0 / mass[i]
     for d in range(3):
         vel[i, d] += half * force[i, d] * im
         omg[i, d] += half * torque[i, d] * inv_inertia[i]
 
 
-@cuda.jit
-def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
-               rebuild, grav, cnew, step, t0, lift_start, geo):
+# ------------------------------------------------------------------ one grain's (or cell's) share of a step
+# Each phase of a step is a device function of one index; the per-phase kernels below and the persistent
+# kernel (:func:`_persistent_kernel`) call the same ones, so every stepping mode runs the same arithmetic.
+
+@cuda.jit(device=True)
+def _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+               rebuild, anyreb, grav, cnew, step, t0, lift_start, geo):
     """The step's first half: half kick and drift, the rebuild flag where a grain moved half the skin,
     the force reset to gravity for the step's contacts; a heap's first grain moves its cylinder."""
-    i = cuda.grid(1)
-    if i >= n:
-        return
     h = heap[i]
     if active[h] == 0:
         return
@@ -134,6 +136,7 @@ def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, i
     dz = pos[i, 2] - ref_pos[i, 2]
     if dx * dx + dy * dy + dz * dz > limit2[h]:
         rebuild[h] = 1
+        anyreb[0] = 1
     for d in range(3):
         force[i, d] = mass[i] * grav[d]
         torque[i, d] = 0.0
@@ -141,28 +144,21 @@ def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, i
     if i == first[h] and geo[h, 2] != 0.0:  # the rim's height at the step's end, as the CPU kernel rounds it
         geo[h, 1] = geo[h, 2] * max(0.0, t0[h] + step * dt[h] + dt[h] - lift_start[h])
 
-@cuda.jit
-def clear_cells(ncells, cell_heap, rebuild, count):
-    c = cuda.grid(1)
-    if c < ncells and rebuild[cell_heap[c]] != 0:
-        count[c] = 0
 
 @cuda.jit(device=True)
-def cell_of(pos, i, lo, dims, side, h, d):
+def _cell_of(pos, i, lo, dims, side, h, d):
     c = int(math.floor((pos[i, d] - lo[h, d]) / side[h]))
     return min(max(c, 0), dims[h, d] - 1)
 
-@cuda.jit
-def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
-    i = cuda.grid(1)
-    if i >= n:
-        return
+
+@cuda.jit(device=True)
+def _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
     h = heap[i]
     if rebuild[h] == 0:
         return
-    cx = cell_of(pos, i, lo, dims, side, h, 0)
-    cy = cell_of(pos, i, lo, dims, side, h, 1)
-    cz = cell_of(pos, i, lo, dims, side, h, 2)
+    cx = _cell_of(pos, i, lo, dims, side, h, 0)
+    cy = _cell_of(pos, i, lo, dims, side, h, 1)
+    cz = _cell_of(pos, i, lo, dims, side, h, 2)
     c = cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
     s = cuda.atomic.add(count, c, 1)
     if s < cap:
@@ -170,18 +166,17 @@ def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, 
     else:
         overflow[0] = 1
 
-@cuda.jit
-def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
-                    nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
-    i = cuda.grid(1)
-    if i >= n:
-        return
+
+@cuda.jit(device=True)
+def _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
+              new_nnb, new_nbr, new_hist, overflow):
+    """Grain i's neighbours j > i within reach, from the 27 cells around it, each with its old history."""
     h = heap[i]
     if rebuild[h] == 0:
         return
-    cx = cell_of(pos, i, lo, dims, side, h, 0)
-    cy = cell_of(pos, i, lo, dims, side, h, 1)
-    cz = cell_of(pos, i, lo, dims, side, h, 2)
+    cx = _cell_of(pos, i, lo, dims, side, h, 0)
+    cy = _cell_of(pos, i, lo, dims, side, h, 1)
+    cz = _cell_of(pos, i, lo, dims, side, h, 2)
     m = 0
     width = nbr.shape[1]
     for x in range(max(cx - 1, 0), min(cx + 2, dims[h, 0])):
@@ -211,10 +206,10 @@ def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, co
                     m += 1
     new_nnb[i] = m
 
-@cuda.jit
-def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
-    i = cuda.grid(1)
-    if i >= n or rebuild[heap[i]] == 0:
+
+@cuda.jit(device=True)
+def _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
+    if rebuild[heap[i]] == 0:
         return
     nnb[i] = new_nnb[i]
     for s in range(new_nnb[i]):
@@ -224,14 +219,12 @@ def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_
     for d in range(3):
         ref_pos[i, d] = pos[i, d]
 
-@cuda.jit
-def kick(n, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
-         overlap_limit, speed_limit, worst, status):
+
+@cuda.jit(device=True)
+def _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
+              overlap_limit, speed_limit, worst, status):
     """The step's second half: half kick, the contact counts, the overlap and speed checks; a heap's
     first grain clears its rebuild flag (the lists were rebuilt earlier in the step)."""
-    i = cuda.grid(1)
-    if i >= n:
-        return
     h = heap[i]
     if i == first[h]:
         rebuild[h] = 0
@@ -248,6 +241,62 @@ def kick(n, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv
         active[h] = 0
 
 
+# ------------------------------------------------------------------ a kernel a phase (modes launch, device, graph)
+# A thread a grain (a cell for clear_cells). The step number within the chunk is read from the device
+# (``nstep``, counted by ``kick``), so that a captured CUDA graph replays the same launches step after step.
+
+@cuda.jit
+def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+               rebuild, anyreb, grav, cnew, nstep, t0, lift_start, geo):
+    i = cuda.grid(1)
+    if i < n:
+        _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+                   rebuild, anyreb, grav, cnew, nstep[0], t0, lift_start, geo)
+
+
+@cuda.jit
+def clear_cells(ncells, cell_heap, rebuild, count):
+    c = cuda.grid(1)
+    if c < ncells and rebuild[cell_heap[c]] != 0:
+        count[c] = 0
+
+
+@cuda.jit
+def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
+    i = cuda.grid(1)
+    if i < n:
+        _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow)
+
+
+@cuda.jit
+def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+                    nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
+    i = cuda.grid(1)
+    if i < n:
+        _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
+                  new_nnb, new_nbr, new_hist, overflow)
+
+
+@cuda.jit
+def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
+    i = cuda.grid(1)
+    if i < n:
+        _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+
+
+@cuda.jit
+def kick(n, active, heap, first, rebuild, anyreb, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
+         overlap_limit, speed_limit, worst, status, nstep):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    if i == 0:  # every thread of the step read both before this launch
+        nstep[0] += 1
+        anyreb[0] = 0
+    _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
+              overlap_limit, speed_limit, worst, status)
+
+
 #: the kernels that take no contact law (one set for every composition)
 STEP_KERNELS = dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
                     find_neighbours=find_neighbours, adopt=adopt, kick=kick)
@@ -255,15 +304,12 @@ STEP_KERNELS = dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=b
 
 def _force_kernels(contact) -> dict:
     """The step's contacts around the composed ``contact`` (a compiled function of :mod:`.forces`): one
-    kernel, a thread a grain, its pairs and then its walls (one launch: a step is bound by its launches)."""
+    kernel, a thread a grain, its pairs and then its walls; and the persistent kernel, which calls it."""
     pairs_of, walls_of = _pairs_of(contact), _walls_of(contact)
 
-    @cuda.jit
-    def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
-               force, torque, ncont, cnew, worst):
-        i = cuda.grid(1)
-        if i >= n:
-            return
+    @cuda.jit(device=True)
+    def forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
+                   force, torque, ncont, cnew, worst):
         h = heap[i]
         if active[h] == 0:
             return
@@ -273,8 +319,67 @@ def _force_kernels(contact) -> dict:
         walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, cnew,
                  worst)
 
-    return {"forces": forces}
+    @cuda.jit
+    def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
+               force, torque, ncont, cnew, worst):
+        i = cuda.grid(1)
+        if i < n:
+            forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo,
+                       dt, force, torque, ncont, cnew, worst)
 
+    return {"forces": forces, "persistent": _persistent_kernel(forces_one)}
+
+
+def _persistent_kernel(forces_one):
+    """``nsteps`` whole steps in one cooperative launch: every thread strides over the grains (cells) of a
+    phase, and the grid waits for all before the next (``this_grid().sync()``, a cooperative launch that
+    numba makes when a kernel syncs its grid). The rebuild's four phases run only on a step where some
+    heap asked for one (``anyreb``, read by every thread after the sync that follows the drift). Under
+    numba's simulator a grid is one block, launched here with one thread: phases in grain order, as the
+    per-phase kernels run there, so the states stay bit for bit the CPU kernel's."""
+
+    @cuda.jit
+    def persistent(nsteps, n, ncells, cap, overlap_limit, speed_limit, active, heap, first, cell_heap, dt, pos, vel,
+                   omg, force, torque, rad, mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0,
+                   lift_start, geo, lo, dims, side, cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nnb,
+                   new_nbr, new_hist, hf, hc, prm, gap, ncont, worst, status, nstep):
+        grid = cuda.cg.this_grid()
+        start = cuda.grid(1)
+        stride = cuda.gridsize(1)
+        for step in range(nsteps):
+            for i in range(start, n, stride):
+                _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
+                           limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
+            grid.sync()
+            if anyreb[0] != 0:
+                for c in range(start, ncells, stride):
+                    if rebuild[cell_heap[c]] != 0:
+                        count[c] = 0
+                grid.sync()
+                for i in range(start, n, stride):
+                    _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow)
+                grid.sync()
+                for i in range(start, n, stride):
+                    _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
+                              hist, new_nnb, new_nbr, new_hist, overflow)
+                grid.sync()
+                for i in range(start, n, stride):
+                    _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+                grid.sync()
+            for i in range(start, n, stride):
+                forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap,
+                           geo, dt, force, torque, ncont, cnew, worst)
+            grid.sync()
+            if start == 0:  # every thread read anyreb before the sync above
+                anyreb[0] = 0
+            for i in range(start, n, stride):
+                _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont,
+                          cnew, overlap_limit, speed_limit, worst, status)
+            grid.sync()
+        if start == 0:
+            nstep[0] += nsteps
+
+    return persistent
 
 def _pairs_of(contact):
     """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically."""
@@ -392,6 +497,7 @@ def pack(systems: list, width: int = 16, cell_cap: int = 48) -> dict:
         "limit2": np.array([(0.5 * s.skin) ** 2 for s in ss]), "grav": np.asarray(ss[0].grav, dtype=np.float64),
         "active": np.ones(len(ss), np.int64), "status": np.zeros(len(ss), np.int64),
         "rebuild": np.zeros(len(ss), np.int64), "worst": np.zeros(len(ss)), "overflow": np.zeros(1, np.int64),
+        "anyreb": np.zeros(1, np.int64), "nstep": np.zeros(1, np.int64),
         "t0": np.array([s.t for s in ss]),
     }
     first = np.concatenate([[0], np.cumsum([s.n for s in ss])]).astype(np.int64)
@@ -444,9 +550,9 @@ def _params(kernel) -> tuple[str, ...]:
     return tuple(inspect.signature(fn).parameters)
 
 
-def _scalars(host: dict, systems: list, cell_cap: int, step: int = 0) -> dict:
+def _scalars(host: dict, systems: list, cell_cap: int, nsteps: int = 1) -> dict:
     return {"n": len(host["heap"]), "ncells": len(host["count"]), "cap": cell_cap,
-            "step": step, "overlap_limit": float(systems[0].overlap_limit),
+            "nsteps": nsteps, "overlap_limit": float(systems[0].overlap_limit),
             "speed_limit": float(systems[0].speed_limit)}
 
 
@@ -475,20 +581,44 @@ def compile_ptx(spec: str, systems: list, cc: tuple[int, int] = (9, 0)) -> dict[
     return out
 
 
+#: how a batch runs its steps (docs/performance.md measures each on a GPU):
+#: ``launch``: a kernel a phase, launched from Python every step, the host reading whether any heap asked for
+#: a neighbour rebuild (the engine as first measured); ``device``: the same kernels with no read-back, all
+#: seven launched every step and each heap's threads skipping a rebuild it did not ask for; ``graph``:
+#: ``device``'s launches for :data:`GRAPH_STEPS` steps captured once in a CUDA graph and replayed;
+#: ``persistent``: one cooperative launch a chunk (:func:`_persistent_kernel`). Chosen by ``CALIB_GPU_STEP``.
+MODES = ("launch", "device", "graph", "persistent")
+#: the default: the one mode that has run on a GPU; the other three are bit for bit the CPU kernel under the
+#: simulator and compile for sm_90, but no GPU has run them yet (benchmarks/gpu_device.sh will)
+DEFAULT_MODE = "launch"
+GRAPH_STEPS = 50
+
+
+def step_mode(mode: str | None = None) -> str:
+    """The stepping mode asked for (``mode``, else ``CALIB_GPU_STEP``, else :data:`DEFAULT_MODE`), checked."""
+    mode = mode or os.environ.get("CALIB_GPU_STEP") or DEFAULT_MODE
+    if mode not in MODES:
+        raise CalibError(f"unknown GPU stepping mode {mode!r} (CALIB_GPU_STEP): one of {', '.join(MODES)}")
+    return mode
+
+
 class Batch:
     """Heaps advanced together: ``systems`` (:class:`.system.System`, one composition of laws) packed
     into one set of device arrays. :meth:`advance` runs steps on all the active ones, :meth:`pull`
     brings positions and velocities back into the systems, :meth:`push_walls` sends their wall
-    settings (lift, drag, cylinder on or off) to the device.
+    settings (lift, drag, cylinder on or off) to the device. ``mode``: how the steps are launched
+    (:data:`MODES`); every mode runs the same device functions.
 
     Starts from each system's own state, neighbour list and contact history, so that a batch and the
-    CPU kernel step from the same point."""
+    CPU kernel step from the same point. The device arrays keep their addresses between chunks (a captured
+    graph holds them) except where :meth:`_grow` makes room, which drops the graphs."""
 
-    def __init__(self, systems: list, width: int = 16, cell_cap: int = 48, block: int = 128):
+    def __init__(self, systems: list, width: int = 16, cell_cap: int = 48, block: int = 128,
+                 mode: str | None = None):
         specs = {s.model.spec for s in systems}
         if len(specs) != 1:
             raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
-        self.systems, self.spec = list(systems), specs.pop()
+        self.systems, self.spec, self.mode = list(systems), specs.pop(), step_mode(mode)
         # the simulator starts a Python thread per GPU thread: few of them
         self.block = min(block, 32) if SIMULATOR else block
         self.cuda = cuda_module()
@@ -498,24 +628,35 @@ class Batch:
         self.first = self.host["first"]
         self.width = self.host["nbr"].shape[1]
         self.d = {k: self.cuda.to_device(v) for k, v in self.host.items()}
+        self._graphs, self._coop, self._stream, self._kept = {}, None, None, None
 
-    def _launch(self, name: str, threads: int, args: dict) -> None:
-        """Kernel ``name`` on ``threads`` threads, its arguments taken by parameter name from ``args`` (the
-        scalars) and the device arrays."""
+    def _set(self, name: str, value: np.ndarray) -> None:
+        """Host values into device array ``name``, in place (its address stays)."""
+        self.d[name].copy_to_device(np.ascontiguousarray(value, dtype=self.d[name].dtype))
+
+    def _args(self, kernel, extra: dict | None = None) -> list:
+        """``kernel``'s arguments by parameter name: the batch's scalars, ``extra``, the device arrays."""
+        scalars = {**_scalars(self.host, self.systems, self.cell_cap), **(extra or {})}
+        return [scalars[p] if p in scalars else self.d[p] for p in _params(kernel)]
+
+    def _launch(self, name: str, threads: int, stream=None) -> None:
+        """Kernel ``name`` on ``threads`` threads (into ``stream``: a graph being built)."""
         kernel = self.k[name]
         b = min(self.block, max(threads, 1)) if SIMULATOR else self.block  # no idle simulated threads
-        kernel[(threads + b - 1) // b, b](*[args[p] if p in args else self.d[p] for p in _params(kernel)])
+        grid = (threads + b - 1) // b
+        (kernel[grid, b] if stream is None else kernel[grid, b, stream])(*self._args(kernel))
 
     # -------------------------------------------------------------- stepping
     def advance(self, nsteps: int) -> np.ndarray:
         """``nsteps`` steps of every active heap; returns each heap's status (:data:`OK`, :data:`OVERLAP`,
         :data:`SPEED`). A chunk whose neighbour slots or cells overflowed is run again with more room."""
         while True:
-            saved = {k: self._copy(self.d[k]) for k in STATE}  # on the device: a host copy would move GBs
+            self._keep()
             self._chunk(nsteps)
             if not self.d["overflow"].copy_to_host()[0]:
                 break
-            self.d.update(saved)
+            for k, v in self._kept.items():
+                self.d[k].copy_to_device(v)
             self._grow()
         status = self.d["status"].copy_to_host()
         worst = self.d["worst"].copy_to_host()
@@ -528,28 +669,98 @@ class Batch:
         return status
 
     def _chunk(self, nsteps: int) -> None:
-        n, nh = len(self.host["heap"]), len(self.systems)
-        self.d["worst"] = self.cuda.to_device(np.zeros(nh))
-        self.d["overflow"] = self.cuda.to_device(np.zeros(1, np.int64))
-        self.d["t0"] = self.cuda.to_device(np.array([s.t for s in self.systems]))
-        args = _scalars(self.host, self.systems, self.cell_cap)
-        for step in range(nsteps):
-            args["step"] = step
-            self._launch("kick_drift", n, args)
-            # skip a rebuild no heap asked for (same result): a step is bound by its launches (~70 us each on an
-            # H200, docs/performance.md), and reading one flag per heap costs less than four launches
-            if self.d["rebuild"].copy_to_host().any():
-                for name, threads in (("clear_cells", len(self.host["count"])), ("bin_grains", n),
-                                      ("find_neighbours", n), ("adopt", n)):
-                    self._launch(name, threads, args)
-            self._launch("forces", n, args)
-            self._launch("kick", n, args)
+        nh = len(self.systems)
+        for name, v in (("worst", np.zeros(nh)), ("overflow", np.zeros(1)), ("nstep", np.zeros(1)),
+                        ("anyreb", np.zeros(1)), ("t0", [s.t for s in self.systems])):
+            self._set(name, v)
+        getattr(self, f"_steps_{self.mode}")(nsteps)
         self.cuda.synchronize()
 
-    def _copy(self, a):
-        b = self.cuda.device_array_like(a)
-        b.copy_to_device(a)
-        return b
+    def _steps_launch(self, nsteps: int) -> None:
+        n = len(self.host["heap"])
+        for _ in range(nsteps):
+            self._launch("kick_drift", n)
+            # skip a rebuild no heap asked for (same result): here a step is bound by its launches (~70 us each
+            # on an H200, docs/performance.md), and reading one flag costs less than four launches
+            if self.d["anyreb"].copy_to_host()[0]:
+                self._rebuild(n)
+            self._launch("forces", n)
+            self._launch("kick", n)
+
+    def _rebuild(self, n: int, stream=None) -> None:
+        self._launch("clear_cells", len(self.host["count"]), stream)
+        for name in ("bin_grains", "find_neighbours", "adopt"):
+            self._launch(name, n, stream)
+
+    def _steps_device(self, nsteps: int, stream=None) -> None:
+        n = len(self.host["heap"])
+        for _ in range(nsteps):
+            self._launch("kick_drift", n, stream)
+            self._rebuild(n, stream)
+            self._launch("forces", n, stream)
+            self._launch("kick", n, stream)
+
+    def _steps_graph(self, nsteps: int) -> None:
+        """Whole graphs of :data:`GRAPH_STEPS` steps replayed, the rest launched one by one. Under the
+        simulator (no graphs there) the same launches as ``device``."""
+        if SIMULATOR:
+            return self._steps_device(nsteps)
+        if GRAPH_STEPS not in self._graphs:
+            warm = min(nsteps, GRAPH_STEPS)
+            self._steps_device(warm)  # compiles and loads the kernels: not while a graph is being captured
+            nsteps -= warm
+        reps, rest = divmod(nsteps, GRAPH_STEPS)
+        if reps:
+            graph = self._graph(GRAPH_STEPS)
+            self.cuda.synchronize()  # the chunk's values were copied on numba's stream, not the graph's
+            for _ in range(reps):
+                graph.launch(self._stream)
+            self._stream.sync()
+        self._steps_device(rest)
+
+    def _graph(self, steps: int):
+        """The launches of ``steps`` steps captured in a CUDA graph (numba-cuda launches into a cuda.core
+        GraphBuilder passed as the stream), built once per room size."""
+        if steps not in self._graphs:
+            try:
+                from cuda.core import Device
+            except ImportError:  # cuda.core before 0.4
+                from cuda.core.experimental import Device
+            dev = Device()
+            dev.set_current()
+            if self._stream is None:
+                self._stream = dev.create_stream()
+            builder = dev.create_graph_builder()
+            builder.begin_building()
+            self._steps_device(steps, builder)
+            self._graphs[steps] = builder.end_building().complete()
+        return self._graphs[steps]
+
+    def _steps_persistent(self, nsteps: int) -> None:
+        kernel, grid, block = self._cooperative()
+        kernel[grid, block](*self._args(kernel, {"nsteps": nsteps}))
+
+    def _cooperative(self):
+        """The persistent kernel, specialized to the batch's arrays, with the most blocks that can all be
+        resident at once (a cooperative launch needs them all running); one thread under the simulator."""
+        if self._coop is None:
+            kernel = self.k["persistent"]
+            if SIMULATOR:
+                self._coop = (kernel, 1, 1)
+            else:
+                kernel = kernel.specialize(*self._args(kernel, {"nsteps": 1}))
+                most = next(iter(kernel.overloads.values())).max_cooperative_grid_blocks(self.block)
+                need = (max(len(self.host["heap"]), len(self.host["count"])) + self.block - 1) // self.block
+                self._coop = (kernel, max(1, min(most, need)), self.block)
+        return self._coop
+
+    def _keep(self) -> None:
+        """The state a chunk may leave half-done, copied on the device (a host copy would move GBs), into
+        arrays allocated once per room size."""
+        if self._kept is None:
+            self._kept = {k: self.cuda.device_array_like(self.d[k]) for k in STATE}
+        for k, v in self._kept.items():
+            v.copy_to_device(self.d[k])
 
     def _grow(self) -> None:
         """Twice the neighbour slots and cell room, the lists rebuilt from the current positions."""
@@ -566,6 +777,7 @@ class Batch:
         for name, v in {**slots, "count": grids["count"], "slots": grids["slots"]}.items():
             self.host[name] = v
             self.d[name] = self.cuda.to_device(v)
+        self._graphs, self._coop, self._kept = {}, None, None  # they hold the old arrays (and the cell count)
 
     # -------------------------------------------------------------- exchange with the systems
     def pull(self, lists: bool = False) -> None:
@@ -589,22 +801,24 @@ class Batch:
         """The systems' wall settings (``geo``: lift speed, cylinder on, drag) and lift start to the device."""
         self.host["geo"] = np.stack([s.geo for s in self.systems])
         self.host["lift_start"] = np.array([s.walls.lift_start for s in self.systems])
-        self.d["geo"] = self.cuda.to_device(self.host["geo"])
-        self.d["lift_start"] = self.cuda.to_device(self.host["lift_start"])
+        self._set("geo", self.host["geo"])
+        self._set("lift_start", self.host["lift_start"])
 
     def stop(self, h: int) -> None:
         """Heap ``h`` takes no more steps (its test is done)."""
         self.host["active"][h] = 0
-        self.d["active"] = self.cuda.to_device(self.host["active"])
+        self._set("active", self.host["active"])
 
 
-def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every: float | None = None) -> list:
+def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every: float | None = None,
+              mode: str | None = None) -> list:
     """Run heap tests (:class:`.heap.HeapTest`) together on the GPU, one batch per composition of laws
     and chunk length; returns their :class:`.heap.HeapResult`, in order. Each test follows the CPU
     engine's protocol: every active heap advances one chunk, then each test decides its next phase (its
     walls change on the device before the next chunk); a finished or blown-up heap leaves the batch.
     ``checkpoints`` (a file per test, or None): each unfinished test's state is saved there every
-    ``every`` seconds (:func:`.heap.save_checkpoint`), to go on from with :func:`.heap.resume`."""
+    ``every`` seconds (:func:`.heap.save_checkpoint`), to go on from with :func:`.heap.resume`. ``mode``:
+    how the batches step (:func:`step_mode`)."""
     from .heap import CHECKPOINT_EVERY
 
     results: list = [None] * len(tests)
@@ -614,7 +828,7 @@ def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every
         groups.setdefault((t.system.model.spec, t.numerics.chunk), []).append(i)
     for (_, chunk), members in groups.items():
         done = _run_batch([tests[i] for i in members], chunk, [files[i] for i in members],
-                          CHECKPOINT_EVERY if every is None else every)
+                          CHECKPOINT_EVERY if every is None else every, mode)
         for i, r in zip(members, done):
             results[i] = r
         if progress:
@@ -622,8 +836,8 @@ def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every
     return results
 
 
-def _run_batch(tests: list, chunk: int, files: list, every: float) -> list:
-    batch = Batch([t.system for t in tests])
+def _run_batch(tests: list, chunk: int, files: list, every: float, mode: str | None) -> list:
+    batch = Batch([t.system for t in tests], mode=mode)
     out: list = [None] * len(tests)
     for h, t in enumerate(tests):
         if t.done:  # nothing to step (a zero time limit)
