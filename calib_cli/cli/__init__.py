@@ -6,13 +6,10 @@ import os
 import sys
 
 import typer
-from typer.core import TyperGroup
 
 from .. import __version__
-from .. import artifacts as art
-from ..stages.run_dir import init_run
-from .common import (ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console, err_console,
-                     handle_errors)
+from .common import (CalibCommand, CalibGroup, ForceOpt, RunOpt, SettingOpt, SettingsOpt, check_run_dir, console,
+                     err_console, handle_errors)
 from .calibrate_cmd import calibrate
 from .diff_cmd import diff_runs_cmd
 from .discrepancy_cmds import compare, diagnose, model_app, suggest_conditions, synth_lab
@@ -28,7 +25,7 @@ WORKFLOW = ["init", "run", "measure-angle", "synth-lab", "calibrate", "pb", "asc
             "suggest-conditions", "report", "diff-runs"]
 
 
-class _InWorkflowOrder(TyperGroup):
+class _InWorkflowOrder(CalibGroup):
     def list_commands(self, ctx):
         return sorted(super().list_commands(ctx), key=lambda c: WORKFLOW.index(c) if c in WORKFLOW else len(WORKFLOW))
 
@@ -48,7 +45,7 @@ SETUP, MEASURE, CALIBRATE, DESIGN, SIMULATE, SURROGATE, LOOP, REPORT = (
 
 
 def _add(name: str, fn, panel: str, short: str) -> None:
-    app.command(name, rich_help_panel=panel, short_help=short)(handle_errors(fn))
+    app.command(name, cls=CalibCommand, rich_help_panel=panel, short_help=short)(handle_errors(fn))
 
 
 def _init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
@@ -56,6 +53,8 @@ def _init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None,
     built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
     for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
     replaced only with --force; -s without --settings adds to it."""
+    from ..stages.run_dir import init_run
+
     r = init_run(run, settings, setting, force)
     if r.wrote:
         console.print(f"[green]✓[/] wrote {r.path}")
@@ -67,6 +66,7 @@ def _report(run: RunOpt):
     """Write RUN/report.html, the answer first: what was calibrated against what and whether it fits,
     the parameters, the fit per condition, the error history, the missing effects and a photograph
     per condition; then the paper's stages and the raw tables (docs/getting-started.md)."""
+    from .. import artifacts as art
     from ..report import build_report
 
     run = check_run_dir(run)

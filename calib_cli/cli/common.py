@@ -1,4 +1,8 @@
-"""Shared CLI plumbing: options, settings resolution, errors, rich tables."""
+"""Shared CLI plumbing: options, settings resolution, errors, rich tables.
+
+Light on purpose: `calib --help` and every command's --help import this package, so nothing here
+(nor in the command modules) imports numpy, pandas or a stage at import time; what a command needs
+it imports when it runs (tests/test_startup.py holds that, benchmarks/startup.py times it)."""
 
 from __future__ import annotations
 
@@ -8,18 +12,79 @@ import functools
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Callable, Optional
+from typing import TYPE_CHECKING, Annotated, Callable, Optional
 
-import numpy as np
-import pandas as pd
 import typer
 from rich.console import Console, Group
 from rich.markup import escape
 from rich.table import Table
+from typer.core import TyperCommand, TyperGroup
 
-from .. import artifacts as art
 from ..errors import CalibError
-from ..stages.common import check_run_dir  # noqa: F401 (the commands' import)
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .. import artifacts as art
+
+
+def check_run_dir(run: Path) -> Path:
+    """calib_cli.stages.common.check_run_dir, imported when a command runs (it imports pandas)."""
+    from ..stages.common import check_run_dir as check
+
+    return check(run)
+
+
+def _bare_flags(params) -> None:
+    """A flag takes no value, so its help shows none: typer would show <bool>, which reads as if
+    `--force true` were the way to write it (it fails: 'unexpected extra argument')."""
+    for p in params:
+        if getattr(p, "is_flag", False) and p.metavar is None:
+            p.metavar = ""
+
+
+def split_commas(params, args: list[str]) -> list[str]:
+    """`--band 0.1,0.9` (or `--band=0.1,0.9`) read as `--band 0.1 0.9`: an option of N values takes them
+    comma-separated as well as space-separated. A value with another number of commas is left as it was."""
+    nargs = {o: p.nargs for p in params if getattr(p, "param_type_name", "") == "option" and p.nargs > 1
+             for o in p.opts}
+    if not nargs:
+        return list(args)
+    out, i = [], 0
+    while i < len(args):
+        a = args[i]
+        i += 1
+        if a == "--":
+            return [*out, a, *args[i:]]
+        name, eq, value = a.partition("=")
+        if name in nargs and (eq or i < len(args)):
+            if not eq:
+                value = args[i]
+                i += 1
+            parts = value.split(",")
+            out += [name, *parts] if len(parts) == nargs[name] else [a] if eq else [a, value]
+            continue
+        out.append(a)
+    return out
+
+
+class CalibCommand(TyperCommand):
+    """Every calib command: flags shown without a value, options of several values comma-separated too."""
+
+    def format_help(self, ctx, formatter) -> None:
+        _bare_flags(self.get_params(ctx))
+        return super().format_help(ctx, formatter)
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        return super().parse_args(ctx, split_commas(self.params, args))
+
+
+class CalibGroup(TyperGroup):
+    """calib and its sub-apps (model, pb, ascent, bbd): their own --help shows flags without a value."""
+
+    def format_help(self, ctx, formatter) -> None:
+        _bare_flags(self.get_params(ctx))
+        return super().format_help(ctx, formatter)
 
 #: Output to a log or a pipe (make, CI) is 120 columns, not rich's 80, which cut the result tables' headers
 #: to "sta…"; a terminal's own width and $COLUMNS still win.
@@ -111,6 +176,8 @@ def skipped(stage: art.Stage) -> None:
 
 
 def fmt(v, digits: int = 5) -> str:
+    import numpy as np
+
     if isinstance(v, (bool, np.bool_)):
         return "yes" if v else "no"
     if isinstance(v, (int, np.integer)):
@@ -144,6 +211,8 @@ def df_table(df: pd.DataFrame, title: str, formats: dict[str, Callable] | None =
 
 
 def _table(df: pd.DataFrame, cells: dict[str, list[str]], columns: list, title: str) -> Table:
+    import pandas as pd
+
     t = Table(title=title, title_justify="left", header_style="bold")
     for c in columns:
         t.add_column(str(c), justify="right" if pd.api.types.is_numeric_dtype(df[c]) else "left")
@@ -162,6 +231,9 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
     """A posterior's summary as printed: per parameter its median, 90 % interval, width over its range,
     whether identified, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
     autocorrelation time and whether they are long enough for it."""
+    import numpy as np
+    import pandas as pd
+
     from ..posterior.evidence import bf_text
 
     upper = table["bf_upper"] if "bf_upper" in table.columns else pd.Series(False, index=table.index)

@@ -8,7 +8,6 @@ import typer
 from typing_extensions import Annotated
 
 from ..errors import CalibError
-from ..stages.rundiff import diff_runs
 from rich.markup import escape
 from rich.table import Table
 
@@ -24,6 +23,8 @@ def diff_runs_cmd(
 ):
     """Print a run's headline numbers (measured target, screening, bracket, fits, calibrated parameters,
     validation, comparison) beside a reference run's, and why they differ where they do."""
+    from ..stages.rundiff import diff_runs
+
     for p in (run, reference):
         if not p.is_dir():
             raise CalibError(f"no run directory {p}")

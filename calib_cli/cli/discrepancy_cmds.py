@@ -5,48 +5,65 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Optional
 
-import pandas as pd
 import typer
 
 from ..errors import CalibError
-from ..model import EFFECTS, Model, load_model, save_model
-from ..stages import compare as compare_stage
-from ..stages import diagnose as diagnose_stage
-from ..stages import lab
-from ..stages import suggest as suggest_stage
-from .common import (PRESETS_HELP, AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, check_run_dir, console,
-                     df_table, handle_errors, other_revision, say, skipped)
+from .common import (PRESETS_HELP, AtRevisionOpt, CalibCommand, CalibGroup, ForceOpt, PresetOpt, RunOpt,
+                     ShearModulusOpt, check_run_dir, console, df_table, handle_errors, other_revision, say, skipped)
+from .names import EFFECT_NAMES
 
-model_app = typer.Typer(help="The model: a named set of physical effects.", no_args_is_help=True)
+if TYPE_CHECKING:
+    from ..model import Model
+
+model_app = typer.Typer(cls=CalibGroup, help="The model: a named set of physical effects.", no_args_is_help=True)
 RepeatsOpt = Annotated[int, typer.Option(min=1, help="Simulations per condition (seeds).")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Parallel simulations.")]
 SetOpt = Annotated[Optional[list[str]], typer.Option("--set", help="Calibrated parameter KEY=VALUE (default: "
-                                                     "RUN/invert/solution.parquet).")]
+                                                     "the calibrated point, point.parquet in RUN/calibrate/, else "
+                                                     "solution.parquet in RUN/invert/).")]
 
 
 
 def _show(m: Model) -> None:
+    import pandas as pd
+
+    from ..model import EFFECTS
+
     rows = [{"effect": e.name, "in model": e.name in m.effects, "parameter": e.parameter, "low": e.low,
              "high": e.high, "neutral": "= particle value" if math.isnan(e.neutral) else e.neutral,
              "what": e.description} for e in EFFECTS.values()]
     console.print(df_table(pd.DataFrame(rows), f"model revision {m.revision}: {', '.join(m.effects)}"))
 
 
-@model_app.command("show")
+@model_app.command("show", cls=CalibCommand)
 @handle_errors
 def model_show(run: RunOpt):
     """Print the model's effects (RUN/model.toml; the default model if there is none)."""
+    from ..model import load_model
+
     _show(load_model(check_run_dir(run)))
 
 
-@model_app.command("add")
+#: the effects, as model add and remove list them (calib_cli.model.EFFECTS' names)
+_EFFECTS_HELP = ", ".join(EFFECT_NAMES)
+EffectArg = Annotated[str, typer.Argument(help=f"The effect: one of {_EFFECTS_HELP}.", show_default=False)]
+
+
+# (help without hard line breaks past the first paragraph: typer keeps those, and they would break a narrow terminal's
+# lines in the middle)
+@model_app.command("add", cls=CalibCommand, short_help="Add an effect: a new revision of RUN/model.toml.",
+                   help="Add an effect to the run's model: writes a new revision of RUN/model.toml (old ones kept "
+                   "in RUN/model/), whose parameter the next calibration fits.\n\n"
+                   f"The effects: {_EFFECTS_HELP}. `calib model show` lists each with its parameter, bounds and "
+                   "what it does.")
 @handle_errors
-def model_add(effect: str, run: RunOpt, at_revision: AtRevisionOpt = None):
-    """Add an effect: writes a new revision of RUN/model.toml (old ones kept in RUN/model/)."""
+def model_add(effect: EffectArg, run: RunOpt, at_revision: AtRevisionOpt = None):
     if other_revision(run, at_revision):
         return
+    from ..model import EFFECTS, Model, load_model, save_model
+
     run = check_run_dir(run)
     m = load_model(run)
     if effect not in EFFECTS:
@@ -57,10 +74,14 @@ def model_add(effect: str, run: RunOpt, at_revision: AtRevisionOpt = None):
     _show(new)
 
 
-@model_app.command("remove")
+@model_app.command("remove", cls=CalibCommand, short_help="Remove an effect: a new revision of RUN/model.toml.",
+                   help="Remove an effect from the run's model (its parameter returns to its neutral value): writes "
+                   "a new revision of RUN/model.toml (old ones kept in RUN/model/).\n\n"
+                   f"The effects: {_EFFECTS_HELP}. `calib model show` lists those in the model.")
 @handle_errors
-def model_remove(effect: str, run: RunOpt):
-    """Remove an effect (its parameter returns to its neutral value): a new revision."""
+def model_remove(effect: EffectArg, run: RunOpt):
+    from ..model import Model, load_model, save_model
+
     run = check_run_dir(run)
     m = load_model(run)
     if effect not in m.effects:
@@ -86,6 +107,8 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats:
     """
     if other_revision(run, at_revision):
         return
+    from ..stages import compare as compare_stage
+
     r = compare_stage.compare(run, set_, preset, repeats, workers, shear_modulus, force, say=say)
     if r.skipped:
         return skipped(r.stage)
@@ -117,6 +140,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
     """
     if other_revision(run, at_revision):
         return
+    from ..stages import diagnose as diagnose_stage
+
     r = diagnose_stage.diagnose(run, set_, preset, repeats, workers, shear_modulus, alpha, force, say=say)
     if r.skipped:
         return skipped(r.stage)
@@ -156,6 +181,8 @@ def suggest_conditions(
     (--repeats heaps a step, at the parameters diagnose used, or --set), into
     RUN/suggest/sensitivities.parquet, and ranks them.
     """
+    from ..stages import suggest as suggest_stage
+
     ids = [i.strip() for i in simulate.split(",") if i.strip()] if simulate else []
     r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say, simulate=ids, set_=set_, preset=preset,
                                          repeats=repeats, workers=workers, shear_modulus=shear_modulus)
@@ -195,6 +222,8 @@ def synth_lab(
 ):
     """Synthetic measurements with a hidden effect: DEM heaps under several conditions, rendered
     as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads)."""
+    from ..stages import lab
+
     r = lab.synth_lab(out, set_, hidden, sizes, cylinders, fill_ratio, fills, repeats, preset, workers, shear_modulus,
                       floor, noise, seed, engine, px_per_m)
     console.print(f"[green]✓[/] {r.summary()}")

@@ -4,36 +4,44 @@ from __future__ import annotations
 
 from typing import Optional
 
-import numpy as np
-import pandas as pd
 import typer
 
-from ..stages import doe
-from .common import (ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, console, df_table, handle_errors, pvalue,
-                     say, skipped)
+from .common import (CalibCommand, CalibGroup, ForceOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, console,
+                     df_table, handle_errors, pvalue, say, skipped)
 
-pb_app = typer.Typer(help="Plackett-Burman screening (paper 3.1, Tables 2-4).", no_args_is_help=True)
-ascent_app = typer.Typer(help="Steepest ascent toward the target (paper 3.2, Table 5).", no_args_is_help=True)
-bbd_app = typer.Typer(help="Box-Behnken response surface (paper 3.3-3.4, Eq. 7, Table 8).", no_args_is_help=True)
+pb_app = typer.Typer(cls=CalibGroup, help="Plackett-Burman screening (paper 3.1, Tables 2-4).", no_args_is_help=True)
+ascent_app = typer.Typer(cls=CalibGroup, help="Steepest ascent toward the target (paper 3.2, Table 5).",
+                         no_args_is_help=True)
+bbd_app = typer.Typer(cls=CalibGroup, help="Box-Behnken response surface (paper 3.3-3.4, Eq. 7, Table 8).",
+                      no_args_is_help=True)
 
 
-def _anova_table(anova: pd.DataFrame, title: str):
+def _doe():
+    """calib_cli.stages.doe, imported when a command runs (it imports pandas, scipy, matplotlib)."""
+    from ..stages import doe
+
+    return doe
+
+
+def _anova_table(anova, title: str):
+    import numpy as np
+
     return df_table(anova, title, {"p_value": lambda p: pvalue(p) if np.isfinite(p) else ""})
 
 
 # ------------------------------------------------------------------ pb
-@pb_app.command("design")
+@pb_app.command("design", cls=CalibCommand)
 @handle_errors
 def pb_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Write the 12-run PB design. Reads the settings' factors and pb tables; writes RUN/pb/design.parquet."""
-    r = doe.pb_design(run, settings, setting, force)
+    r = _doe().pb_design(run, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
     df = r.design
     console.print(df_table(df, f"Plackett-Burman design ({len(df)} runs) -> {r.dir / 'design.parquet'}"))
 
 
-@pb_app.command("analyze")
+@pb_app.command("analyze", cls=CalibCommand)
 @handle_errors
 def pb_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOpt = None,
                setting: SettingOpt = None, force: ForceOpt = False):
@@ -42,7 +50,7 @@ def pb_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOp
     Reads RUN/pb/design.parquet with RUN/simulate/results.parquet, or --responses FILE.
     Writes RUN/pb/effects.parquet, anova.parquet, fit.parquet, effects.png.
     """
-    r = doe.pb_analyze(run, responses, settings, setting, force)
+    r = _doe().pb_analyze(run, responses, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
     res = r.analysis
@@ -59,14 +67,14 @@ def pb_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOp
 
 
 # ------------------------------------------------------------------ ascent
-@ascent_app.command("design")
+@ascent_app.command("design", cls=CalibCommand)
 @handle_errors
 def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Write the steepest-ascent path over the significant factors.
 
     Reads RUN/pb/effects.parquet, fit.parquet and the settings' ascent table. Writes RUN/ascent/design.parquet.
     """
-    r = doe.ascent_design(run, settings, setting, force)
+    r = _doe().ascent_design(run, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
     df, sig, d = r.design, list(r.direction), list(r.direction.values())
@@ -74,7 +82,7 @@ def ascent_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt
                                f"{', '.join(f'{n} {v:+.3f}' for n, v in zip(sig, d))} coded)"))
 
 
-@ascent_app.command("analyze")
+@ascent_app.command("analyze", cls=CalibCommand)
 @handle_errors
 def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional[float] = typer.Option(
         None, help="Target angle (deg); default: settings ascent.target, else the measured angle "
@@ -87,7 +95,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
     step repeats screening runs in the moved factors but its angle is more than 3 residual sd from
     what the screening's model expects (docs/method.md).
     """
-    r = doe.ascent_analyze(run, responses, target, settings, setting, force, say=say)
+    r = _doe().ascent_analyze(run, responses, target, settings, setting, force, say=say)
     if r.skipped:
         return skipped(r.stage)
     res, tgt = r.analysis, r.target
@@ -100,7 +108,7 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
 
 
 # ------------------------------------------------------------------ bbd
-@bbd_app.command("design")
+@bbd_app.command("design", cls=CalibCommand)
 @handle_errors
 def bbd_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Write the Box-Behnken design (3 factors, 5 centre points: 17 runs).
@@ -109,16 +117,18 @@ def bbd_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = 
     Factors: settings bbd.factors, else the screening's significant factors.
     Writes RUN/bbd/design.parquet.
     """
-    r = doe.bbd_design(run, settings, setting, force)
+    r = _doe().bbd_design(run, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
+    import pandas as pd
+
     df, space = r.design, r.space
     console.print(df_table(pd.DataFrame(space.to_dicts())[["name", "low", "high", "unit"]],
                            "Box-Behnken factor levels (cf. paper Table 6)"))
     console.print(df_table(df, f"Box-Behnken design ({len(df)} runs) -> {r.dir / 'design.parquet'}"))
 
 
-@bbd_app.command("analyze")
+@bbd_app.command("analyze", cls=CalibCommand)
 @handle_errors
 def bbd_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOpt = None,
                 setting: SettingOpt = None, force: ForceOpt = False):
@@ -128,7 +138,7 @@ def bbd_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsO
     Writes RUN/bbd/coefficients.parquet, anova.parquet, fit.parquet, data.parquet and
     surface_<a>__<b>.png per factor pair.
     """
-    r = doe.bbd_analyze(run, responses, settings, setting, force)
+    r = _doe().bbd_analyze(run, responses, settings, setting, force)
     if r.skipped:
         return skipped(r.stage)
     rsm, coefs = r.rsm, r.coefficients

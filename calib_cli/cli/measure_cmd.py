@@ -8,10 +8,8 @@ from typing import Annotated, Optional
 import typer
 from rich.progress import Progress
 
-from ..dem.heap import FLOOR_VARIABLES
-from ..imaging.measure import ShapeLimits
-from ..stages.measure import floors_alike, measure_angle as measure
 from .common import ForceOpt, RunOpt, console, df_table, say, skipped
+from .names import MAX_FLANK_DIFF_DEG, MAX_RESIDUAL
 
 
 def measure_angle(
@@ -24,13 +22,14 @@ def measure_angle(
     angles: Annotated[Optional[Path], typer.Option(help="Instead of images: a CSV of angles already measured "
                       "(image, repose_angle in (0, 90) deg [, condition_id]), e.g. the paper's Table 1; "
                       "--conditions joins on its image column.")] = None,
-    band: Annotated[tuple[float, float], typer.Option(help="Height band of the flank fit (fractions).")] = (0.15, 0.85),
+    band: Annotated[tuple[float, float], typer.Option(help="Height band of the flank fit (fractions of the heap's "
+                    "height), low,high, e.g. --band 0.2,0.8 (or --band 0.2 0.8).", metavar="<float,float>")] = (0.15, 0.85),
     keep_flagged: Annotated[bool, typer.Option("--keep-flagged", help="Count heaps flagged cut, column, not_cone or "
                             "asymmetric in the condition statistics, where their flanks could be fitted.")] = False,
     max_flank_diff: Annotated[float, typer.Option(help="Flanks further apart than this (deg) flag the heap "
-                              "asymmetric.")] = ShapeLimits.max_flank_diff_deg,
+                              "asymmetric.")] = MAX_FLANK_DIFF_DEG,
     max_residual: Annotated[float, typer.Option(help="A flank whose line fit leaves a larger RMS residual, in heap "
-                            "heights, flags the heap not_cone.")] = ShapeLimits.max_residual,
+                            "heights, flags the heap not_cone.")] = MAX_RESIDUAL,
     force: ForceOpt = False,
 ):
     """Repose angle per photograph and per condition (paper 2.1, Table 1).
@@ -43,6 +42,9 @@ def measure_angle(
     (asymmetric). Those are left out of the per-condition statistics (unless --keep-flagged), and
     the output says how many and why. The exit code is non-zero only if no image is left to count.
     """
+    from ..dem.heap import FLOOR_VARIABLES
+    from ..stages.measure import floors_alike, measure_angle as measure
+
     bar: list = []
 
     def progress(i, n):  # a bar while images are measured (not for --angles, nor a stage up to date)

