@@ -12,6 +12,7 @@ change here re-simulates every committed run, and tests/test_requests.py checks 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Iterable, Mapping, Optional, Sequence
 
 import numpy as np
@@ -22,6 +23,8 @@ from .campaign import Request, derive_seed
 from .dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, condition_dict, get_preset
 from .engines.clumps import SPHERES
 from .errors import CalibError
+from .parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
+from .parameters import QUANTITIES, check
 from .settings import _parse_value
 
 #: the heap-test variables a conditions table (or a surrogate's inputs) may carry
@@ -122,22 +125,29 @@ def modulus_note(shear_modulus: Optional[float]) -> str:
 
 # ------------------------------------------------------------------ parameters and conditions
 def parse_pairs(items: Optional[Iterable[str]], what: str) -> dict:
-    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}`` (values read as TOML, else kept as text)."""
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}`` (values read as TOML, else kept as text); a key
+    given twice is an error (the last would silently win)."""
     out = {}
     for item in items or ():
         if "=" not in item:
             raise CalibError(f"{what} {item!r} is not KEY=VALUE")
         k, v = item.split("=", 1)
+        if k.strip() in out:
+            raise CalibError(f"{what} {k.strip()} is given twice ({out[k.strip()]!r} and {v.strip()!r}): give it once")
         out[k.strip()] = _parse_value(v.strip())
     return out
 
 
-def parse_params(values: Mapping) -> dict[str, float]:
-    """Heap parameter values, checked: known names, finite numbers."""
+def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:
+    """Heap parameter values a user gave, checked: known names, numbers in the range the model accepts
+    and a real material plausibly has (:func:`calib_cli.parameters.check`)."""
     out = {}
     for k, v in values.items():
         if k not in PARAMETERS:
-            raise CalibError(f"unknown parameter {k!r}; known: {', '.join(PARAMETERS)}")
+            raise CalibError(f"unknown parameter {k!r}{_did_you_mean(k, PARAMETERS)}; known: {', '.join(PARAMETERS)}")
+        if k in QUANTITIES:
+            out[k] = check(k, v, where)
+            continue
         try:
             f = float(v)
         except (TypeError, ValueError):
@@ -148,12 +158,37 @@ def parse_params(values: Mapping) -> dict[str, float]:
     return out
 
 
+def _did_you_mean(name: str, known) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.75)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def check_condition_values(values: Mapping, where: str) -> None:
+    """Condition variables a user gave (``--condition``, a conditions table's row) against the rig's
+    plausible ranges (:mod:`calib_cli.parameters`); unknown names are :func:`make_condition`'s to refuse."""
+    for k, v in values.items():
+        if k in CONDITION_QUANTITIES and not (isinstance(v, float) and math.isnan(v)):
+            check(k, v, where)
+
+
+def checked_condition(items) -> dict:
+    """``--condition`` values (KEY=VALUE strings, or a mapping from Python), checked against the rig's
+    plausible ranges."""
+    given = dict(items) if isinstance(items, Mapping) else parse_pairs(items, "--condition")
+    check_condition_values(given, "--condition")
+    return given
+
+
 def make_condition(base: HeapCondition, overrides: Mapping) -> HeapCondition:
     """The base condition with some variables replaced (``floor`` is a name), validated."""
     fields = {f.name for f in dataclasses.fields(HeapCondition)}
     bad = set(overrides) - fields
     if bad:
-        raise CalibError(f"unknown condition variable(s) {sorted(bad)}; known: {', '.join(sorted(fields))}")
+        first = sorted(bad)[0]
+        raise CalibError(f"unknown condition variable(s) {sorted(bad)}{_did_you_mean(first, fields)}; known: "
+                         f"{', '.join(sorted(fields))}")
     try:
         c = dataclasses.replace(base, **{k: (str(v) if k == "floor" else float(v)) for k, v in overrides.items()})
     except (TypeError, ValueError):
@@ -171,8 +206,12 @@ def condition_from_row(base: HeapCondition, row) -> HeapCondition:
 
 def table_conditions(base: HeapCondition, table: pd.DataFrame) -> list[tuple[str, HeapCondition]]:
     """(condition_id, condition) of each distinct condition of a conditions table, in its order."""
-    return [(str(row["condition_id"]), condition_from_row(base, row))
-            for _, row in table.drop_duplicates("condition_id").iterrows()]
+    out = []
+    for _, row in table.drop_duplicates("condition_id").iterrows():
+        check_condition_values({k: row[k] for k in CONDITION_VARIABLES if k in row.index and pd.notna(row[k])},
+                               f"condition {row['condition_id']}")
+        out.append((str(row["condition_id"]), condition_from_row(base, row)))
+    return out
 
 
 # ------------------------------------------------------------------ seeds and requests

@@ -180,6 +180,28 @@ def check_types(over: Mapping, where: str = "", path: str = "") -> None:
         r = rule(key)
         if r is not None and not r.accepts(v):
             raise CalibError(f"setting {key} = {v!r}{where} must be {r.describe()}")
+        _check_declared(key, v, where)
+
+
+#: settings that hold a declared quantity (calib_cli.parameters): checked against its ranges
+_DECLARED = {"heap.shear_modulus": "shear_modulus", "target": "repose_angle", "ascent.target": "repose_angle"}
+
+
+def _check_declared(key: str, v: Any, where: str) -> None:
+    """A setting's value against its quantity's declaration (a shear modulus of 150 Pa, an angle of inf),
+    a factor's range against its parameter's; the preset's name among the presets."""
+    from .parameters import PRESET_NAMES, QUANTITIES, check
+
+    parts = key.split(".")
+    name = _DECLARED.get(key) or (parts[1] if len(parts) == 3 and parts[0] == "factors" and parts[2] in ("low", "high")
+                                 else None)
+    if name in QUANTITIES and _is_number(v):
+        check(name, v, f"setting {key}{where}")
+    if key == "heap.preset" and v not in PRESET_NAMES:
+        close = [p for p in PRESET_NAMES if p.casefold() == str(v).casefold()]
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise CalibError(f"setting heap.preset = {v!r}{where} is an unknown preset{hint}; choose one of "
+                         f"{', '.join(PRESET_NAMES)}")
 
 
 def _merge(base: dict, over: Mapping, path: str = "") -> dict:
@@ -214,6 +236,8 @@ def parse_overrides(items: Iterable[str]) -> dict:
         node = out
         for p in parts[:-1]:
             node = node.setdefault(p, {})
+        if parts[-1] in node:
+            raise CalibError(f"setting {key.strip()} is given twice: give it once")
         node[parts[-1]] = _parse_value(text.strip())
     return out
 

@@ -291,6 +291,59 @@ BAD: list[Bad] = [
     Bad("report-best-not-json", ["report", "--run", "{run}"], prep=_write("surrogate/best.json", "{not json")),
     Bad("report-corrupt-figure-table", ["report", "--run", "{run}"], prep=_truncate("bbd/data.parquet", 0.9)),
     Bad("report-missing-run", ["report", "--run", "{tmp}/none"]),
+    # ---- issue 48: values checked against their declaration (calib_cli.parameters), tables where they enter
+    *[Bad(f"images-conditions-{name}", ["measure-angle", "--run", "{run}", "--images", "{tmp}", "--conditions",
+                                        "{tmp}/c.csv", "--force"], {"h.png": _photo(), "g.png": _photo(), "c.csv": csv})
+      for name, csv in (
+          ("empty-id", COND_HEAD + "h.png,,6,8,50,50,100\ng.png,,6,8,50,50,100\n"),
+          ("one-empty-id", COND_HEAD + "h.png,A,6,8,50,50,100\ng.png,,6,8,50,50,100\n"),
+          ("typo-column", "image,condition_id,fill_hight_mm\nh.png,A,50\ng.png,A,50\n"),
+          ("semicolons", COND_HEAD.replace(",", ";") + "h.png;A;6;8;50;50;100\n"),
+          ("two-fills-one-id", COND_HEAD + "h.png,A,6,8,50,50,100\ng.png,A,6,8,50,75,100\n"),
+          ("metres", COND_HEAD + "h.png,A,0.004,0.005,50,50,100\n"),
+          ("lift-in-m-s", COND_HEAD + "h.png,A,6,8,50,50,0.05\n"),
+          ("cylinder-in-m", COND_HEAD + "h.png,A,6,8,0.05,50,100\n"),
+      )],
+    Bad("angles-radians", ["measure-angle", "--run", "{run}", "--angles", "{tmp}/a.csv", "--force"],
+        {"a.csv": "image,repose_angle\na.png,0.56\nb.png,0.58\nc.png,0.55\n"}),
+    Bad("angles-one-implausible", ["measure-angle", "--run", "{run}", "--angles", "{tmp}/a.csv", "--force"],
+        {"a.csv": "image,repose_angle\na.png,31\nb.png,2\n"}),
+    Bad("angles-image-twice", ["measure-angle", "--run", "{run}", "--angles", "{tmp}/a.csv", "--force"],
+        {"a.csv": "image,repose_angle\na.png,31\na.png,32\n"}),
+    Bad("sim-surface-energy-in-mJ", [*SIM, "--set", "surface_energy=350"]),
+    Bad("sim-rolling-friction-5", [*SIM, "--set", "rolling_friction=5"]),
+    Bad("sim-restitution-zero", [*SIM, "--set", "restitution=0"]),
+    Bad("sim-set-twice", [*SIM, "--set", "static_friction=0.3", "--set", "static_friction=0.5"]),
+    Bad("sim-set-typo", [*SIM, "--set", "static_fricton=0.3"]),
+    Bad("sim-condition-metres", [*SIM, "--set", "static_friction=0.3", "--condition", "particle_d_min_mm=0.004",
+                                 "--condition", "particle_d_max_mm=0.005"]),
+    Bad("sim-condition-lift-m-s", [*SIM, "--set", "static_friction=0.3", "--condition", "lift_speed_mm_s=0.05"]),
+    Bad("sim-condition-typo", [*SIM, "--set", "static_friction=0.3", "--condition", "fill_hight_mm=50"]),
+    Bad("sim-condition-twice", [*SIM, "--set", "static_friction=0.3", "--condition", "fill_height_mm=50",
+                                "--condition", "fill_height_mm=60"]),
+    Bad("sim-conditions-typo-column", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
+        {"c.csv": "condition_id,particle_d_min_mm,particle_d_max_mm,cylinder_diamter_mm\nA,5,6,40\n"}),
+    Bad("sim-conditions-empty-id", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
+        {"c.csv": "condition_id,particle_d_min_mm,particle_d_max_mm\nA,5,6\n,5,6\n"}),
+    Bad("sim-conditions-metres", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
+        {"c.csv": "condition_id,particle_d_min_mm,particle_d_max_mm\nA,0.005,0.006\n"}),
+    Bad("sim-conditions-semicolons", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
+        {"c.csv": "condition_id;particle_d_min_mm;particle_d_max_mm\nA;5;6\n"}),
+    Bad("sim-conditions-two-sizes-one-id", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
+        {"c.csv": "condition_id,particle_d_min_mm,particle_d_max_mm\nA,5,6\nA,4,6\n"}),
+    Bad("invert-target-radians", ["invert", "--run", "{run}", "--target", "0.56", "--force"]),
+    Bad("invert-target-90", ["invert", "--run", "{run}", "--target", "90", "--force"]),
+    Bad("pb-design-modulus-in-MPa", ["pb", "design", "--run", "{run}", "--force", "-s", "heap.shear_modulus=150"]),
+    Bad("pb-design-modulus-negative", ["pb", "design", "--run", "{run}", "--force", "-s", "heap.shear_modulus=-5e6"]),
+    Bad("pb-design-preset-case", ["pb", "design", "--run", "{run}", "--force", "-s", "heap.preset=Smoke"]),
+    Bad("pb-design-target-inf", ["pb", "design", "--run", "{run}", "--force", "-s", "target=inf"]),
+    Bad("pb-design-setting-twice", ["pb", "design", "--run", "{run}", "--force", "-s", "pb.alpha=0.1", "-s",
+                                    "pb.alpha=0.2"]),
+    Bad("pb-design-factor-in-mJ", ["pb", "design", "--run", "{run}", "--force", "-s",
+                                   "factors.surface_energy.high=2000"]),
+    Bad("settings-toml-target-inf", ["pb", "design", "--run", "{run}", "--force"],
+        prep=lambda run: (run / "settings.toml").write_text((run / "settings.toml").read_text() + "\ntarget = inf\n")),
+    Bad("diff-runs-folder-of-photos", ["diff-runs", "{run}", str(PHOTOS)]),
 ]
 
 
@@ -544,7 +597,7 @@ def calib(args: list[str], env: dict, delay: float | None = None, sig=signal.SIG
 
 def check_run(run: Path, settled: bool) -> None:
     """Every lock true to its outputs and every table readable (``settled``: after a completed command);
-    between a kill and the rerun an output may be refused ('rerun the stage'), never read wrong."""
+    between a kill and the rerun an output may be refused ('rerun the command'), never read wrong."""
     from calib_cli.errors import CalibError
 
     if settled:
@@ -561,7 +614,7 @@ def check_run(run: Path, settled: bool) -> None:
         try:
             art.read_table(p)
         except CalibError as e:
-            assert not settled and "rerun the stage" in str(e), e
+            assert not settled and "rerun the command" in str(e), e
     index = campaign.load_results(run)
     if len(index):
         keys = index[["run_hash", "design", "run_id", "repeat", "condition_id"]].astype(str)

@@ -42,8 +42,8 @@ def column(seed: int, mu: float, gamma: float = 0.0, kick: float = 0.05) -> Syst
            for layer in range(6) for q in range(3)]
     pos = np.array(pts) + rng.uniform(-2e-4, 2e-4, (len(pts), 3))
     p = Particles(pos, rng.uniform(0.9 * R, R, len(pts)), vel=rng.normal(0, kick, pos.shape))
-    grains = Interaction(static_friction=mu, rolling_friction=0.2, surface_energy=gamma)
-    cylinder = Interaction(static_friction=0.3, surface_energy=gamma)
+    grains = Interaction(static_friction=mu, rolling_friction=0.2, surface_energy=gamma, restitution=0.5)
+    cylinder = Interaction(static_friction=0.3, surface_energy=gamma, restitution=0.5)
     return System(p, material=MAT, pp=grains, floor=grains, cylinder=cylinder, walls=Walls(True, 5.5e-3, 0.05, 0.004))
 
 

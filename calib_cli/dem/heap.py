@@ -22,6 +22,7 @@ from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, no_angle, repose_angle_coords
 from .laws import ContactModel, law_params
+from ..parameters import PARAMETERS as DECLARED
 from .materials import LAW_SWITCHES, Interaction, Material, contact_model
 from .system import Particles, System, UnstableError, Walls
 
@@ -36,7 +37,7 @@ PARAMETERS = ("static_friction", "rolling_friction", "surface_energy", "restitut
 #: the floor material's values against the grains (e.g. from an inclined-plane test on the rig's
 #: plate): heap-test variables, so conditions on different floors differ; unset (NaN): wall_*
 FLOOR_VARIABLES = tuple(f"floor_{k}" for k in WALL_VALUES)
-PARTICLE_DEFAULTS = {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
+PARTICLE_DEFAULTS = {**{k: DECLARED[k].default for k in WALL_VALUES},  # calib_cli.parameters declares them
                      "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0, "caps_pulloff": 0.0,
                      **{p.name: p.default for p in law_params()}}
 #: law switches (0/1) and a law's fixed settings (e.g. the liquid's contact angle, a bridge's volume),

@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field, make_dataclass
 import numpy as np
 
 from ..errors import CalibError
+from ..parameters import PARAMETERS as DECLARED
 from . import laws
 from .laws import ContactModel, all_laws, law_params
 from .laws import columns
@@ -46,10 +47,11 @@ class Material:
 class _BuiltIn:
     """The built-in laws' values; a law's own follow (:class:`Interaction`)."""
 
-    static_friction: float = 0.5
-    rolling_friction: float = 0.0
-    restitution: float = 0.5
-    surface_energy: float = 0.0  # J/m2
+    # the defaults a heap test gives too: one declaration each (calib_cli.parameters)
+    static_friction: float = DECLARED["static_friction"].default
+    rolling_friction: float = DECLARED["rolling_friction"].default
+    restitution: float = DECLARED["restitution"].default
+    surface_energy: float = DECLARED["surface_energy"].default  # J/m2
     #: 0: rolling torque from the pair's relative spin (SPEC 5, Ai et al. 2011 type A, EDEM's
     #: 'RVD'); 1: from each body's own spin (EDEM's 'Standard' rolling friction model)
     rolling_own_spin: float = 0.0

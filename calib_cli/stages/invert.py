@@ -20,8 +20,9 @@ from ..campaign import run_campaign  # noqa: E402
 from ..dem.heap import PARAMETERS  # noqa: E402
 from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa: E402
 from ..errors import CalibError  # noqa: E402
-from ..requests import (COND_VARS, build_requests, engine_settings, heap_engine, heap_preset, heap_setup,  # noqa: E402
-                        make_condition, modulus_settings, table_conditions)
+from ..parameters import check  # noqa: E402
+from ..requests import (COND_VARS, build_requests, checked_condition, engine_settings, heap_engine, heap_preset,  # noqa: E402
+                        heap_setup, make_condition, modulus_settings, table_conditions)
 from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters  # noqa: E402
 from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
@@ -106,7 +107,7 @@ def _targets(run: Path, cfg: dict, target: Optional[float]) -> tuple[list[float]
     """The target angles: --target, else each measured condition's mean, else settings target."""
     cond_path = run / "measure" / "conditions.parquet"
     if target is not None:
-        targets, tsource = [float(target)], "--target"
+        targets, tsource = [check("repose_angle", target, "--target")], "--target"
     elif cond_path.is_file():
         c = art.read_table(cond_path, columns=["condition_id", "mean"], what="measured conditions")
         targets, tsource = c["mean"].astype(float).tolist(), f"{cond_path} ({len(c)} condition(s))"
@@ -162,7 +163,7 @@ def _validation_rig(run: Path, pre, condition: Pairs, target: Optional[float]):
     ``condition``'s changes."""
     cond_path = run / "measure" / "conditions.parquet"
     if condition or not cond_path.is_file():
-        return [("", make_condition(pre.condition, pairs(condition, "condition")))], {}, None
+        return [("", make_condition(pre.condition, checked_condition(condition)))], {}, None
     # the rig the heaps were measured on, not the preset's: a validation elsewhere validates nothing
     vtab = art.read_table(cond_path, columns=["condition_id", "mean", "sd", "n"], what="measured conditions")
     vconds = table_conditions(pre.condition, vtab)

@@ -13,12 +13,14 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
+from ..conditions import read_conditions_csv
 from ..errors import CalibError
+from ..parameters import ALLOW_EXTREME, check, extremes_allowed
 from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
 from .common import Result, Say, check_run_dir, plain, stage, writes_run
 
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
 DEFAULT_CONDITION = "all"
 #: the rig's sizes and speed, which only a positive number describes
@@ -26,16 +28,16 @@ RIG_SIZES = ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "
 
 
 def _read_conditions(path: Path) -> pd.DataFrame:
-    if not path.is_file():
-        raise CalibError(f"conditions file not found: {path}")
-    try:
-        df = pd.read_csv(path, comment="#") if path.suffix.lower() != ".parquet" else art.read_table(path)
-    except Exception as e:
-        raise CalibError(f"conditions file {path} could not be read ({type(e).__name__})") from None
-    df.columns = [str(c).strip() for c in df.columns]
-    missing = [c for c in ("image", "condition_id") if c not in df.columns]
-    if missing:
-        raise CalibError(f"conditions file {path} lacks column(s) {', '.join(missing)}")
+    if path.suffix.lower() == ".parquet":
+        if not path.is_file():
+            raise CalibError(f"conditions file not found: {path}")
+        df = art.read_table(path, what="conditions file")
+        df.columns = [str(c).strip() for c in df.columns]
+        missing = [c for c in ("image", "condition_id") if c not in df.columns]
+        if missing:
+            raise CalibError(f"conditions file {path} lacks column(s) {', '.join(missing)}")
+    else:
+        df = read_conditions_csv(path, need=("image", "condition_id"))
     if df["image"].duplicated().any():
         raise CalibError(f"conditions file {path} lists image {df['image'][df['image'].duplicated()].iloc[0]!r} twice")
     df["image"] = df["image"].astype(str)
@@ -58,9 +60,16 @@ def _photos(images: Path) -> dict[str, Path]:
     an error: their overlays would collide, and they are one heap photographed twice or two heaps misnamed."""
     if not images.is_dir():
         raise CalibError(f"--images {images} is not a folder")
-    files = {p.name: p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES}
+    named = [p for p in sorted(images.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES]
+    odd = [p.name for p in named if not p.is_file()]  # a folder named x.png, a broken or looping link
+    if odd:
+        raise CalibError(f"{odd[0]} in {images} is named as a photograph but is not a readable file (a folder or a "
+                         f"broken link): move it out{f' ({len(odd)} such names)' if len(odd) > 1 else ''}")
+    files = {p.name: p for p in named}
     if not files:
-        raise CalibError(f"no images (PNG/JPEG/TIFF/BMP) in {images}")
+        others = sorted({p.suffix.lower() for p in images.iterdir() if p.is_file() and p.suffix})
+        also = f" (its files end in {', '.join(others[:6])})" if others else ""
+        raise CalibError(f"no images (PNG/JPEG/TIFF/BMP/WebP) in {images}{also}")
     stems: dict[str, list[str]] = {}
     for name in files:
         stems.setdefault(Path(name).stem.casefold(), []).append(name)
@@ -90,6 +99,13 @@ def _read_angles(path: Path) -> pd.DataFrame:
         where = [f"{label(i)}: {shown(raw['repose_angle'].iloc[i])}" for i in bad[:5]]
         raise CalibError(f"angles file {path}: repose_angle must be a number in (0, 90) degrees; {len(bad)} "
                          f"row(s) are not ({'; '.join(where)}{'; ...' if len(bad) > 5 else ''})")
+    if len(vals) >= 2 and vals.max() < 1.6 and not extremes_allowed():  # every angle under pi/2
+        raise CalibError(f"angles file {path}: every repose_angle is below 1.6 ({vals.min():g}-{vals.max():g}): are "
+                         f"these radians? Give degrees (set {ALLOW_EXTREME}=1 to use them as they are)")
+    for v in vals:
+        check("repose_angle", v, f"angles file {path}")
+    if "image" in raw.columns and raw["image"].duplicated().any():
+        raise CalibError(f"angles file {path} lists image {raw['image'][raw['image'].duplicated()].iloc[0]!r} twice")
     return raw.assign(repose_angle=vals.astype(float))
 
 

@@ -12,11 +12,11 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
-from ..dem.heap import PARAMETERS, Preset, interactions
+from ..conditions import read_conditions_csv
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
-from ..requests import (build_requests, check_engine, heap_engine, heap_preset, heap_setup, make_condition, modulus_note,
-                        parse_pairs,
-                        parse_params, table_conditions)
+from ..requests import (build_requests, check_engine, checked_condition, heap_engine, heap_preset, heap_setup,
+                        make_condition, modulus_note, parse_pairs, parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
 Pairs = Union[Mapping, Iterable[str], None]
@@ -135,6 +135,24 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
     return points, dname, ""
 
 
+def _note_measured_rigs(run: Path, cond, say: Say) -> None:
+    """Say so where the run's photographs were of rigs these heaps do not simulate (the preset's rig, or
+    one changed by --condition, while RUN/measure/conditions.parquet gives the measured ones)."""
+    measured = Path(run) / "measure" / "conditions.parquet"
+    if not measured.is_file():
+        return
+    try:
+        table = art.read_table(measured, what="measured conditions")
+    except CalibError:
+        return
+    rig = [c for c in CONDITION_VARIABLES if c in table.columns]
+    if rig and not all((table[c] == getattr(cond, c)).all() for c in rig):
+        say(f"[yellow]note:[/] {measured} holds {len(table)} measured rig(s) ({', '.join(rig[:3])}, ...) that these "
+            f"heaps do not simulate (theirs: {cond.particle_d_min_mm:g}-{cond.particle_d_max_mm:g} mm grains, "
+            f"{cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm); give --conditions "
+            f"{measured} to simulate the photographed rigs")
+
+
 def read_conditions_table(path: Path) -> pd.DataFrame:
     """A conditions table (CSV or Parquet with a condition_id column); a missing or unreadable file
     is the user's error, not a traceback."""
@@ -143,13 +161,7 @@ def read_conditions_table(path: Path) -> pd.DataFrame:
     if path.suffix.lower() == ".parquet":
         ctab = art.read_table(path, columns=["condition_id"], what="conditions table")
     else:
-        try:
-            ctab = pd.read_csv(path, comment="#")
-        except Exception as e:  # pandas raises several types for a file that is not CSV
-            raise CalibError(f"conditions table {path} could not be read as CSV ({type(e).__name__})") from None
-        ctab.columns = [str(c).strip() for c in ctab.columns]
-        if "condition_id" not in ctab.columns:
-            raise CalibError(f"conditions table {path} lacks column condition_id")
+        ctab = read_conditions_csv(path, what="conditions table")
     if ctab.empty:  # no condition: no heap, and an empty campaign's summary failed (exit 70)
         raise CalibError(f"conditions table {path} has no rows")
     return ctab
@@ -172,7 +184,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     shapes = check_engine(engine, mpi, shape)
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus)
-    cond = make_condition(pre.condition, pairs(condition, "condition"))
+    cond = make_condition(pre.condition, checked_condition(condition))
     points, dname, mhash = _points(run, design, parse_params(pairs(params, "--set")))
     crossed = [("", cond)]
     if conditions is not None:
@@ -186,11 +198,16 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     have = [(run / RUNS / r.hash / "result.json").is_file() for r in requests]
     copied = 0 if force else sum(not h and reusable(r.hash) is not None for h, r in zip(have, requests))
     where = (f"its numerics, the rig of {len(crossed)} condition(s) from {conditions}" if conditions is not None
-             else pre.note)
+             else pre.note if cond == pre.condition
+             else f"its numerics on the rig --condition makes: {cond.particle_d_min_mm:g}-{cond.particle_d_max_mm:g} mm "
+                  f"grains, a {cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm, lifted at "
+                  f"{cond.lift_speed_mm_s:g} mm/s")
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
     cached = (f"{sum(have)} cached, recomputed with --force (each kept until its new result is complete)"
               if force else f"{sum(have)} cached{also}")
     say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus))
+    if conditions is None:
+        _note_measured_rigs(run, cond, say)
     if floor_follows_grains(walls):
         say("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
             "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
