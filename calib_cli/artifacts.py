@@ -108,10 +108,19 @@ def command_line() -> str:
 
 
 # ---------------------------------------------------------------- atomic primitives
+def _usual_mode(fd: int) -> None:
+    """A temporary file is made 0600; the file it becomes gets what any new file gets (0644 under the usual
+    umask), so that a run directory can be shared and read by others like one written by hand."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.fchmod(fd, 0o666 & ~mask)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    _usual_mode(fd)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -138,6 +147,7 @@ def write_table(path: Path, df: pd.DataFrame, provenance: Mapping | None = None)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    _usual_mode(fd)
     os.close(fd)
     try:
         _write_parquet(Path(tmp), df, provenance)
@@ -174,6 +184,20 @@ def _read_lock_file(path: Path) -> dict:
     return d if isinstance(d, dict) and isinstance(d.get("outputs", {}), dict) else {}
 
 
+#: the command that writes each stage (a lock names its stage ``group.name``; a user knows the commands)
+STAGE_COMMANDS = {"measure": "calib measure-angle", "pb.design": "calib pb design", "pb.analyze": "calib pb analyze",
+                  "ascent.design": "calib ascent design", "ascent.analyze": "calib ascent analyze",
+                  "bbd.design": "calib bbd design", "bbd.analyze": "calib bbd analyze", "surrogate": "calib fit-surrogate",
+                  "invert": "calib invert", "posterior": "calib calibrate-posterior or calib calibrate",
+                  "calibrate": "calib calibrate", "compare": "calib compare", "diagnose": "calib diagnose",
+                  "suggest": "calib suggest-conditions"}
+
+
+def command_of(stage: str) -> str:
+    """The command that writes stage ``group.name`` (the stage's own name where none is known)."""
+    return STAGE_COMMANDS.get(stage) or STAGE_COMMANDS.get(stage.split(".")[0]) or stage
+
+
 def check_committed(path: Path, what: str = "artefact") -> None:
     """Refuse a stage output that no committed lock vouches for: a file a lock (or an unfinished
     commit) lists must have the hash some committed lock records. A commit cut short between its
@@ -185,12 +209,12 @@ def check_committed(path: Path, what: str = "artefact") -> None:
         return
     if any(h == file_hash(path) for _, h in committed):
         return
-    stages = sorted({s for s, _ in committed} | set(pending))
+    stages = sorted({command_of(s) for s, _ in committed} | {command_of(s) for s in pending})
     if pending:
-        raise CalibError(f"{what} {path} is being written, or its write was interrupted: rerun the stage that "
+        raise CalibError(f"{what} {path} is being written, or its write was interrupted: rerun the command that "
                          f"writes it ({', '.join(stages)}) once no other command is writing the run")
     raise CalibError(f"{what} {path} is not the output its stage's lock records (the file was changed by hand, or "
-                     f"a write was interrupted): rerun the stage that writes it ({', '.join(stages)}) with --force")
+                     f"a write was interrupted): rerun the command that writes it ({', '.join(stages)}) with --force")
 
 
 def read_table(path: Path, columns: Sequence[str] | None = None, what: str = "artefact") -> pd.DataFrame:

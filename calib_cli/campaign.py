@@ -285,7 +285,13 @@ def _execute_in_worker(req: Request, run_dir: str, force: bool = False) -> dict:
 
 def load_results(run_dir: Path) -> pd.DataFrame:
     path = Path(run_dir) / RESULTS
-    return art.read_table(path, what="simulation results") if path.is_file() else pd.DataFrame()
+    if not path.is_file():
+        return pd.DataFrame()
+    try:
+        return art.read_table(path, what="simulation results")
+    except CalibError as e:  # the index is rebuilt from the heaps' folders: say how to get there
+        raise CalibError(f"{e}; delete it and rerun: the index is rebuilt from the heaps kept in "
+                         f"{Path(run_dir) / RUNS} (a heap whose folder is gone is simulated again)") from None
 
 
 def current_sources(rows: pd.DataFrame) -> pd.Series:

@@ -160,7 +160,7 @@ def test_diagnose_aligns_residuals_to_conditions_by_condition_id(tmp_path, monke
 @pytest.mark.parametrize("crash_after", [0, 1, 2, 3])
 def test_a_commit_cut_short_leaves_the_previous_outputs_or_a_rerun_error(tmp_path, monkeypatch, crash_after):
     """os.replace fails after ``crash_after`` successful calls: each output then reads as the previous
-    run's, or is refused with a message saying to rerun the stage; never the new file under the old lock."""
+    run's, or is refused with a message saying to rerun the command that writes it; never the new file under the old lock."""
     import os
 
     old = {"a.parquet": pd.DataFrame({"a": [1]}), "b.parquet": pd.DataFrame({"b": [1]})}
@@ -191,7 +191,7 @@ def test_a_commit_cut_short_leaves_the_previous_outputs_or_a_rerun_error(tmp_pat
         try:
             pd.testing.assert_frame_equal(art.read_table(tmp_path / "g" / rel), df)
         except CalibError as e:
-            assert "rerun the stage" in str(e) and "g.s" in str(e) and "\n" not in str(e)
+            assert "rerun the command" in str(e) and "g.s" in str(e) and "\n" not in str(e)
             refused += 1
     assert refused == min(max(crash_after - 1, 0), 2)  # the files renamed before the crash
     assert not art.Stage(tmp_path, "g", "s", settings={"k": 2}).up_to_date()
@@ -206,7 +206,7 @@ def test_an_output_changed_behind_its_lock_is_refused_and_unlisted_files_are_not
     with st.commit() as out:
         out.table("a.parquet", pd.DataFrame({"a": [1]}))
     art.write_table(tmp_path / "g" / "a.parquet", pd.DataFrame({"a": [5]}))
-    with pytest.raises(CalibError, match="rerun the stage"):
+    with pytest.raises(CalibError, match="rerun the command"):
         art.read_table(tmp_path / "g" / "a.parquet")
     art.write_table(tmp_path / "g" / "history.parquet", pd.DataFrame({"a": [5]}))  # no lock lists it
     assert art.read_table(tmp_path / "g" / "history.parquet")["a"].tolist() == [5]
@@ -220,7 +220,7 @@ def test_a_json_output_changed_behind_its_lock_is_refused_too(tmp_path):
         out.text("best.json", json.dumps({"best": "rsm"}))
     assert art.read_json(tmp_path / "g" / "best.json") == {"best": "rsm"}
     art.write_json(tmp_path / "g" / "best.json", {"best": "bp"})
-    with pytest.raises(CalibError, match="rerun the stage"):
+    with pytest.raises(CalibError, match="rerun the command"):
         art.read_json(tmp_path / "g" / "best.json")
     art.write_json(tmp_path / "g" / "notes.json", {"a": 1})  # no lock lists it
     assert art.read_json(tmp_path / "g" / "notes.json") == {"a": 1}

@@ -19,9 +19,7 @@ def _code(section: str) -> str:
 
 
 def _run_in(tmp_path: Path, monkeypatch, code: str) -> dict:
-    for name in ("sample_data", "stages"):  # the example's paths are the repository's
-        (tmp_path / name).symlink_to(ROOT / name)
-    monkeypatch.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)  # not the repository's root: the examples find its sample data themselves
     scope: dict = {}
     exec(compile(code, str(DOC), "exec"), scope)
     return scope

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
 import functools
 import os
 import sys
@@ -166,8 +167,22 @@ def handle_errors(fn: Callable) -> Callable:
         except KeyboardInterrupt:
             err_console.print("[bold red]interrupted:[/] nothing partial was written to the run directory")
             raise typer.Exit(130) from None
+        except OSError as e:
+            why = _UNWRITABLE.get(e.errno)
+            if why is None:
+                raise
+            err_console.print(f"[bold red]error:[/] cannot write {escape(str(e.filename or 'the run directory'))}: "
+                              f"{escape(e.strerror or str(e))} ({why}); nothing half-written was kept",
+                              highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
 
     return wrapper
+
+
+#: the write failures that are the machine's state, not a bug: a one-line error (exit 2), not exit 70
+_UNWRITABLE = {errno.EACCES: "the folder is read-only or not yours", errno.EPERM: "not permitted",
+               errno.EROFS: "a read-only file system", errno.ENOSPC: "the disk is full",
+               errno.EDQUOT: "the disk quota is used up"}
 
 
 def skipped(stage: art.Stage) -> None:

@@ -30,6 +30,14 @@ def _ga_state(p: str, w: float, post) -> str:
     return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
 
 
+def _unit(name: str) -> str:
+    """A parameter's unit as its declaration gives it (calib_cli.parameters); empty where it has none."""
+    from ..parameters import QUANTITIES
+
+    q = QUANTITIES.get(name)
+    return esc(q.unit) if q is not None else ""
+
+
 def params_card(f: RunFiles) -> str:
     """The GA's point (the surrogate's best fit) with each parameter's near-optimal range; fixed values; how
     it was validated. Called pinned only where the posterior identifies the parameter."""
@@ -47,10 +55,10 @@ def params_card(f: RunFiles) -> str:
             out = not (lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi))
             outside += [p] if out else []
             rows.append([esc(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
-                         f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post)])
+                         _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post)])
         else:
-            rows.append([esc(p), f"<b>{num(v)}</b>", "", "", ""])
-    body = rows_table(["parameter", "value", "near-optimal", "spread", ""], rows, "compact")
+            rows.append([esc(p), f"<b>{num(v)}</b>", "", _unit(p), "", ""])
+    body = rows_table(["parameter", "value", "near-optimal", "unit", "spread", ""], rows, "compact")
     tol = f.prov("invert/solution_set.parquet").get("tolerance")
     body += note(f"Near-optimal: surrogate within {num(tol, 3) if tol else 'the tolerance'}&deg; of the best fit; "
                  "spread as a share of the search range. A narrow spread is the surrogate's, not the data's: "

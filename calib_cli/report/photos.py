@@ -58,23 +58,29 @@ def photos_card(f: RunFiles) -> str:
     if cond is None or cond.empty:
         body = note("Not run yet: <code>calib measure-angle</code>.")
         return f"<div class='card wide'><h3>{title}</h3>{body}</div>"
-    figs, n_side = [], 0
+    figs, n_side, n_photo = [], 0, 0
     for r in cond.itertuples(index=False):
         ph, sv = photo(f, r.condition_id, float(r.mean)), side_view(f, r.condition_id)
         if ph is None and sv is None:
             continue
         n_side += sv is not None
+        n_photo += ph is not None
         inner = (img(f.run, ph[0], f"photograph, {r.condition_id}") if ph else "") + \
                 (img(f.run, sv[0], f"simulated side view, {r.condition_id}", "side") if sv else "")
         cap = f"<b>{esc(r.condition_id)}</b>: " + (f"photo {deg(ph[1])} (mean {deg(r.mean)})" if ph else "no photo") \
             + (f"; simulated {sv[1]}" if sv else "")
         both = " both" if ph and sv else ""
         figs.append(f"<figure class='pair{both}'>{inner}<figcaption>{cap}</figcaption></figure>")
+    angles = f.table("measure/angles.parquet")
+    given = angles is not None and "message" in angles.columns and (angles["message"] == "given").all()
+    missing = note("No photographs in this run directory: the angles were given as numbers "
+                   "(<code>calib measure-angle --angles</code>)." if given else
+                   "The photographs' overlays (<code>measure/overlays/</code>) are missing from this run "
+                   "directory: <code>calib measure-angle --force</code> draws them again.")
     if not figs:
-        body = note("No photographs in this run directory: the angles were given as numbers "
-                    "(<code>calib measure-angle --angles</code>).")
+        body = missing
     else:
-        body = f"<div class=gallery>{''.join(figs)}</div>"
+        body = f"<div class=gallery>{''.join(figs)}</div>" + (missing if n_photo < len(figs) else "")
         if n_side < len(figs):
             body += note("No simulated side view is kept in this run directory for "
                          + ("any condition" if n_side == 0 else f"{len(figs) - n_side} of {len(figs)} conditions")

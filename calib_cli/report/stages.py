@@ -22,7 +22,9 @@ def not_run(cmd: str) -> str:
 
 def figures(f: RunFiles, rel_dir: str, pattern: str = "*.png", cls: str = "figs") -> str:
     paths = f.pngs(rel_dir, pattern)
-    items = "".join(figure(f.run, p, esc(p.stem.replace("__", " &times; ").replace("_", " "))) for p in paths)
+    # a surface's file is surface_<a>__<b>: the pair's sign put in after escaping, else it shows as "&times;"
+    items = "".join(figure(f.run, p, esc(p.stem.replace("__", "\0").replace("_", " ")).replace("\0", " &times; "))
+                    for p in paths)
     return f"<div class={cls}>{items}</div>" if items else ""
 
 

@@ -46,7 +46,7 @@ def _read(run: Path, table: str) -> pd.DataFrame | None:
     try:  # as it is on disk (a table edited by hand is compared too); an unreadable one was exit 70
         return pd.read_parquet(path)
     except Exception as e:  # pyarrow raises several types for a corrupt file
-        raise CalibError(f"{path} is not a readable Parquet file ({type(e).__name__}): rerun the stage that "
+        raise CalibError(f"{path} is not a readable Parquet file ({type(e).__name__}): rerun the command that "
                          "writes it") from None
 
 
@@ -173,9 +173,17 @@ def _heap_reasons(run: Path, reference: Path) -> list[str]:
     return out
 
 
+def _is_run(p: Path) -> bool:
+    """A folder some command wrote as a run: its settings, or a stage's lock."""
+    return (p / "settings.toml").is_file() or any(p.glob("*/*.lock.json")) or any(p.glob("*.lock.json"))
+
+
 def diff_runs(run: Path, reference: Path, rtol: float = 1e-6) -> RunDiff:
     """The headline numbers of ``run`` against ``reference``'s and, where they differ, why."""
     run, reference = Path(run), Path(reference)
+    for p in (run, reference):
+        if p.is_dir() and not _is_run(p):
+            raise CalibError(f"{p} is not a run directory (no settings.toml and no stage lock in it)")
     problems: list[str] = []
     table = pd.DataFrame(_headline_rows(run, reference, rtol, problems),
                          columns=["quantity", "this run", "reference", "same"])
