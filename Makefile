@@ -148,6 +148,7 @@ sample-photos: setup
 
 docs: setup
 	$(VENV)/bin/typer calib_cli.cli utils docs --name calib --output docs/cli.md
+	$(PY) -m calib_cli.cli.docs docs/cli.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

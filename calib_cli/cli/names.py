@@ -4,12 +4,13 @@ that tests/test_startup.py holds equal to its source."""
 
 from __future__ import annotations
 
-#: calib_cli.dem.heap.PARAMETERS: what simulate-heap --set takes
+#: calib_cli.dem.heap.PARAMETERS but the contact laws' own, which only their modules name (tests/test_laws.py):
+#: what simulate-heap --set takes
 HEAP_PARAMETERS = (
     "static_friction", "rolling_friction", "surface_energy", "restitution", "rolling_own_spin", "friction_net_force",
     "rolling_spring", "caps_pulloff", "wall_static_friction", "wall_rolling_friction", "wall_surface_energy",
     "wall_restitution", "cylinder_static_friction", "cylinder_rolling_friction", "cylinder_surface_energy",
-    "cylinder_restitution", "surface_tension", "contact_angle", "liquid_volume",
+    "cylinder_restitution",
 )
 
 #: the names of calib_cli.model.EFFECTS, in its order: what `calib model add|remove` take

@@ -15,7 +15,7 @@ from .names import HEAP_PARAMETERS
 def simulate_heap(
     run: RunOpt,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Parameter KEY=VALUE (repeatable): "
-                    + ", ".join(HEAP_PARAMETERS) + ". The rolling law is EDEM's RVD unless rolling_own_spin=1 "
+                    + ", ".join(HEAP_PARAMETERS) + ", and each contact law's own (docs/physics.md). The rolling law is EDEM's RVD unless rolling_own_spin=1 "
                     "(EDEM's Standard) or rolling_spring=1 (LAMMPS's rolling sds). With --design, values for "
                     "factors the design lacks.")] = None,
     design: Annotated[Optional[Path], typer.Option(help="Simulate every row of a design (e.g. RUN/bbd/design.parquet).")] = None,
