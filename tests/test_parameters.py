@@ -142,7 +142,7 @@ def test_a_webp_photograph_is_measured(tmp_path):
     assert list(res.angles["image"]) == ["h.webp"] and np.isfinite(res.angles["repose_angle"]).all()
 
 
-def test_simulate_heap_says_when_the_run_photographed_other_rigs_than_it_simulates(tmp_path):
+def test_simulate_heap_simulates_the_photographed_rigs_unless_told_otherwise(tmp_path):
     import pandas as pd
 
     from calib_cli.stages.simulate import plan_simulation
@@ -153,12 +153,14 @@ def test_simulate_heap_says_when_the_run_photographed_other_rigs_than_it_simulat
                   "particle_d_max_mm": [5.0], "cylinder_diameter_mm": [40.0], "fill_height_mm": [75.0],
                   "lift_speed_mm_s": [50.0]}).to_parquet(run / "measure" / "conditions.parquet")
     said: list[str] = []
-    plan_simulation(run, ["static_friction=0.3"], preset="smoke", say=said.append)
-    assert any("measured rig(s)" in s and "--conditions" in s and "6-8 mm grains" in s for s in said), said
-    said.clear()
-    plan_simulation(run, ["static_friction=0.3"], preset="smoke", conditions=run / "measure" / "conditions.parquet",
-                    say=said.append)
-    assert not any("measured rig(s)" in s for s in said), said
+    plan = plan_simulation(run, ["static_friction=0.3"], preset="smoke", say=said.append)
+    assert [(r.condition_id, r.condition.cylinder_diameter_mm) for r in plan.requests] == [("A", 40.0)]
+    assert "1 condition(s) from" in said[0] and "measure/conditions.parquet" in said[0], said
+    for how in ({"conditions": "preset"}, {"condition": ["fill_height_mm=60"]}):
+        said.clear()
+        plan = plan_simulation(run, ["static_friction=0.3"], preset="smoke", say=said.append, **how)
+        assert plan.requests[0].condition.cylinder_diameter_mm == 50.0  # the preset's rig
+        assert any("measured rig(s)" in s and "--conditions preset" in s and "6-8 mm grains" in s for s in said), said
 
 
 def test_simulate_heap_names_the_rig_a_condition_made_not_the_presets(tmp_path):

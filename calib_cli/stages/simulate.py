@@ -135,6 +135,26 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
     return points, dname, ""
 
 
+#: ``--conditions preset``: the preset's rig even where the run has measured its own
+PRESET_RIG = "preset"
+
+
+def _which_conditions(run: Path, conditions: Optional[Path], changed: bool) -> Optional[Path]:
+    """The conditions table to simulate: the one given; else, unless ``--condition`` changed the preset's
+    rig, the run's measured conditions where they give a rig (heaps of the rigs photographed, not the
+    preset's); None for the preset's rig (``--conditions preset``, or no measured rig)."""
+    if conditions is not None:
+        return None if str(conditions) == PRESET_RIG else Path(conditions)
+    measured = Path(run) / "measure" / "conditions.parquet"
+    if changed or not measured.is_file():
+        return None
+    try:
+        columns = art.read_table(measured, what="measured conditions").columns
+    except CalibError:
+        return None  # unreadable: the preset's rig, and the note below cannot name them either
+    return measured if any(c in columns for c in CONDITION_VARIABLES) else None
+
+
 def _note_measured_rigs(run: Path, cond, say: Say) -> None:
     """Say so where the run's photographs were of rigs these heaps do not simulate (the preset's rig, or
     one changed by --condition, while RUN/measure/conditions.parquet gives the measured ones)."""
@@ -149,8 +169,8 @@ def _note_measured_rigs(run: Path, cond, say: Say) -> None:
     if rig and not all((table[c] == getattr(cond, c)).all() for c in rig):
         say(f"[yellow]note:[/] {measured} holds {len(table)} measured rig(s) ({', '.join(rig[:3])}, ...) that these "
             f"heaps do not simulate (theirs: {cond.particle_d_min_mm:g}-{cond.particle_d_max_mm:g} mm grains, "
-            f"{cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm); give --conditions "
-            f"{measured} to simulate the photographed rigs")
+            f"{cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm); without --condition and "
+            f"--conditions preset, simulate-heap simulates the photographed rigs")
 
 
 def read_conditions_table(path: Path) -> pd.DataFrame:
@@ -173,8 +193,9 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
                     shape: str = "sphere",
                     force: bool = False, say: Optional[Say] = None) -> Plan:
     """Check everything and build the requests (nothing runs yet): every row of ``design`` (else one
-    point) with ``params`` for what it lacks, under the preset's rig changed by ``condition`` or every
-    condition of the ``conditions`` table, ``repeats`` seeds each. Says how many are cached, and notes
+    point) with ``params`` for what it lacks, under every condition of the ``conditions`` table (by
+    default the run's measured ones where they give a rig; ``"preset"``: none) or the preset's rig
+    changed by ``condition``, ``repeats`` seeds each. Says how many are cached, and notes
     a floor that follows the grains and cohesive grains at a reduced modulus. ``force``: recompute the
     cached heaps (each replaced only when its new result is complete). ``engine``: else the run's."""
     say = say or plain
@@ -187,6 +208,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     cond = make_condition(pre.condition, checked_condition(condition))
     points, dname, mhash = _points(run, design, parse_params(pairs(params, "--set")))
     crossed = [("", cond)]
+    conditions = _which_conditions(run, conditions, bool(condition))
     if conditions is not None:
         conditions = Path(conditions)
         crossed = table_conditions(cond, read_conditions_table(conditions))
