@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Iterable, Mapping, Optional, Sequence
+from typing import Iterable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 import pandas as pd
@@ -138,6 +138,15 @@ def parse_pairs(items: Optional[Iterable[str]], what: str) -> dict:
     return out
 
 
+#: KEY=VALUE strings as typed, a mapping from Python, or nothing
+Pairs = Union[Mapping, Iterable[str], None]
+
+
+def given_pairs(items: Pairs, what: str) -> dict:
+    """KEY=VALUE strings (the command line's) or a mapping (Python's) as a dict."""
+    return dict(items) if isinstance(items, Mapping) else parse_pairs(items, what)
+
+
 def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:
     """Heap parameter values a user gave, checked: known names, numbers in the range the model accepts
     and a real material plausibly has (:func:`calib_cli.parameters.check`)."""
@@ -176,7 +185,7 @@ def check_condition_values(values: Mapping, where: str) -> None:
 def checked_condition(items) -> dict:
     """``--condition`` values (KEY=VALUE strings, or a mapping from Python), checked against the rig's
     plausible ranges."""
-    given = dict(items) if isinstance(items, Mapping) else parse_pairs(items, "--condition")
+    given = given_pairs(items, "--condition")
     check_condition_values(given, "--condition")
     return given
 

@@ -181,7 +181,7 @@ def test_model_cli(tmp_path):
 def test_compare_uses_the_calibration_s_fixed_values_and_effects(tmp_path):
     """Without a model file, an effect the calibration switched on joins the model (simulate-heap
     pins nothing then), and parameters the BBD held fixed keep their fixed values."""
-    from calib_cli.stages.compare import model_and_theta as _model_and_theta
+    from calib_cli.discrepancy.point import model_and_theta as _model_and_theta
 
     (tmp_path / "bbd").mkdir()
     (tmp_path / "invert").mkdir()

@@ -144,7 +144,7 @@ def test_diagnose_aligns_residuals_to_conditions_by_condition_id(tmp_path, monke
         seen["res"], seen["conds"] = res, conds
         raise CalibError("stop")
 
-    monkeypatch.setattr(dg, "_signatures", lambda *a, **k: (None,) * 5)
+    monkeypatch.setattr(dg, "signatures", lambda *a, **k: (None,) * 5)
     monkeypatch.setattr(dg, "_rank", rank)
     with pytest.raises(CalibError, match="stop"):
         dg.diagnose(run, TRUTH[1::2])

@@ -10,10 +10,12 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
-from calib_cli.cli import app
+from calib_cli.cli import app, command_root
+from calib_cli.cli.pipeline import UP_TO_DATE, execute, load_pipeline, parse_vars, plan
 from calib_cli.errors import CalibError
-from calib_cli.pipeline import UP_TO_DATE, execute, load_pipeline, parse_vars, plan
 from conftest import ROOT
+
+ROOT_CMD = command_root()  # the `calib` command line a pipeline checks and runs its steps with
 
 runner = CliRunner()
 
@@ -270,7 +272,7 @@ def test_shipped_pipeline_runs_what_the_makefile_ran(target, at_root):
 
 def test_every_pipeline_file_loads(at_root):
     for path in sorted((ROOT / "stages").glob("*.toml")):
-        p = plan(load_pipeline(path.relative_to(ROOT), "somewhere"))
+        p = plan(load_pipeline(path.relative_to(ROOT), "somewhere", root=ROOT_CMD))
         assert p.steps and all(s.outputs for s in p.steps)
         inside = [x for x in p.external if x.startswith("somewhere/")]
         assert all(os.path.exists(x) for x in p.external if x not in inside), p.external
@@ -360,11 +362,11 @@ def test_variables_lists_and_optional_groups(tmp_path, at_root):
     text = text.replace('extra = []', 'extra = []\ng = ""')
     p = tmp_path / "p.toml"
     p.write_text(text)
-    assert plan(load_pipeline(p, "R")).commands()[1] == ["simulate-heap", "--run", "R"]
-    got = plan(load_pipeline(p, "R", {"extra": "--repeats 2 --set 'a=1 2'", "g": "5e8"})).commands()[1]
+    assert plan(load_pipeline(p, "R", root=ROOT_CMD)).commands()[1] == ["simulate-heap", "--run", "R"]
+    got = plan(load_pipeline(p, "R", {"extra": "--repeats 2 --set 'a=1 2'", "g": "5e8"}, root=ROOT_CMD)).commands()[1]
     assert got == ["simulate-heap", "--run", "R", "--repeats", "2", "--set", "a=1 2", "--shear-modulus", "5e8"]
     with pytest.raises(CalibError, match="unknown variable"):
-        load_pipeline(p, "R", {"nope": "1"})
+        load_pipeline(p, "R", {"nope": "1"}, root=ROOT_CMD)
 
 
 def tree(d):
@@ -381,7 +383,7 @@ def test_paper_pipeline_runs_then_is_up_to_date(tmp_path, at_root):
     assert lock["fingerprint"] == committed["fingerprint"]  # the same stage as `make paper` ran
     assert lock["command"] == f"calib bbd analyze --run {run} --responses sample_data/paper/table7_bbd.csv"
     before = tree(run)
-    result = execute(plan(load_pipeline("stages/paper.toml", run)))
+    result = execute(plan(load_pipeline("stages/paper.toml", run, root=ROOT_CMD)))
     assert [s.status for s in result.steps] == [UP_TO_DATE] * 11
     assert "11 of 11 steps, 0 ran, 11 up to date" in result.summary()
     assert tree(run) == before
@@ -403,7 +405,7 @@ def test_an_interrupted_pipeline_resumes(tmp_path, at_root, monkeypatch):
     assert r.exit_code == 130 and "interrupted in step 'bbd-design'" in r.output, r.output
     assert "6 of 11 steps" in r.output and not (run / "bbd").exists()
     monkeypatch.setattr(art.Stage, "commit", commit)
-    result = execute(plan(load_pipeline("stages/paper.toml", run)))
+    result = execute(plan(load_pipeline("stages/paper.toml", run, root=ROOT_CMD)))
     assert [s.status for s in result.steps] == [UP_TO_DATE] * 6 + ["ran"] * 5
 
 
@@ -414,6 +416,6 @@ def test_committed_run_holds_its_pipelines_settings_file(target, at_root):
     RUN/settings.toml is the pipeline's settings file byte for byte, so the stages stay up to date."""
     args = make_call(target)
     variables = parse_vars([args[i + 1] for i, a in enumerate(args) if a == "--var"])
-    init = next(s for s in plan(load_pipeline(args[1], args[3], variables)).steps if s.argv[0] == "init")
+    init = next(s for s in plan(load_pipeline(args[1], args[3], variables, root=ROOT_CMD)).steps if s.argv[0] == "init")
     run, settings = init.argv[init.argv.index("--run") + 1], init.argv[init.argv.index("--settings") + 1]
     assert (ROOT / run / "settings.toml").read_bytes() == (ROOT / settings).read_bytes()

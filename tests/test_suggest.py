@@ -290,7 +290,7 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
         return (np.zeros(n), [np.full(n, 20.0), np.full(n, 40.0), np.full(n, -2.0)], {"cohesion": np.full(n, 1.0)},
                 {"cohesion": np.full(n, 0.1)}, {})
 
-    monkeypatch.setattr(st, "_signatures", fake)
+    monkeypatch.setattr(st, "signatures", fake)
     quiet = {"say": lambda *a, **k: None}
     r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], repeats=2, **quiet)
     assert asked == {"theta": {**asked["theta"], **theta}, "ids": ["d4-5_D60_H75"], "repeats": 2}

@@ -114,6 +114,12 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
     pass
 
 
+def command_root():
+    """The `calib` command line as one click command: what a pipeline checks and runs its steps with
+    (:func:`calib_cli.cli.pipeline.load_pipeline`)."""
+    return typer.main.get_command(app)
+
+
 def main() -> None:
     """Console-script entry point: no traceback for anything a user can cause.
 

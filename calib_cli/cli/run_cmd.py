@@ -1,4 +1,4 @@
-"""`calib run`: a declared pipeline (stages/*.toml); thin wrapper over calib_cli.pipeline."""
+"""`calib run`: a declared pipeline (stages/*.toml); thin wrapper over calib_cli.cli.pipeline."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from .common import RunOpt, console, err_console
 
 
 def run_pipeline(
+    ctx: typer.Context,
     pipeline: Annotated[Path, typer.Argument(help="Pipeline TOML: the steps of a chain, each a calib command "
                                              "with its inputs and outputs (e.g. stages/paper.toml).", show_default=False,
                                              metavar="PIPELINE.toml")],
@@ -25,9 +26,9 @@ def run_pipeline(
     skips by itself what is up to date (stage locks) and every simulation what is cached, so
     running a pipeline again resumes one that stopped and redoes only what changed. Prints per
     step whether it ran or was up to date."""
-    from ..pipeline import PipelineInterrupted, StepFailed, execute, load_pipeline, parse_vars, plan
+    from .pipeline import PipelineInterrupted, StepFailed, execute, load_pipeline, parse_vars, plan
 
-    planned = plan(load_pipeline(pipeline, run, parse_vars(var)))
+    planned = plan(load_pipeline(pipeline, run, parse_vars(var), root=ctx.find_root().command))
     if dry_run:
         for line in planned.lines():
             typer.echo(line)

@@ -50,7 +50,7 @@ def predict(run: RunOpt, set_: Annotated[Optional[list[str]], typer.Option("--se
     import numpy as np
 
     from ..requests import parse_pairs, parse_params
-    from ..stages.surrogate import load_models
+    from ..surrogate.store import load_models
 
     run = check_run_dir(run)
     models, best = load_models(run, model)

@@ -15,87 +15,14 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from .. import artifacts as art  # noqa: E402
-from ..campaign import CACHE_SOURCE, run_campaign  # noqa: E402
-from ..dem.heap import LAWS  # noqa: E402
-from ..discrepancy.stats import per_condition, residual_table, summary  # noqa: E402
-from ..errors import CalibError  # noqa: E402
+from ..campaign import CACHE_SOURCE  # noqa: E402
+from ..discrepancy.point import model_and_theta, simulate_at  # noqa: E402
+from ..discrepancy.stats import residual_table, summary  # noqa: E402
 from ..measurements import measured_conditions  # noqa: E402
-from ..model import EFFECTS, Model, load_model  # noqa: E402
-from ..requests import (COND_VARS, build_requests, engine_settings, heap_engine, heap_preset, heap_setup,  # noqa: E402
-                        modulus_settings, parse_params, table_conditions)
-from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
-                     warn_other_modulus, writes_run)
-from .simulate import Pairs, pairs  # noqa: E402
-
-
-#: calibrate's point: the posterior's most probable draw (calib_cli.stages.calibrate)
-POINT = Path("calibrate") / "point.parquet"
-
-
-def calibrated_point(run: Path, model: Model) -> Optional[Path]:
-    """The table of the calibrated parameters: calibrate's most probable draw where it was made for the
-    current model revision, else the inversion's solution (the paper's chain), else None."""
-    point = run / POINT
-    if point.is_file() and art.read_provenance(point).get("model_revision") == model.revision:
-        return point
-    sol = run / "invert" / "solution.parquet"
-    return sol if sol.is_file() else None
-
-
-def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, float]]:
-    """The model and its calibrated parameter values: the BBD's fixed values < the calibrated point
-    (:func:`calibrated_point`) < --set. Without a model file (revision 0) simulate-heap pins nothing, so an effect
-    the calibration switched on (a non-neutral value, e.g. surface_energy 0.5) joins the model."""
-    model = load_model(run)
-    given = parse_params(pairs(set_, "--set")) if set_ else {}
-    known = {e.parameter for e in EFFECTS.values()}
-    base = {}
-    sol = calibrated_point(run, model)
-    if sol is not None:
-        s = art.read_table(sol).iloc[0]
-        base = {k: float(s[k]) for k in s.index if k in known}
-    # parameters the response surface held fixed keep their fixed values (the surrogate and
-    # the inversion know nothing else about them)
-    fixed = {k: v for k, v in bbd_fixed(run, resolve_settings(run, None, None)).items() if k in known or k in LAWS}
-    theta = {**fixed, **base, **given}
-    _check_given(model, given)
-    if model.revision == 0:
-        used = [e.name for e in EFFECTS.values() if e.name not in model.effects and e.parameter in theta
-                and not (e.neutral == e.neutral and theta[e.parameter] == e.neutral)]
-        if used:
-            model = Model((*model.effects, *used), 0, f"default model + {', '.join(used)} (set by the calibration)")
-    missing = [p for p in model.parameters if p not in theta]
-    if missing:
-        raise CalibError(f"no calibrated value for {', '.join(missing)}: run `calib calibrate` (or `calib invert`) or "
-                         "pass --set NAME=VALUE")
-    # with the contact laws the BBD's heaps had (or --set gives): its surrogate learnt those
-    return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
-
-
-def _check_given(model: Model, given: dict[str, float]) -> None:
-    """Refuse a --set value for a parameter the model file's revision does not calibrate: it would be
-    dropped (model.pin) and the comparison run without it. Its neutral value is what the model uses
-    anyway; without a model file (revision 0) the effect joins the model instead."""
-    if model.revision == 0:
-        return
-    owner = {e.parameter: e for e in EFFECTS.values()}
-    dropped = sorted(k for k, v in given.items()
-                     if k not in LAWS and k not in model.parameters and not (k in owner and v == owner[k].neutral))
-    if dropped:
-        adds = sorted({owner[k].name for k in dropped if k in owner})
-        hint = f"; `calib model add {' / '.join(adds)}` to calibrate it" if adds else ""
-        raise CalibError(f"the model (revision {model.revision}) has no parameter {', '.join(dropped)}: its "
-                         f"parameters are {', '.join(model.parameters)}{hint}")
-
-
-def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
-    """Mean, sd, n of the simulated angle per condition at parameters theta, on the run's engine."""
-    pre = heap_preset(preset, shear_modulus)
-    reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
-                          repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True,
-                          engine=heap_engine(resolve_settings(run, None, None)))
-    rows = run_campaign(reqs, run, workers)
-    return per_condition(rows, conds["condition_id"]), rows
+from ..model import Model  # noqa: E402
+from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings  # noqa: E402
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,  # noqa: E402
+                     writes_run)
 
 
 def _history(hist: pd.DataFrame, model: Model, theta: dict, summ: dict) -> pd.DataFrame:

@@ -13,15 +13,15 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..campaign import CACHE_SOURCE
-from ..discrepancy.stats import at_bounds, confound, confounded, difference_se, score_effects, signature_noise, trends
+from ..discrepancy.point import model_and_theta
+from ..discrepancy.sensitivity import signatures
+from ..discrepancy.stats import at_bounds, confound, confounded, score_effects, signature_noise, trends
 from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
-from ..requests import COND_VARS, engine_settings, heap_setup, modulus_settings
+from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
                      warn_other_modulus, writes_run)
-from .compare import model_and_theta, simulate_at
-from .simulate import Pairs
 
 
 #: |weighted correlation| of a candidate's signature with a parameter's above which the evidence says
@@ -78,40 +78,6 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFr
         raise CalibError(f"{path} holds residuals of condition(s) {', '.join(have)}, but the measured conditions are "
                          f"{', '.join(ids)}: run `calib compare --run {run}` first")
     return res.set_index("condition_id").loc[ids].reset_index()
-
-
-def _signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, preset: str, repeats: int, workers: int,
-                shear_modulus: Optional[float], cands: Optional[list[str]] = None):
-    """Simulated sensitivities: J (angle per unit of each calibrated parameter, per condition), G (per
-    unit of each candidate effect's parameter; every one the model lacks, or ``cands``) with its
-    standard error, and each candidate's start."""
-    cands = model.candidates if cands is None else cands
-    base, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
-    b = base["mean"].to_numpy()
-    J, G = [], {}
-    for e in model.effects:
-        eff = EFFECTS[e]
-        h = eff.step if theta[eff.parameter] + eff.step <= eff.high else -eff.step
-        sim, _ = simulate_at(run, model, {**theta, eff.parameter: theta[eff.parameter] + h}, conds, preset, repeats,
-                             workers, f"sens-{e}", shear_modulus=shear_modulus)
-        J.append((sim["mean"].to_numpy() - b) / h)
-    starts, G_se = {}, {}
-    for e in cands:
-        eff = EFFECTS[e]
-        down, up = eff.probe(theta)
-        starts[e] = eff.start(theta)
-        m2 = Model((*model.effects, e), model.revision)
-        sim, _ = simulate_at(run, m2, {**theta, eff.parameter: up}, conds, preset, repeats, workers, f"cand-{e}",
-                             shear_modulus=shear_modulus)
-        if eff.two_sided:  # a central difference (Effect.probe): both ends simulated
-            dn, _ = simulate_at(run, m2, {**theta, eff.parameter: down}, conds, preset, repeats, workers,
-                                f"cand-{e}-down", shear_modulus=shear_modulus)
-            G[e] = (sim["mean"].to_numpy() - dn["mean"].to_numpy()) / (up - down)
-            G_se[e] = difference_se(sim, dn, up - down)
-        else:  # a forward step from neutral: the model's own simulations stand there
-            G[e] = (sim["mean"].to_numpy() - b) / eff.step
-            G_se[e] = difference_se(sim, base, eff.step)
-    return b, J, G, G_se, starts
 
 
 def _ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]:
@@ -252,7 +218,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     say(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects "
         f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
         "simulations (cached runs are reused)")
-    b, J, G, G_se, starts = _signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus)
+    b, J, G, G_se, starts = signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus)
     ranking, tr, top, ok, J, G = _rank(run, model, theta, res, conds, b, J, G, G_se, starts, say)
     bar = _verdicts(ranking, top, alpha, repeats, say)
     sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})

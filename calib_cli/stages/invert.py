@@ -28,8 +28,8 @@ from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
 from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
 from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
                      warn_other_modulus, writes_run)
-from .simulate import Pairs, pairs  # noqa: E402
-from .surrogate import MODELS_DIR, load_models  # noqa: E402
+from ..requests import Pairs  # noqa: E402
+from ..surrogate.store import MODELS_DIR, load_models  # noqa: E402
 
 
 @dataclass

@@ -17,7 +17,7 @@ from ..dem.heap import FLOOR_VARIABLES, HeapCondition
 from ..errors import CalibError
 from ..requests import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
                         parse_params)
-from .simulate import Pairs, pairs
+from ..requests import Pairs, given_pairs as pairs
 
 
 def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Mapping, Optional, Union
+from typing import Callable, Optional
 
 import numpy as np
 import pandas as pd
@@ -15,17 +15,9 @@ from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
 from ..conditions import read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
-from ..requests import (build_requests, check_engine, checked_condition, heap_engine, heap_preset, heap_setup,
-                        make_condition, modulus_note, parse_pairs, parse_params, table_conditions)
+from ..requests import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine, heap_preset,
+                        heap_setup, make_condition, modulus_note, parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
-
-Pairs = Union[Mapping, Iterable[str], None]
-
-
-def pairs(items: Pairs, what: str) -> dict:
-    """KEY=VALUE strings (the command line's) or a mapping (Python's) as a dict."""
-    return dict(items) if isinstance(items, Mapping) else parse_pairs(items, what)
-
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
 DRIFT_WARN = 2.0
@@ -206,7 +198,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus)
     cond = make_condition(pre.condition, checked_condition(condition))
-    points, dname, mhash = _points(run, design, parse_params(pairs(params, "--set")))
+    points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
     conditions = _which_conditions(run, conditions, bool(condition))
     if conditions is not None:

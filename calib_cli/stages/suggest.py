@@ -25,9 +25,9 @@ from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, 
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
-from .compare import model_and_theta
-from .diagnose import _signatures
-from .simulate import Pairs
+from ..discrepancy.point import model_and_theta
+from ..discrepancy.sensitivity import signatures
+from ..requests import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
 DRAWS = 2000
@@ -198,7 +198,7 @@ def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset
     n = (1 + len(model.parameters) + len(tested) + two_sided) * len(picks) * repeats
     say(f"simulating diagnose's sensitivities at {len(picks)} candidate condition(s): {n} heaps at most "
         "(cached ones are reused)")
-    _, J, G, G_se, _ = _signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested)
+    _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested)
     out = pd.DataFrame(index=cand.index)
     for k, e in enumerate(model.effects):
         out.loc[picks["index"], f"d_{EFFECTS[e].parameter}"] = J[k]

@@ -20,10 +20,9 @@ from ..errors import CalibError  # noqa: E402
 from ..posterior.gp import informative_conditions  # noqa: E402
 from ..requests import COND_VARS  # noqa: E402
 from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
-from ..surrogate.models import make_model, model_from_state  # noqa: E402
+from ..surrogate.models import make_model  # noqa: E402
 from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, writes_run  # noqa: E402
 
-MODELS_DIR = Path("surrogate") / "models"
 
 
 def _simulated_training_data(run: Path, stage: str, response: str, say: Say) -> tuple[pd.DataFrame, list[str], dict]:
@@ -168,21 +167,3 @@ def fit_surrogate(run: Path, responses: Optional[Path] = None, from_simulations:
                                           "lows": X.min(0).tolist(), "highs": X.max(0).tolist()}))
         out.figure("predicted_vs_actual.png", fig)
     return FitResult(st, False, metrics, best, len(y))
-
-
-def load_models(run: Path, model: Optional[str]) -> tuple[dict, dict]:
-    best_path = run / "surrogate" / "best.json"
-    if not best_path.is_file():
-        raise CalibError(f"no fitted surrogate in {run}: run `calib fit-surrogate --run {run}` first")
-    best = art.read_json(best_path)
-    names = [model] if model else [p.stem for p in sorted((run / MODELS_DIR).glob("*.json"))]
-    models = {}
-    for n in names:
-        p = run / MODELS_DIR / f"{n}.json"
-        if not p.is_file():
-            raise CalibError(f"surrogate {n!r} was not fitted in {run} (have: "
-                             f"{', '.join(q.stem for q in (run / MODELS_DIR).glob('*.json'))})")
-        models[n] = model_from_state(art.read_json(p))
-    return models, best
-
-

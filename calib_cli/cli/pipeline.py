@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from .errors import CalibError
+from ..errors import CalibError
 
 VAR = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
@@ -89,6 +89,8 @@ class Pipeline:
     env: Mapping[str, str] = field(default_factory=dict)
     variables: Mapping[str, Value] = field(default_factory=dict)
     description: str = ""
+    #: the `calib` command line (a click command) that checks and runs the steps
+    root: Any = None
 
 
 @dataclass(frozen=True)
@@ -325,10 +327,11 @@ def _steps(path: Path, outer: Mapping[str, Value], given: Mapping[str, Value],
     return steps, env, scope
 
 
-def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str] | None = None) -> Pipeline:
+def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str] | None = None, *, root) -> Pipeline:
     """Read and check a pipeline file: its structure, its variables (``variables`` overrides the
     file's [vars]; ``{run}`` is ``run``), unique step names, and every step's command against the
-    `calib` command line (a known command, known options, valid values)."""
+    `calib` command line ``root`` (:func:`calib_cli.cli.command_root`; a known command, known options,
+    valid values). The command line is given, not imported: it imports this module."""
     path, run = Path(path), str(run)
     if not run.strip():
         raise CalibError("--run is empty: give the run directory")
@@ -338,19 +341,10 @@ def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str
         if s.name in seen:
             raise CalibError(f"{path}: two steps are named {s.name!r} ({seen[s.name]} and {s.source})")
         seen[s.name] = s.source
-    root = _cli()
     for s in steps:
         check_command(root, s)
     description = str(_read(path).get("description", ""))
-    return Pipeline(path, run, tuple(steps), env, scope, description)
-
-
-def _cli():
-    import typer
-
-    from .cli import app
-
-    return typer.main.get_command(app)
+    return Pipeline(path, run, tuple(steps), env, scope, description, root)
 
 
 def _click():
@@ -416,7 +410,7 @@ def plan(pipeline: Pipeline) -> Plan:
 # ---------------------------------------------------------------- executing
 def _hash(path: Path) -> str | None:
     """A file's content hash; a folder's over its files (hidden ones left out); None if absent."""
-    from .artifacts import file_hash
+    from ..artifacts import file_hash
 
     if path.is_file():
         return file_hash(path)
@@ -434,7 +428,7 @@ def _hash(path: Path) -> str | None:
 def _as_command(step: Step, env: Mapping[str, str]) -> Iterator[None]:
     """While a step runs: sys.argv is its own command line (what its provenance and lock record,
     as when it is typed), the pipeline's environment is set, and user errors propagate."""
-    from .cli.common import errors_propagate
+    from .common import errors_propagate
 
     argv, saved = sys.argv, {k: os.environ.get(k) for k in env}
     sys.argv = ["calib", *step.argv]
@@ -497,7 +491,7 @@ def execute(plan: Plan, on_start: Callable[[int, Step], None] | None = None,
         path, step = missing[0]
         raise StepFailed(f"{plan.pipeline.path}: step {step!r} reads {path}, which does not exist and which no "
                          f"earlier step writes (paths are relative to the working directory, {Path.cwd()})", result)
-    root = _cli()
+    root = plan.pipeline.root
     for i, step in enumerate(plan.steps):
         if on_start:
             on_start(i, step)

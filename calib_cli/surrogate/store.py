@@ -1,0 +1,32 @@
+"""A run's fitted surrogates on disk (RUN/surrogate/: each model's state, and which predicts held-out
+heaps best), read back by invert and predict (paper 3.4-3.5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+from .. import artifacts as art
+from ..errors import CalibError
+from .models import model_from_state
+
+MODELS_DIR = Path("surrogate") / "models"
+
+
+def load_models(run: Path, model: Optional[str]) -> tuple[dict, dict]:
+    """The fitted surrogates (``model``: that one only) by name, and best.json (which is best, its inputs and box)."""
+    best_path = run / "surrogate" / "best.json"
+    if not best_path.is_file():
+        raise CalibError(f"no fitted surrogate in {run}: run `calib fit-surrogate --run {run}` first")
+    best = art.read_json(best_path)
+    names = [model] if model else [p.stem for p in sorted((run / MODELS_DIR).glob("*.json"))]
+    models = {}
+    for n in names:
+        p = run / MODELS_DIR / f"{n}.json"
+        if not p.is_file():
+            raise CalibError(f"surrogate {n!r} was not fitted in {run} (have: "
+                             f"{', '.join(q.stem for q in (run / MODELS_DIR).glob('*.json'))})")
+        models[n] = model_from_state(art.read_json(p))
+    return models, best
+
+
