@@ -592,7 +592,7 @@ class _StagingWriter:
         _write_parquet(self._path(rel), df, {**self.provenance, **meta})
 
     def figure(self, rel: str, fig) -> None:
-        import matplotlib.pyplot as plt
+        from .plots import plt
 
         fig.savefig(self._path(rel), dpi=120, bbox_inches="tight")
         plt.close(fig)

@@ -1,4 +1,5 @@
-"""Matplotlib figures for the stages (PNG, headless Agg backend)."""
+"""Matplotlib figures for the stages (PNG). The one place that sets the headless Agg backend: a module that
+draws imports ``plt`` from here."""
 
 from __future__ import annotations
 

@@ -51,3 +51,10 @@ def test_no_module_imports_itself_round_a_cycle():
         if m not in index:
             visit(m)
     assert not cycles, cycles
+
+
+def test_one_module_sets_the_plotting_backend():
+    """calib_cli/plots.py sets Agg; a module that draws imports plt from it (no import-order games)."""
+    setters = [p.relative_to(ROOT).as_posix() for p in (ROOT / "calib_cli").rglob("*.py")
+               if "matplotlib.use(" in p.read_text()]
+    assert setters == ["calib_cli/plots.py"], setters

@@ -7,21 +7,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from .. import artifacts as art  # noqa: E402
-from ..campaign import CACHE_SOURCE  # noqa: E402
-from ..discrepancy.point import model_and_theta, simulate_at  # noqa: E402
-from ..discrepancy.stats import residual_table, summary  # noqa: E402
-from ..measurements import measured_conditions  # noqa: E402
-from ..model import Model  # noqa: E402
-from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings  # noqa: E402
-from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,  # noqa: E402
+from .. import artifacts as art
+from ..campaign import CACHE_SOURCE
+from ..discrepancy.point import model_and_theta, simulate_at
+from ..discrepancy.stats import residual_table, summary
+from ..measurements import measured_conditions
+from ..model import Model
+from ..plots import plt  # the Agg backend, set in one place
+from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
                      writes_run)
 
 

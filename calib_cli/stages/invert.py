@@ -8,28 +8,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from .. import artifacts as art  # noqa: E402
-from ..campaign import run_campaign  # noqa: E402
-from ..dem.heap import PARAMETERS  # noqa: E402
-from ..discrepancy.stats import at_bounds, per_condition, residual_table  # noqa: E402
-from ..errors import CalibError  # noqa: E402
-from ..parameters import check  # noqa: E402
-from ..requests import (COND_VARS, build_requests, checked_condition, engine_settings, heap_engine, heap_preset,  # noqa: E402
-                        heap_setup, make_condition, modulus_settings, table_conditions)
-from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters  # noqa: E402
-from ..surrogate.inversion import invert as invert_surrogate  # noqa: E402
-from ..surrogate.inversion import nearest, refine as refine_by_simulation  # noqa: E402
-from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,  # noqa: E402
+from .. import artifacts as art
+from ..campaign import run_campaign
+from ..dem.heap import PARAMETERS
+from ..discrepancy.stats import at_bounds, per_condition, residual_table
+from ..errors import CalibError
+from ..parameters import check
+from ..plots import plt  # the Agg backend, set in one place
+from ..requests import (COND_VARS, Pairs, build_requests, checked_condition, engine_settings, heap_engine,
+                        heap_preset, heap_setup, make_condition, modulus_settings, table_conditions)
+from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters
+from ..surrogate.inversion import invert as invert_surrogate
+from ..surrogate.inversion import nearest, refine as refine_by_simulation
+from ..surrogate.store import MODELS_DIR, load_models
+from .common import (Result, Say, bbd_fixed, check_run_dir, plain, resolve_settings, stage,
                      warn_other_modulus, writes_run)
-from ..requests import Pairs  # noqa: E402
-from ..surrogate.store import MODELS_DIR, load_models  # noqa: E402
 
 
 @dataclass

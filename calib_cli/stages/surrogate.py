@@ -8,21 +8,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from .. import artifacts as art  # noqa: E402
-from ..errors import CalibError  # noqa: E402
-from ..posterior.gp import informative_conditions  # noqa: E402
-from ..requests import COND_VARS  # noqa: E402
-from ..surrogate.metrics import leave_one_out, scores, split_80_20  # noqa: E402
-from ..surrogate.models import make_model  # noqa: E402
-from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, writes_run  # noqa: E402
-
+from .. import artifacts as art
+from ..errors import CalibError
+from ..plots import plt  # the Agg backend, set in one place
+from ..posterior.gp import informative_conditions
+from ..requests import COND_VARS
+from ..surrogate.metrics import leave_one_out, scores, split_80_20
+from ..surrogate.models import make_model
+from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, writes_run
 
 
 def _simulated_training_data(run: Path, stage: str, response: str, say: Say) -> tuple[pd.DataFrame, list[str], dict]:
