@@ -297,23 +297,23 @@ def load_results(run_dir: Path) -> pd.DataFrame:
 def current_sources(rows: pd.DataFrame) -> pd.Series:
     """The physics version each results row's heap would run now (its parameters' and floor's laws);
     "" where they are no longer valid parameters."""
-    cols = [c for c in (*PARAMETERS, *FLOOR_VARIABLES) if c in rows.columns]
-
-    def source(vals) -> str:
-        given = {k: float(v) for k, v in zip(cols, vals) if v is not None}
-        floor = {k: v for k, v in given.items() if k in FLOOR_VARIABLES}
-        try:
-            return heap_source({k: v for k, v in given.items() if k not in floor}, HeapCondition(**floor))
-        except (CalibError, TypeError, ValueError):
-            return ""
-    memo: dict[tuple, str] = {}  # an index holds few distinct parameter sets among many rows
-    out = []
-    for vals in rows[cols].itertuples(index=False, name=None):
-        key = tuple(None if pd.isna(v) else v for v in vals)
-        if key not in memo:
-            memo[key] = source(key)
-        out.append(memo[key])
+    cols = tuple(c for c in (*PARAMETERS, *FLOOR_VARIABLES) if c in rows.columns)
+    laws = cache_source(physics())  # the laws' versions now: the memo holds per state of the registry
+    out = [_source_now(laws, cols, tuple(None if pd.isna(v) else v for v in vals))
+           for vals in rows[list(cols)].itertuples(index=False, name=None)]
     return pd.Series(out, index=rows.index, dtype=object)
+
+
+@functools.lru_cache(maxsize=65536)
+def _source_now(laws: str, cols: tuple[str, ...], vals: tuple) -> str:
+    """The physics version a parameter set runs today: worked out once per process (an index holds few
+    distinct sets among many rows, and every stage that reads results asks for them again)."""
+    given = {k: float(v) for k, v in zip(cols, vals) if v is not None}
+    floor = {k: v for k, v in given.items() if k in FLOOR_VARIABLES}
+    try:
+        return heap_source({k: v for k, v in given.items() if k not in floor}, HeapCondition(**floor))
+    except (CalibError, TypeError, ValueError):
+        return ""
 
 
 def current_results(run_dir: Path) -> pd.DataFrame:

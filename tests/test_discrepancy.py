@@ -1,6 +1,8 @@
 """The discrepancy loop: residual statistics and the score test on controlled data, the model
 file with revisions, and the compare / diagnose / synth-lab plumbing on tiny heaps."""
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -243,6 +245,8 @@ def test_loop_plumbing_on_tiny_heaps(tmp_path):
     hist = art.read_table(run / "compare" / "history.parquet")
     assert list(hist["revision"]) == [0, 1] and hist["param_surface_energy"].iloc[1] == 0.6
     assert (run / "compare" / "history.png").is_file() and (run / "compare" / "residuals.png").is_file()
+    lock = json.loads((run / "compare" / "rev1.lock.json").read_text())  # one commit: both under its lock
+    assert {"residuals.parquet", "history.parquet", "history.png"} <= set(lock["outputs"])
     # the same comparison again is skipped, the run directory untouched; --force redoes it
     before = {p: p.read_bytes() for p in (run / "compare").iterdir()}
     r = runner.invoke(app, ["compare", "--run", str(run), *SIM, "--set", "surface_energy=0.6"])

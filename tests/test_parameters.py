@@ -243,3 +243,19 @@ def test_the_report_writes_a_pair_sign_and_says_why_photographs_are_missing(tmp_
     html = build_report(run)
     assert "&amp;times;" not in html
     assert "overlays (<code>measure/overlays/</code>) are missing" in html and "given as numbers" not in html
+
+
+def test_a_deleted_settings_file_is_an_error_not_the_defaults(tmp_path):
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+
+    run = tmp_path / "run"
+    runner = CliRunner()
+    assert runner.invoke(app, ["init", "--run", str(run), "-s", "pb.alpha=0.2"]).exit_code == 0
+    (run / "settings.toml").unlink()
+    r = runner.invoke(app, ["pb", "design", "--run", str(run)])
+    assert r.exit_code == 2 and "settings.toml is missing (calib init wrote it)" in r.output, r.output
+    assert not (run / "pb").exists()
+    assert runner.invoke(app, ["init", "--run", str(run), "-s", "pb.alpha=0.2"]).exit_code == 0
+    assert runner.invoke(app, ["pb", "design", "--run", str(run)]).exit_code == 0

@@ -27,6 +27,8 @@ from ..settings import load_settings
 from ..space import ParameterSpace
 
 SETTINGS_FILE = "settings.toml"
+#: left by `calib init` beside the settings file: a run that has it and lacks the file lost it
+INITIALISED = ".initialised"
 R = TypeVar("R")
 
 #: The version of each stage's code (by its folder in the run directory). Raise a stage's number when a
@@ -100,6 +102,9 @@ def resolve_settings(run: Path, settings: Optional[Path], overrides: Optional[It
         files.append(settings)
     elif (Path(run) / SETTINGS_FILE).is_file():
         files.append(Path(run) / SETTINGS_FILE)
+    elif (Path(run) / INITIALISED).is_file():  # the built-in defaults would silently stand in for the user's
+        raise CalibError(f"{Path(run) / SETTINGS_FILE} is missing (calib init wrote it): restore it, or write it "
+                         f"again with calib init --run {run} --settings FILE")
     return load_settings(files, overrides or ())
 
 

@@ -78,7 +78,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
             shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None) -> CompareResult:
     """Simulate ``repeats`` heaps at every measured condition at the calibrated parameters (``set_``
     overrides them) and compare them with the measurements. Writes RUN/compare/residuals.parquet,
-    residuals.png, and adds the model revision's row to history.parquet (history.png)."""
+    residuals.png, and adds the model revision's row to history.parquet (history.png), all in one commit."""
     say = say or plain
     run = check_run_dir(run)
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
@@ -110,10 +110,10 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     summ = summary(res, len(model.parameters))
     hist = _history(hist, model, theta, summ)
     fig1, fig2 = _compare_plots(table, hist, model.revision)
+    # the history under the same lock as the residuals: one commit, so no reader sees one without the other
     with st.commit() as out:
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
         out.figure("residuals.png", fig1)
-    art.write_table(hist_path, hist, {"stage": "compare.history"})
-    fig2.savefig(run / "compare" / "history.png", dpi=120, bbox_inches="tight")
-    plt.close(fig2)
+        out.table("history.parquet", hist, model_revision=model.revision)
+        out.figure("history.png", fig2)
     return CompareResult(st, False, table, hist, summ, model.revision)

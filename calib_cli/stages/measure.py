@@ -12,12 +12,12 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..conditions import read_conditions_csv
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError
-from ..parameters import ALLOW_EXTREME, check, extremes_allowed
 from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
+from ..parameters import ALLOW_EXTREME, check, extremes_allowed
 from .common import Result, Say, check_run_dir, plain, stage, writes_run
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}

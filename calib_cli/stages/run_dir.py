@@ -9,7 +9,7 @@ from typing import Optional
 from .. import artifacts as art
 from ..errors import CalibError
 from ..settings import load_settings, with_overrides
-from .common import SETTINGS_FILE, check_run_dir, writes_run
+from .common import INITIALISED, SETTINGS_FILE, check_run_dir, writes_run
 
 DEFAULT_TEXT = "# calib settings: built-in defaults (the paper's setup); edit to override\n"
 
@@ -52,4 +52,5 @@ def init_run(run: Path, settings: Optional[Path] = None, setting: Optional[list[
         raise CalibError(f"{target} exists and differs from --settings: give --force to replace it (the stages "
                          "that depend on a changed setting will then rerun)")
     art.atomic_write_bytes(target, (text if text is not None else DEFAULT_TEXT).encode())
+    (run / INITIALISED).touch()  # a command that later finds no settings file knows it was deleted
     return InitResult(target, True)
