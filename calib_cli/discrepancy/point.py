@@ -1,5 +1,6 @@
 """The calibrated point of a run's model and heaps simulated at it, condition by condition: what compare
-checks against the measurements and diagnose and suggest-conditions perturb (paper 4: validation)."""
+checks against the measurements (paper 3.6, validation, per condition) and diagnose and suggest-conditions
+perturb."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Simulated sensitivities of the angle per condition: to each calibrated parameter (J) and to each
 candidate effect's parameter (G, with its standard error), heaps simulated at the calibrated point and at
-steps from it (docs/method.md, 'Which effect is missing'). diagnose ranks the candidates by them,
+steps from it (docs/method.md, 'The discrepancy loop'). diagnose ranks the candidates by them,
 suggest-conditions picks the conditions that tell them apart."""
 
 from __future__ import annotations
