@@ -76,8 +76,7 @@ def _numbers(df: pd.DataFrame, c: str, path: Path, what: str) -> pd.Series:
         raise CalibError(f"{what} {path}: column {c} has a missing or non-numeric value on line {i + 2} "
                          f"({df[c].iloc[i]!r})")
     for i, x in enumerate(v):
-        if np.isfinite(x):
-            check(c, x, f"{what} line {i + 2}")
+        check(c, x, f"{what} line {i + 2}")
     return v
 
 

@@ -12,6 +12,7 @@ law (:mod:`calib_cli.dem.laws`); this module imports nothing heavy, so that the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -58,51 +59,46 @@ def _g(v: float) -> str:
     return f"{v:.4g}"
 
 
-def _q(name, unit, default, low, high, plausible, why, doc, used_by, **kw) -> Quantity:
-    return Quantity(name, unit, default, low, high, plausible, why, doc, used_by, **kw)
-
-
 _LENGTH = ((1000.0, "are these metres"), (10.0, "are these centimetres"))
 _ANGLE = ((180.0 / math.pi, "is this in radians"),)
 
 #: the contact parameters of the grains (paper Table 2) and of the walls (``wall_*``: floor and cylinder,
 #: ``cylinder_*``: the cylinder alone, ``floor_*``: the rig's floor, a condition variable)
 PARAMETERS: dict[str, Quantity] = {q.name: q for q in (
-    _q("static_friction", "", 0.5, 0.0, 10.0, (0.05, 1.5),
+    Quantity("static_friction", "", 0.5, 0.0, 10.0, (0.05, 1.5),
        "sliding friction coefficients of grains, rock and concrete lie in 0.1-1.2", "sliding (Coulomb) friction "
        "coefficient", "the tangential laws"),
-    _q("rolling_friction", "", 0.1, 0.0, 10.0, (0.0, 0.6),
+    Quantity("rolling_friction", "", 0.1, 0.0, 10.0, (0.0, 0.6),
        "rolling resistance coefficients of real grains lie in 0-0.5 (the paper's Table 6: 0.1-0.33)",
        "rolling resistance coefficient", "the rolling laws"),
-    _q("restitution", "", 0.2, 0.0, 1.0, (0.05, 1.0),
+    Quantity("restitution", "", 0.2, 0.0, 1.0, (0.05, 1.0),
        "a restitution below 0.05 is a grain that never bounces, not a measurement", "coefficient of restitution",
        "the damping law", low_open=True),
-    _q("surface_energy", "J/m2", 0.0, 0.0, 1000.0, (0.0, 10.0),
+    Quantity("surface_energy", "J/m2", 0.0, 0.0, 1000.0, (0.0, 10.0),
        "wet granular JKR energies lie in 0-3 J/m2 (the paper's Table 6: 0.5-2)", "JKR surface energy (cohesion)",
        "the cohesion laws", mistakes=((1e-3, "is this in mJ/m2"),)),
 )}
 for _w in ("wall", "cylinder", "floor"):
     for _k in ("static_friction", "rolling_friction", "restitution", "surface_energy"):
-        _p = PARAMETERS[_k]
-        PARAMETERS[f"{_w}_{_k}"] = _q(f"{_w}_{_k}", _p.unit, _p.default, _p.low, _p.high, _p.plausible, _p.why,
-                                      f"{_p.doc} against the {_w if _w != 'wall' else 'floor and cylinder'}",
-                                      _p.used_by, low_open=_p.low_open, mistakes=_p.mistakes)
+        _p = PARAMETERS[_k]  # the grains' facts, against a wall
+        PARAMETERS[f"{_w}_{_k}"] = dataclasses.replace(
+            _p, name=f"{_w}_{_k}", doc=f"{_p.doc} against the {_w if _w != 'wall' else 'floor and cylinder'}")
 
 #: the heap test's rig (a conditions table's columns; paper 2.2: 150 mm x 300 mm, 300 mm/min)
 CONDITION_VARIABLES: dict[str, Quantity] = {q.name: q for q in (
-    _q("particle_d_min_mm", "mm", 3.0, 0.0, math.inf, (0.2, 50.0),
+    Quantity("particle_d_min_mm", "mm", 3.0, 0.0, math.inf, (0.2, 50.0),
        "heap tests of grains from sand (0.2 mm) to coarse aggregate (50 mm)", "smallest grain diameter",
        "the fill", low_open=True, mistakes=_LENGTH),
-    _q("particle_d_max_mm", "mm", 5.0, 0.0, math.inf, (0.2, 50.0),
+    Quantity("particle_d_max_mm", "mm", 5.0, 0.0, math.inf, (0.2, 50.0),
        "heap tests of grains from sand (0.2 mm) to coarse aggregate (50 mm)", "largest grain diameter",
        "the fill", low_open=True, mistakes=_LENGTH),
-    _q("cylinder_diameter_mm", "mm", 50.0, 0.0, math.inf, (5.0, 1000.0),
+    Quantity("cylinder_diameter_mm", "mm", 50.0, 0.0, math.inf, (5.0, 1000.0),
        "heap rigs use cylinders of 10-300 mm", "the lifted cylinder's inner diameter", "the fill and the walls",
        low_open=True, mistakes=_LENGTH),
-    _q("fill_height_mm", "mm", 120.0, 0.0, math.inf, (5.0, 2000.0),
+    Quantity("fill_height_mm", "mm", 120.0, 0.0, math.inf, (5.0, 2000.0),
        "heap rigs fill 10-600 mm high", "height of the fill in the cylinder", "the fill", low_open=True,
        mistakes=_LENGTH),
-    _q("lift_speed_mm_s", "mm/s", 50.0, 0.0, math.inf, (0.5, 5000.0),
+    Quantity("lift_speed_mm_s", "mm/s", 50.0, 0.0, math.inf, (0.5, 5000.0),
        "rigs lift at 1-100 mm/s (the paper's 5 mm/s); up to 5000 in quick numerical checks",
        "speed at which the cylinder is lifted", "the lift", low_open=True,
        mistakes=((1000.0, "is this in m/s"),)),
@@ -112,10 +108,10 @@ for _k in ("static_friction", "rolling_friction", "restitution", "surface_energy
 
 #: other values a user gives
 OTHER: dict[str, Quantity] = {q.name: q for q in (
-    _q("repose_angle", "deg", 32.07, 0.0, 90.0, (5.0, 85.0),
+    Quantity("repose_angle", "deg", 32.07, 0.0, 90.0, (5.0, 85.0),
        "a heap of real grains stands at 15-60 deg; below 5 it is a puddle, above 85 a column",
        "angle of repose", "the targets, invert --target", low_open=True, mistakes=_ANGLE),
-    _q("shear_modulus", "Pa", 5e6, 0.0, math.inf, (1e5, 1e11),
+    Quantity("shear_modulus", "Pa", 5e6, 0.0, math.inf, (1e5, 1e11),
        "DEM runs use 1 MPa-70 GPa (reduced moduli of 5-150 MPa are usual)", "the grains' shear modulus",
        "the normal laws and the time step", low_open=True,
        mistakes=((1e6, "is this in MPa"), (1e9, "is this in GPa"))),

@@ -174,19 +174,13 @@ def _did_you_mean(name: str, known) -> str:
     return f" (did you mean {close[0]}?)" if close else ""
 
 
-def check_condition_values(values: Mapping, where: str) -> None:
-    """Condition variables a user gave (``--condition``, a conditions table's row) against the rig's
-    plausible ranges (:mod:`calib_cli.parameters`); unknown names are :func:`make_condition`'s to refuse."""
-    for k, v in values.items():
-        if k in CONDITION_QUANTITIES and not (isinstance(v, float) and math.isnan(v)):
-            check(k, v, where)
-
-
 def checked_condition(items) -> dict:
     """``--condition`` values (KEY=VALUE strings, or a mapping from Python), checked against the rig's
-    plausible ranges."""
+    plausible ranges (:mod:`calib_cli.parameters`); unknown names are :func:`make_condition`'s to refuse."""
     given = given_pairs(items, "--condition")
-    check_condition_values(given, "--condition")
+    for k, v in given.items():
+        if k in CONDITION_QUANTITIES and not (isinstance(v, float) and math.isnan(v)):
+            check(k, v, "--condition")
     return given
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from .errors import CalibError
+from .parameters import PRESET_NAMES, QUANTITIES, check
 from .space import Factor, ParameterSpace
 
 DEFAULTS: dict[str, Any] = {
@@ -190,8 +191,6 @@ _DECLARED = {"heap.shear_modulus": "shear_modulus", "target": "repose_angle", "a
 def _check_declared(key: str, v: Any, where: str) -> None:
     """A setting's value against its quantity's declaration (a shear modulus of 150 Pa, an angle of inf),
     a factor's range against its parameter's; the preset's name among the presets."""
-    from .parameters import PRESET_NAMES, QUANTITIES, check
-
     parts = key.split(".")
     name = _DECLARED.get(key) or (parts[1] if len(parts) == 3 and parts[0] == "factors" and parts[2] in ("low", "high")
                                  else None)

@@ -22,6 +22,7 @@ from rich.table import Table
 from typer.core import TyperCommand, TyperGroup
 
 from ..errors import CalibError
+from ..parameters import PRESET_NAMES
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -115,7 +116,7 @@ ResponsesOpt = Annotated[
 ]
 
 #: the presets, in one help text for every command that simulates
-PRESETS_HELP = ("smoke | default | paper: the heaps' geometry (where no conditions table gives it), particle count "
+PRESETS_HELP = (" | ".join(PRESET_NAMES) + ": the heaps' geometry (where no conditions table gives it), particle count "
                 "and numerics.")
 PresetOpt = Annotated[Optional[str], typer.Option(help=PRESETS_HELP + " Default: the run's setting heap.preset, else "
                                                   "default.", show_default=False)]

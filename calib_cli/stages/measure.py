@@ -28,14 +28,10 @@ RIG_SIZES = ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "
 
 
 def _read_conditions(path: Path) -> pd.DataFrame:
+    """The conditions file: a CSV as a user writes it, checked where it enters (:mod:`calib_cli.conditions`),
+    or a Parquet table of them (its rig values checked here)."""
     if path.suffix.lower() == ".parquet":
-        if not path.is_file():
-            raise CalibError(f"conditions file not found: {path}")
-        df = art.read_table(path, what="conditions file")
-        df.columns = [str(c).strip() for c in df.columns]
-        missing = [c for c in ("image", "condition_id") if c not in df.columns]
-        if missing:
-            raise CalibError(f"conditions file {path} lacks column(s) {', '.join(missing)}")
+        df = _read_conditions_parquet(path)
     else:
         df = read_conditions_csv(path, need=("image", "condition_id"))
     if df["image"].duplicated().any():
@@ -46,6 +42,17 @@ def _read_conditions(path: Path) -> pd.DataFrame:
     if len(pathlike):  # a name, not a path: the photographs are the files of --images
         raise CalibError(f"conditions file {path}: image {pathlike.iloc[0]!r} is a path; give file names of the "
                          "--images folder")
+    return df
+
+
+def _read_conditions_parquet(path: Path) -> pd.DataFrame:
+    if not path.is_file():
+        raise CalibError(f"conditions file not found: {path}")
+    df = art.read_table(path, what="conditions file")
+    df.columns = [str(c).strip() for c in df.columns]
+    missing = [c for c in ("image", "condition_id") if c not in df.columns]
+    if missing:
+        raise CalibError(f"conditions file {path} lacks column(s) {', '.join(missing)}")
     for c in CONDITION_VARS[:-1]:
         v = pd.to_numeric(df[c], errors="coerce") if c in df.columns else None
         if v is not None and not np.all(np.isfinite(v)):

@@ -15,6 +15,7 @@ from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
 from ..conditions import read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
+from ..measurements import CONDITIONS
 from ..requests import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine, heap_preset,
                         heap_setup, make_condition, modulus_note, parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
@@ -131,38 +132,39 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
 PRESET_RIG = "preset"
 
 
-def _which_conditions(run: Path, conditions: Optional[Path], changed: bool) -> Optional[Path]:
+def _measured_rigs(run: Path) -> Optional[pd.DataFrame]:
+    """The run's measured conditions where they give a rig (a condition variable's column), else None
+    (none measured, none with a rig, or a table that does not read: then the preset's rig)."""
+    path = Path(run) / CONDITIONS
+    if not path.is_file():
+        return None
+    try:
+        table = art.read_table(path, what="measured conditions")
+    except CalibError:
+        return None
+    return table if any(c in table.columns for c in CONDITION_VARIABLES) else None
+
+
+def _which_conditions(run: Path, conditions: Optional[Path], changed: bool, measured: Optional[pd.DataFrame]):
     """The conditions table to simulate: the one given; else, unless ``--condition`` changed the preset's
     rig, the run's measured conditions where they give a rig (heaps of the rigs photographed, not the
     preset's); None for the preset's rig (``--conditions preset``, or no measured rig)."""
     if conditions is not None:
         return None if str(conditions) == PRESET_RIG else Path(conditions)
-    measured = Path(run) / "measure" / "conditions.parquet"
-    if changed or not measured.is_file():
-        return None
-    try:
-        columns = art.read_table(measured, what="measured conditions").columns
-    except CalibError:
-        return None  # unreadable: the preset's rig, and the note below cannot name them either
-    return measured if any(c in columns for c in CONDITION_VARIABLES) else None
+    return Path(run) / CONDITIONS if measured is not None and not changed else None
 
 
-def _note_measured_rigs(run: Path, cond, say: Say) -> None:
+def _note_measured_rigs(run: Path, cond, measured: Optional[pd.DataFrame], say: Say) -> None:
     """Say so where the run's photographs were of rigs these heaps do not simulate (the preset's rig, or
     one changed by --condition, while RUN/measure/conditions.parquet gives the measured ones)."""
-    measured = Path(run) / "measure" / "conditions.parquet"
-    if not measured.is_file():
+    if measured is None:
         return
-    try:
-        table = art.read_table(measured, what="measured conditions")
-    except CalibError:
-        return
-    rig = [c for c in CONDITION_VARIABLES if c in table.columns]
-    if rig and not all((table[c] == getattr(cond, c)).all() for c in rig):
-        say(f"[yellow]note:[/] {measured} holds {len(table)} measured rig(s) ({', '.join(rig[:3])}, ...) that these "
-            f"heaps do not simulate (theirs: {cond.particle_d_min_mm:g}-{cond.particle_d_max_mm:g} mm grains, "
-            f"{cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm); without --condition and "
-            f"--conditions preset, simulate-heap simulates the photographed rigs")
+    rig = [c for c in CONDITION_VARIABLES if c in measured.columns]
+    if not all((measured[c] == getattr(cond, c)).all() for c in rig):
+        say(f"[yellow]note:[/] {Path(run) / CONDITIONS} holds {len(measured)} measured rig(s) ({', '.join(rig[:3])}, "
+            f"...) that these heaps do not simulate (theirs: {cond.particle_d_min_mm:g}-{cond.particle_d_max_mm:g} mm "
+            f"grains, {cond.cylinder_diameter_mm:g} mm cylinder filled {cond.fill_height_mm:g} mm); without "
+            f"--condition and --conditions preset, simulate-heap simulates the photographed rigs")
 
 
 def read_conditions_table(path: Path) -> pd.DataFrame:
@@ -200,7 +202,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     cond = make_condition(pre.condition, checked_condition(condition))
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
-    conditions = _which_conditions(run, conditions, bool(condition))
+    measured = _measured_rigs(run)
+    conditions = _which_conditions(run, conditions, bool(condition), measured)
     if conditions is not None:
         conditions = Path(conditions)
         crossed = table_conditions(cond, read_conditions_table(conditions))
@@ -221,7 +224,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
               if force else f"{sum(have)} cached{also}")
     say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus))
     if conditions is None:
-        _note_measured_rigs(run, cond, say)
+        _note_measured_rigs(run, cond, measured, say)
     if floor_follows_grains(walls):
         say("[yellow]note:[/] the floor's static friction follows the grains' in these runs (no "
             "floor_static_friction in the conditions, no wall_static_friction): a rig's floor does not "
