@@ -24,8 +24,8 @@ import numpy as np
 import pandas as pd
 
 from calib_cli import artifacts as art
-from calib_cli.campaign import append_index
 from calib_cli.dem.heap import condition_dict
+from calib_cli.heaps.index import append_index
 from calib_cli.model import Model, save_model
 from calib_cli.stages import calibrate as cal
 

@@ -28,8 +28,9 @@ import time
 import numpy as np
 from scipy import stats
 
-from calib_cli.campaign import Request, derive_seed, run_campaign
 from calib_cli.dem.heap import HeapCondition, get_preset
+from calib_cli.heaps.keys import Request, derive_seed
+from calib_cli.heaps.runner import run_campaign
 
 TRUTH = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3}
 EFFECTS = {"dry": {}, "capillary": {"surface_tension": 0.072}, "jkr": {"surface_energy": 0.6}}

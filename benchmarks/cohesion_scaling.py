@@ -32,8 +32,9 @@ import time
 import numpy as np
 from scipy import stats
 
-from calib_cli.campaign import Request, derive_seed, run_campaign
 from calib_cli.dem.heap import HeapCondition, get_preset
+from calib_cli.heaps.keys import Request, derive_seed
+from calib_cli.heaps.runner import run_campaign
 
 FRICTION = {"static_friction": 0.275, "rolling_friction": 0.215, "restitution": 0.3}
 RIGS = {"A": HeapCondition(4.0, 5.0, 40.0, 50.0, 50.0), "B": HeapCondition(4.0, 5.0, 80.0, 100.0, 50.0)}

@@ -22,8 +22,8 @@ import time
 import numpy as np
 
 import calib_cli.dem.heap as heap
-from calib_cli.campaign import derive_seed
-from calib_cli.requests import heap_preset
+from calib_cli.heaps.inputs import heap_preset
+from calib_cli.heaps.keys import derive_seed
 
 
 def main():

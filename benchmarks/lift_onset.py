@@ -22,8 +22,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import derive_seed
-from calib_cli.requests import heap_preset
+from calib_cli.heaps.inputs import heap_preset
+from calib_cli.heaps.keys import derive_seed
 from spring_vs_creep import FACTORS, bbd_points
 
 ONSET = 0.02  # m/s: the median grain speed at which the fill counts as flowing

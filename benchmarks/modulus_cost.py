@@ -18,8 +18,8 @@ import time
 
 import numba
 
-from calib_cli.requests import heap_preset
 from calib_cli.dem import heap
+from calib_cli.heaps.inputs import heap_preset
 
 CENTRE = dict(static_friction=0.275, rolling_friction=0.215, surface_energy=1.25)
 

@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import RUNS
+from calib_cli.heaps.inputs import COND_VARS
+from calib_cli.heaps.keys import RUNS
 from calib_cli.imaging.measure import measure_image, read_image
 from calib_cli.model import load_model
 from calib_cli.posterior.evidence import model_rows
 from calib_cli.posterior.gp import holdout_rmse
 from calib_cli.profile import band_fullness, fullness
-from calib_cli.requests import COND_VARS
 
 RESPONSES = {"fullness": fullness, "band_fullness": band_fullness}
 

@@ -23,9 +23,9 @@ import numba
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import CACHE_SOURCE, host
-from calib_cli.requests import request_from_row
 from calib_cli.dem import heap
+from calib_cli.heaps.inputs import request_from_row
+from calib_cli.heaps.keys import CACHE_SOURCE, host
 
 
 def main() -> None:

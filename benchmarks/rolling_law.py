@@ -62,9 +62,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import Request, derive_seed, run_campaign
-from calib_cli.requests import heap_preset
 from calib_cli.dem.heap import FLOOR_VARIABLES, HeapCondition, Numerics, condition_dict, get_preset
+from calib_cli.heaps.inputs import heap_preset
+from calib_cli.heaps.keys import Request, derive_seed
+from calib_cli.heaps.runner import run_campaign
 from factorial import coded_levels, effects
 
 RIGS = {"calibration": HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0), "default": get_preset("default").condition}

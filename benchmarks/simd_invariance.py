@@ -22,14 +22,14 @@ import os
 import subprocess
 import sys
 
-from calib_cli.campaign import numpy_dispatch_targets
+from calib_cli.heaps.keys import numpy_dispatch_targets
 
 CHILD = """
 import hashlib, json, sys
 import numba
-from calib_cli.campaign import host
 from calib_cli.dem import heap
 from calib_cli.dem.render import render_side_view
+from calib_cli.heaps.keys import host
 from calib_cli.imaging.measure import measure_image
 numba.set_num_threads(1)
 p = heap.get_preset("smoke")

@@ -17,7 +17,7 @@ def _label(f) -> str:
 
 def response_surface(rsm, a: str, b: str, response: str = "repose_angle", n: int = 41):
     """Surface and contour of the RSM over factors a, b with the others at their middle (Fig. 6)."""
-    space = rsm.space_
+    space = rsm.space
     fa, fb = space[a], space[b]
     ga, gb = np.meshgrid(np.linspace(fa.low, fa.high, n), np.linspace(fb.low, fb.high, n))
     pts = np.tile([f.center for f in space.factors], (ga.size, 1))

@@ -4,7 +4,6 @@ known (calib_cli.posterior.adaptive, calib_cli.stages.calibrate)."""
 
 from __future__ import annotations
 
-import json
 import shutil
 
 import numpy as np
@@ -13,9 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
-from calib_cli.campaign import append_index
 from calib_cli.dem.heap import condition_dict
 from calib_cli.errors import CalibError
+from calib_cli.heaps.index import append_index
 from calib_cli.posterior.adaptive import acquire, first_design, interval_shift, stop_reason
 from calib_cli.posterior.gp import GPSurrogate
 
@@ -84,7 +83,8 @@ def test_round_0_fills_the_prior_box_and_shares_the_conditions_evenly():
 def _gp_on(points: np.ndarray) -> GPSurrogate:
     rows = pd.DataFrame({"a": points[:, 0], "b": points[:, 1], "fill_height_mm": 75.0,
                          "repose_angle": 30 + 5 * points[:, 0] + np.random.default_rng(0).normal(0, 0.5, len(points))})
-    return GPSurrogate(["a", "b"], ["fill_height_mm"], {"a": (0.0, 1.0), "b": (0.0, 1.0)}).fit(rows)
+    gp = GPSurrogate(["a", "b"], ["fill_height_mm"], {"a": (0.0, 1.0), "b": (0.0, 1.0)})
+    return gp.fit(rows, rows["repose_angle"])
 
 
 def test_the_variance_rule_goes_where_the_posterior_lies_and_the_heaps_do_not():

@@ -148,7 +148,8 @@ def test_ascent_gradient_direction_follows_effects_toward_target(table3):
 # ---------------------------------------------------------------- Table 7 -> Eq. 7 and Table 8
 @pytest.fixture
 def rsm(table7):
-    return bbd.QuadraticRSM().fit(table7, ParameterSpace.from_data(table7, BBD_FACTORS))
+    space = ParameterSpace.from_data(table7, BBD_FACTORS)
+    return bbd.QuadraticRSM(space).fit(table7[BBD_FACTORS], table7["repose_angle"])
 
 
 def test_bbd_reproduces_eq7(rsm):
@@ -202,8 +203,8 @@ def test_rsm_at_paper_solution(rsm):
 def test_rsm_predict_matches_fitted_and_equation(rsm, table7):
     np.testing.assert_allclose(rsm.predict(table7), rsm.fit_.fitted)
     assert rsm.equation().startswith("Y = 33.91 + 1.9*static_friction + 5.985*rolling_friction")
-    named = bbd.QuadraticRSM().fit(table7, ParameterSpace.from_data(table7, BBD_FACTORS,
-                                                                     factor_space(load_settings(), BBD_FACTORS)))
+    named = bbd.QuadraticRSM(ParameterSpace.from_data(table7, BBD_FACTORS, factor_space(load_settings(), BBD_FACTORS)))
+    named.fit(table7[BBD_FACTORS], table7["repose_angle"])
     # X3's coefficient is 1.1175 exactly (the paper prints 1.12): its 4th digit is a rounding tie that
     # float noise settles either way between numpy/statsmodels versions, so the tie is checked numerically
     eq = named.equation()
@@ -228,7 +229,8 @@ def test_bbd_design_shape():
 
 def test_lack_of_fit_needs_replicates(table7):
     no_reps = table7.drop_duplicates(subset=BBD_FACTORS)
+    space = ParameterSpace.from_data(no_reps, BBD_FACTORS)
     with pytest.raises(CalibError, match="replicated"):
-        bbd.QuadraticRSM().fit(no_reps, ParameterSpace.from_data(no_reps, BBD_FACTORS))
-    m = bbd.QuadraticRSM(lack_of_fit=False).fit(no_reps, ParameterSpace.from_data(no_reps, BBD_FACTORS))
+        bbd.QuadraticRSM(space).fit(no_reps[BBD_FACTORS], no_reps["repose_angle"])
+    m = bbd.QuadraticRSM(space, lack_of_fit=False).fit(no_reps[BBD_FACTORS], no_reps["repose_angle"])
     assert "Lack of fit" not in set(m.anova_["source"])

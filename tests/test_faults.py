@@ -29,8 +29,10 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
-from calib_cli import campaign
 from calib_cli.cli import app
+from calib_cli.heaps import runner as heap_runner
+from calib_cli.heaps.index import RESULTS, load_results
+from calib_cli.heaps.keys import RUNS
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_RUN = ROOT / "sample_runs" / "paper"
@@ -91,7 +93,7 @@ def no_heaps(monkeypatch):
     def refuse(*a, **k):
         raise AssertionError("a heap would be simulated for a bad input")
 
-    monkeypatch.setattr(campaign, "run_heap", refuse)
+    monkeypatch.setattr(heap_runner, "run_heap", refuse)
 
 
 # ---------------------------------------------------------------------------- 1. bad inputs
@@ -447,7 +449,7 @@ def test_generated_conditions_tables_never_exit_70(data):
     d = _scratch()
     mp = pytest.MonkeyPatch()
     try:
-        mp.setattr(campaign, "run_heap", _instant_heap)
+        mp.setattr(heap_runner, "run_heap", _instant_heap)
         (d / "c.csv").write_bytes(data)
         _outcome(runner.invoke(app, ["simulate-heap", "--run", str(d / "run"), "--preset", "smoke", "--set",
                                      "static_friction=0.3", "--conditions", str(d / "c.csv")]))
@@ -534,9 +536,9 @@ if os.environ.get("CALIB_FAULTS_FAKE_HEAP"):
 
     import importlib.abc, sys
 
-    class _Patch(importlib.abc.MetaPathFinder):  # patch calib_cli.campaign once it is imported, not before
+    class _Patch(importlib.abc.MetaPathFinder):  # patch calib_cli.heaps.runner once it is imported, not before
         def find_spec(self, name, path, target=None):
-            if name != "calib_cli.campaign":
+            if name != "calib_cli.heaps.runner":
                 return None
             sys.meta_path.remove(self)
             spec = importlib.util.find_spec(name)
@@ -615,14 +617,14 @@ def check_run(run: Path, settled: bool) -> None:
             art.read_table(p)
         except CalibError as e:
             assert not settled and "rerun the command" in str(e), e
-    index = campaign.load_results(run)
+    index = load_results(run)
     if len(index):
         keys = index[["run_hash", "design", "run_id", "repeat", "condition_id"]].astype(str)
         dup = int(keys.duplicated().sum())
         COUNTS["rows_duplicated"] += dup
         assert dup == 0
         for h in index["run_hash"]:
-            assert (run / campaign.RUNS / h / "result.json").is_file(), h
+            assert (run / RUNS / h / "result.json").is_file(), h
 
 
 def kill_delays(seed: int, n: int, duration: float, resumes: bool = False, startup: float = 0.0) -> list[float]:
@@ -667,10 +669,10 @@ def test_a_killed_campaign_resumes_with_every_row_once(tmp_path, hooks, workers,
     assert rc == 0
     expected = {r.hash for r in plan_simulation(ref, {"static_friction": "0.3"}, repeats=5, preset="smoke",
                                                 condition=["lift_speed_mm_s=60"]).requests}
-    assert set(campaign.load_results(ref)["run_hash"]) == expected
+    assert set(load_results(ref)["run_hash"]) == expected
     hits = kill_chain(run, [*args, "--run", str(run)], hooks, seed, kills, duration, resumes=True)
     assert hits >= kills - 1  # a kill that came after the end does not count (and is not counted)
-    got = campaign.load_results(run)["run_hash"]
+    got = load_results(run)["run_hash"]
     COUNTS["rows_lost"] += len(expected - set(got))
     assert set(got) == expected and len(got) == len(expected)
     assert runner.invoke(app, ["report", "--run", str(run)]).exit_code == 0  # leftovers break nothing later
@@ -684,17 +686,17 @@ def test_ctrl_c_stops_a_campaign_with_exit_130_and_it_resumes(tmp_path, hooks):
         run = tmp_path / f"run{attempt}"
         args = [*CAMPAIGN, "--run", str(run)]
         rc, _, hit = calib(args, {**hooks, "CALIB_FAULTS_FAKE_HEAP": "3.0"}, sig=signal.SIGINT,
-                           until=lambda: (run / campaign.RESULTS).is_file())
+                           until=lambda: (run / RESULTS).is_file())
         if rc != 0:
             break
     assert hit and rc == 130, rc
     COUNTS["sigint"] += 1
     check_run(run, settled=True)
-    done = len(campaign.load_results(run))
+    done = len(load_results(run))
     assert done < 5  # interrupted midway
     assert calib(args, hooks)[0] == 0
     check_run(run, settled=True)
-    assert len(campaign.load_results(run)) == 5
+    assert len(load_results(run)) == 5
 
 
 STAGES = {  # a stage of the paper's run recomputed (--force), killed at points across its duration

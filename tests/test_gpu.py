@@ -198,8 +198,8 @@ def test_a_campaign_on_the_gpu_engine_writes_the_rows_and_cache_the_cpu_engine_w
     engine on the same requests, rows marked gpu, heaps under their own keys, a rerun from the cache."""
     import dataclasses
 
-    from calib_cli import campaign
     from calib_cli.dem.heap import Numerics
+    from calib_cli.heaps import runner as heap_runner
     from calib_cli.stages.simulate import plan_simulation, run_simulation
 
     short = Numerics(time_max=0.004, settle_time_max=0.0015, rest_time_min=0.001, chunk=30)
@@ -217,7 +217,7 @@ def test_a_campaign_on_the_gpu_engine_writes_the_rows_and_cache_the_cpu_engine_w
     assert list(rows["engine"]) == ["gpu", "gpu"] and list(rows["status"]) == list(cpu["status"])
     assert np.allclose(rows["angle_coords"], cpu["angle_coords"], atol=1e-9 * LOOSE, equal_nan=True)
     assert set(rows["run_hash"]).isdisjoint(cpu["run_hash"])  # its own cache keys
-    monkeypatch.setattr(campaign, "_execute_on_gpu", lambda *a: pytest.fail("a cached GPU heap ran again"))
+    monkeypatch.setattr(heap_runner, "_execute_on_gpu", lambda *a: pytest.fail("a cached GPU heap ran again"))
     again = run_simulation(plan).rows.sort_values("repeat")
     assert list(again["run_hash"]) == list(rows["run_hash"])
 
@@ -241,7 +241,7 @@ def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_pa
     from typer.testing import CliRunner
 
     from calib_cli.cli import app
-    from calib_cli.requests import engine_settings, heap_engine
+    from calib_cli.heaps.inputs import engine_settings, heap_engine
     from calib_cli.stages.simulate import plan_simulation
 
     runner = CliRunner()

@@ -285,21 +285,23 @@ def test_the_run_lock_is_reentrant_and_leaves_no_run_dir_behind_a_failed_command
 def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypatch):
     """A row another writer added to results.parquet while a campaign ran survives the campaign's
     next index update (it used to rewrite the index from the copy it read at its start)."""
-    from calib_cli import campaign
     from calib_cli.dem.heap import HeapCondition, Numerics
+    from calib_cli.heaps import runner as heap_runner
+    from calib_cli.heaps.index import RESULTS, load_results
+    from calib_cli.heaps.keys import Request
 
-    reqs = [campaign.Request({"static_friction": 0.3}, HeapCondition(), Numerics(), seed=s, run_id=s) for s in (1, 2)]
+    reqs = [Request({"static_friction": 0.3}, HeapCondition(), Numerics(), seed=s, run_id=s) for s in (1, 2)]
 
     def fake_execute(req, run_dir, progress=None, force=False):
         if req.run_id == 1:  # meanwhile, someone else's heap lands in the index
             other = pd.DataFrame([{"run_hash": "other", "design": "", "run_id": 99, "repeat": 0,
                                    "condition_id": "", "status": "ok", "repose_angle": 33.0}])
-            art.write_table(tmp_path / campaign.RESULTS, other)
+            art.write_table(tmp_path / RESULTS, other)
         return {"run_hash": req.hash, "status": "ok", "repose_angle": 30.0 + req.run_id}
 
-    monkeypatch.setattr(campaign, "execute", fake_execute)
-    campaign.run_campaign(reqs, tmp_path)
-    index = campaign.load_results(tmp_path)
+    monkeypatch.setattr(heap_runner, "execute", fake_execute)
+    heap_runner.run_campaign(reqs, tmp_path)
+    index = load_results(tmp_path)
     assert sorted(index["run_hash"]) == sorted(["other", reqs[0].hash, reqs[1].hash])
 
 
@@ -318,13 +320,15 @@ def _fake_heap(angle):
 
 
 def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_complete(tmp_path, monkeypatch):
-    from calib_cli import campaign
+    from calib_cli.heaps import runner as heap_runner
+    from calib_cli.heaps.index import load_results
+    from calib_cli.heaps.keys import RUNS
     from calib_cli.stages.simulate import plan_simulation, run_simulation
 
     run = tmp_path / "run"
-    monkeypatch.setattr(campaign, "run_heap", lambda *a, **k: _fake_heap(30.0))
+    monkeypatch.setattr(heap_runner, "run_heap", lambda *a, **k: _fake_heap(30.0))
     plan = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke")).rows
-    folder = run / campaign.RUNS / plan["run_hash"].iloc[0]
+    folder = run / RUNS / plan["run_hash"].iloc[0]
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     assert art.read_json(folder / "result.json")["repose_angle"] == 30.0
 
@@ -332,7 +336,7 @@ def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_
         assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(campaign, "run_heap", interrupted)
+    monkeypatch.setattr(heap_runner, "run_heap", interrupted)
     with pytest.raises(KeyboardInterrupt):
         run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True))
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
@@ -342,11 +346,11 @@ def test_force_recomputes_a_cached_heap_without_losing_it_before_the_new_one_is_
         assert (folder / "result.json").is_file()
         return _fake_heap(31.0)
 
-    monkeypatch.setattr(campaign, "run_heap", recomputed)
+    monkeypatch.setattr(heap_runner, "run_heap", recomputed)
     rows = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", force=True)).rows
     assert rows["repose_angle"].tolist() == [31.0]
     assert art.read_json(folder / "result.json")["repose_angle"] == 31.0
-    assert campaign.load_results(run)["repose_angle"].tolist() == [31.0]
+    assert load_results(run)["repose_angle"].tolist() == [31.0]
     assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]
 
 
@@ -395,8 +399,9 @@ def test_a_campaign_records_an_unstable_heap_and_goes_on(tmp_path, monkeypatch):
     import numpy as np
     from types import SimpleNamespace as NS
 
-    from calib_cli import campaign
     from calib_cli.dem.angle import no_angle
+    from calib_cli.heaps import runner as heap_runner
+    from calib_cli.heaps.keys import RUNS
     from calib_cli.stages.simulate import plan_simulation, run_simulation
 
     def heaps(params, condition, numerics, seed, progress=None, checkpoint=None):
@@ -409,16 +414,16 @@ def test_a_campaign_records_an_unstable_heap_and_goes_on(tmp_path, monkeypatch):
 
     run = tmp_path / "run"
     plan = plan_simulation(run, {"static_friction": 0.3}, preset="smoke", repeats=3)
-    monkeypatch.setattr(campaign, "run_heap", heaps)
+    monkeypatch.setattr(heap_runner, "run_heap", heaps)
     result = run_simulation(plan)
     rows = result.rows.sort_values("repeat")
     assert rows["status"].tolist() == ["ok", "unstable", "ok"]
     assert np.isnan(rows["repose_angle"].iloc[1]) and rows["repose_angle"].notna().sum() == 2
-    folder = run / campaign.RUNS / rows["run_hash"].iloc[1]
+    folder = run / RUNS / rows["run_hash"].iloc[1]
     assert (folder / "result.json").is_file() and not (folder / "side.png").exists()
     assert any("unstable" in n and "12%" in n for n in result.check().notes())
 
-    monkeypatch.setattr(campaign, "run_heap", lambda *a, **k: pytest.fail("a cached heap was simulated again"))
+    monkeypatch.setattr(heap_runner, "run_heap", lambda *a, **k: pytest.fail("a cached heap was simulated again"))
     again = run_simulation(plan_simulation(run, {"static_friction": 0.3}, preset="smoke", repeats=3)).rows
     assert again.sort_values("repeat")["status"].tolist() == ["ok", "unstable", "ok"]
 
@@ -483,8 +488,9 @@ def test_a_heap_stopped_in_any_phase_goes_on_from_its_checkpoint_as_if_it_had_no
 
 
 def test_a_campaign_heap_resumes_from_its_checkpoint_and_then_deletes_it(tmp_path, monkeypatch):
-    from calib_cli import campaign
-    from calib_cli.campaign import Request, checkpoint_path
+    from calib_cli.heaps import runner as heap_runner
+    from calib_cli.heaps.keys import RUNS, Request
+    from calib_cli.heaps.runner import checkpoint_path
 
     params, cond, num = _short_heap()
     req = Request(params, cond, num, 3)
@@ -495,11 +501,11 @@ def test_a_campaign_heap_resumes_from_its_checkpoint_and_then_deletes_it(tmp_pat
         assert checkpoint.read_bytes() == b"state"
         return _fake_heap(30.0)
 
-    monkeypatch.setattr(campaign, "run_heap", heap)
-    (tmp_path / campaign.RUNS).mkdir(parents=True)
+    monkeypatch.setattr(heap_runner, "run_heap", heap)
+    (tmp_path / RUNS).mkdir(parents=True)
     ck = checkpoint_path(tmp_path, req)
     ck.write_bytes(b"state")
-    campaign.execute(req, str(tmp_path))
+    heap_runner.execute(req, str(tmp_path))
     assert seen == [ck] and not ck.exists()
     ck.write_bytes(b"state")
     checkpoint_path(tmp_path, req, fresh=True)  # --force: the heap starts again from its fill

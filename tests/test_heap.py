@@ -11,12 +11,14 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
-from calib_cli.campaign import Request, derive_seed, host, load_results, run_campaign
 from calib_cli.cli import app
 from calib_cli.dem.angle import repose_angle_coords
 from calib_cli.dem.heap import DRIFT_WINDOW, DriftMeter, HeapCondition, Numerics, fill_cylinder, interactions, run_heap
 from calib_cli.dem.render import render_side_view
 from calib_cli.errors import CalibError
+from calib_cli.heaps.index import load_results
+from calib_cli.heaps.keys import Request, derive_seed, host
+from calib_cli.heaps.runner import run_campaign
 
 TINY = HeapCondition(5.0, 6.0, 30.0, 24.0, 100.0)
 TINY_NUM = Numerics(time_max=1.5)
@@ -140,12 +142,12 @@ def test_floor_values_key_a_run_only_when_given():
 def test_a_lammps_heap_is_keyed_by_the_engine_source(monkeypatch):
     """A LAMMPS heap's key names calib_cli/engines/'s source (its parameter mapping), so a changed
     mapping is re-simulated rather than served from the cache; built-in keys do not carry it."""
-    from calib_cli import campaign
+    from calib_cli.heaps import keys
 
     lam = Request({}, TINY, TINY_NUM, 0, engine="lammps")
-    assert lam.key["engine_source"] == campaign.ENGINE_SOURCE and "engine_source" not in Request({}, TINY, TINY_NUM, 0).key
+    assert lam.key["engine_source"] == keys.ENGINE_SOURCE and "engine_source" not in Request({}, TINY, TINY_NUM, 0).key
     before = lam.hash
-    monkeypatch.setattr(campaign, "ENGINE_SOURCE", "000000000000")
+    monkeypatch.setattr(keys, "ENGINE_SOURCE", "000000000000")
     assert lam.hash != before
 
 
@@ -191,12 +193,12 @@ def test_host_reports_the_simd_level_numpy_dispatches_on():
     import subprocess
     import sys
 
-    from calib_cli.campaign import numpy_dispatch_targets
+    from calib_cli.heaps.keys import numpy_dispatch_targets
 
     targets = numpy_dispatch_targets()
 
     def level(**env):
-        code = "from calib_cli.campaign import simd_level; print(simd_level())"
+        code = "from calib_cli.heaps.keys import simd_level; print(simd_level())"
         return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                               env={**os.environ, **env}).stdout.strip()
 
@@ -296,7 +298,7 @@ def test_the_run_settings_heap_setup_is_every_simulating_commands_default(tmp_pa
 def _fake_design_results(run, moduli, stage="pb", laws=({},)):
     """RUN/simulate/results.parquet with one row per design run, modulus and set of contact-law
     switches (current kernel)."""
-    from calib_cli.campaign import CACHE_SOURCE
+    from calib_cli.heaps.keys import CACHE_SOURCE
 
     d = art.read_table(run / stage / "design.parquet")
     rows = []
@@ -411,7 +413,8 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
 
 
 def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
-    from calib_cli.campaign import CACHE_SOURCE, current_results
+    from calib_cli.heaps.index import current_results
+    from calib_cli.heaps.keys import CACHE_SOURCE
 
     rows = pd.DataFrame({"run_hash": ["a", "a", "b", "c"], "design": "pb", "run_id": [1, 1, 2, 3], "repeat": 0,
                          "condition_id": "", "source": [CACHE_SOURCE, CACHE_SOURCE, "old", CACHE_SOURCE],
@@ -430,7 +433,7 @@ def test_a_heap_does_not_depend_on_numpys_simd_level():
     import importlib.util
     from pathlib import Path
 
-    from calib_cli.campaign import simd_level
+    from calib_cli.heaps.keys import simd_level
 
     # what this CPU enables, not what numpy was built for: a wheel with AVX-512 loops on an AVX2 CPU
     # runs the same loops in both processes
@@ -449,7 +452,7 @@ def test_a_heap_does_not_depend_on_numpys_simd_level():
 def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkeypatch):
     """$CALIB_REUSE: a run another run directory has finished is copied, not recomputed, and the
     row takes this request's labels (docs/campaigns.md)."""
-    import calib_cli.campaign as campaign
+    from calib_cli.heaps import runner as heap_runner
 
     reqs = [Request({"static_friction": mu}, TINY, TINY_NUM, derive_seed(0, i, 0), "tiny", "", i)
             for i, mu in enumerate([0.3, 0.6], start=1)]
@@ -461,7 +464,7 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
     def no_simulation(*args, **kwargs):
         raise AssertionError("recomputed a run another run directory had finished")
 
-    monkeypatch.setattr(campaign, "execute", no_simulation)
+    monkeypatch.setattr(heap_runner, "execute", no_simulation)
     monkeypatch.setenv("CALIB_REUSE", os.pathsep.join([str(tmp_path / "missing"), str(tmp_path / "a")]))
     b = run_campaign(relabelled, tmp_path / "b")
     cols = ["run_hash", "repose_angle", "angle_coords", "n_steps", "status", "wall_s"]
@@ -482,18 +485,18 @@ def test_campaign_reuses_finished_runs_of_other_run_directories(tmp_path, monkey
 
 def test_golden_heaps_the_committed_runs_name_come_out_bit_for_bit():
     """The golden heaps: cache keys name the physics (each contact law's version and the kernel's,
-    campaign.PHYSICS), not the bytes of the source, so a change of the kernel that keeps every version
+    calib_cli.heaps.keys.PHYSICS), not the bytes of the source, so a change of the kernel that keeps every version
     must compute the committed heaps bit for bit. Two committed smoke heaps (one cohesive, one not),
     rebuilt from their results rows (the per-run artefacts are not committed), keep their run hash and
     come out with the same step count, coordinate angle and its sd, heap height, base radius and largest
     overlap, to the last bit. On a machine other than the one that made them (the rows' `host`) a
     difference is no evidence against the claim: skipped there."""
-    from calib_cli import campaign
-    from calib_cli.requests import request_from_row
+    from calib_cli.heaps import keys
+    from calib_cli.heaps.inputs import request_from_row
 
     res = pd.read_parquet(Path(__file__).resolve().parents[1] / "sample_runs" / "smoke" / "simulate" / "results.parquet")
-    res = res[(res["source"] == campaign.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
-    assert len(res), f"no committed smoke heap of the current physics {campaign.CACHE_SOURCE}: raise no law's version " \
+    res = res[(res["source"] == keys.CACHE_SOURCE) & (res["engine"] == "builtin") & (res["status"] == "ok")]
+    assert len(res), f"no committed smoke heap of the current physics {keys.CACHE_SOURCE}: raise no law's version " \
                      "without regenerating the sample runs"
     for row in (res[res["surface_energy"] > 0].iloc[0], res[res["surface_energy"] == 0].iloc[0]):
         req = request_from_row(row)
@@ -509,14 +512,14 @@ def test_golden_heaps_the_committed_runs_name_come_out_bit_for_bit():
 
 
 def test_cache_keys_name_law_versions_not_source_bytes():
-    """A heap's key depends on campaign.PHYSICS (each law's version, the kernel's), not on the source's
+    """A heap's key depends on keys.PHYSICS (each law's version, the kernel's), not on the source's
     bytes: every law at its first version keeps the committed heaps' name; a raised version renames."""
-    from calib_cli import campaign
+    from calib_cli.heaps import keys
 
-    assert campaign.CACHE_SOURCE == campaign.cache_source(campaign.PHYSICS) == "77675d5eca62"
+    assert keys.CACHE_SOURCE == keys.cache_source(keys.PHYSICS) == "77675d5eca62"
     assert Request({"static_friction": 0.4}, TINY, TINY_NUM, 1).key["source"] == "77675d5eca62"
-    bumped = campaign.cache_source({**campaign.PHYSICS, "rolling=sds": 2})
-    assert bumped != "77675d5eca62" and bumped != campaign.cache_source({**campaign.PHYSICS, "kernel": "2"})
+    bumped = keys.cache_source({**keys.PHYSICS, "rolling=sds": 2})
+    assert bumped != "77675d5eca62" and bumped != keys.cache_source({**keys.PHYSICS, "kernel": "2"})
 
 
 def test_raising_one_laws_version_renames_exactly_the_heaps_that_use_it(monkeypatch):
@@ -524,8 +527,9 @@ def test_raising_one_laws_version_renames_exactly_the_heaps_that_use_it(monkeypa
     current; a non-cohesive one (Hertz) keeps its key and row; the whole table's version moves too."""
     import dataclasses
 
-    from calib_cli import campaign
     from calib_cli.dem.laws import REGISTRY
+    from calib_cli.heaps import keys
+    from calib_cli.heaps.index import current_sources
 
     wet, dry = ({"static_friction": 0.4, "surface_energy": e} for e in (0.5, 0.0))
     reqs = [Request(p, TINY, TINY_NUM, 1) for p in (wet, dry)]
@@ -534,8 +538,8 @@ def test_raising_one_laws_version_renames_exactly_the_heaps_that_use_it(monkeypa
     monkeypatch.setitem(REGISTRY["normal"], "jkr", dataclasses.replace(REGISTRY["normal"]["jkr"], version=2))
     after = [Request(p, TINY, TINY_NUM, 1).hash for p in (wet, dry)]
     assert after[0] != before[0] and after[1] == before[1]
-    assert list(rows["source"] == campaign.current_sources(rows)) == [False, True]
-    assert campaign.cache_source(campaign.physics()) != campaign.CACHE_SOURCE
+    assert list(rows["source"] == current_sources(rows)) == [False, True]
+    assert keys.cache_source(keys.physics()) != keys.CACHE_SOURCE
 
 
 def test_the_benchmarks_paper_designs_are_the_papers_tables(monkeypatch):

@@ -14,7 +14,7 @@ from hypothesis import given, strategies as st
 from calib_cli import parameters as P
 from calib_cli.conditions import read_conditions_csv
 from calib_cli.errors import CalibError
-from calib_cli.requests import checked_condition, parse_pairs, parse_params
+from calib_cli.heaps.inputs import checked_condition, parse_pairs, parse_params
 
 ROOT = Path(__file__).resolve().parents[1]
 

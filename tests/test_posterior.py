@@ -43,7 +43,8 @@ def _design(n_points: int, noise: float, seed: int) -> pd.DataFrame:
 
 @pytest.fixture(scope="module")
 def gp():
-    return GPSurrogate(["a", "b"], ["particle_d_min_mm", "fill_height_mm"], BOUNDS).fit(_design(40, 2.0, 1))
+    rows = _design(40, 2.0, 1)
+    return GPSurrogate(["a", "b"], ["particle_d_min_mm", "fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
 
 
 def test_the_gp_recovers_a_smooth_function_and_its_white_noise(gp):
@@ -75,12 +76,14 @@ def _repeated(scatter, seed: int, points: int = 30, repeats: int = 4) -> pd.Data
 def test_a_scatter_that_grows_over_an_input_is_modelled_and_one_that_does_not_is_left_alone():
     """Repeated piles whose sd grows from 1 to 4 deg with b (as cohesive heaps scatter more than dry
     ones): the surrogate's pile sd follows it; with one sd of 2 deg it keeps one scatter."""
-    grows = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(_repeated(lambda a, b: 1.0 + 1.5 * b, 3))
+    rows = _repeated(lambda a, b: 1.0 + 1.5 * b, 3)
+    grows = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
     assert grows.scatter_ is not None
     X = pd.DataFrame({"a": [0.5, 0.5], "b": [0.05, 1.95], "fill_height_mm": [75.0, 75.0]})
     low, high = grows.pile_sd(X)
     assert low == pytest.approx(1.075, rel=0.3) and high == pytest.approx(3.925, rel=0.3), (low, high)
-    flat = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(_repeated(lambda a, b: 2.0, 4))
+    rows = _repeated(lambda a, b: 2.0, 4)
+    flat = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
     assert flat.scatter_ is None and flat.noise_sd_ == pytest.approx(2.0, rel=0.15)
     assert flat.pile_sd(X) == pytest.approx([flat.noise_sd_] * 2)
 
@@ -199,7 +202,8 @@ def scatter_gp():
     rng = np.random.default_rng(5)
     rows = [{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1 + 1.5 * b)}
             for a, b in zip(rng.random(40), 2 * rng.random(40)) for h in HEIGHTS for _ in range(4)]
-    return GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(pd.DataFrame(rows))
+    rows = pd.DataFrame(rows)
+    return GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
 
 
 def test_the_pile_log_variance_carries_the_scatter_process_s_covariance_through_the_white_term(scatter_gp):
@@ -278,7 +282,7 @@ def two_gps():
     rows = pd.DataFrame([{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1),
                           "fullness": _fullness(a, b, h) + rng.normal(0, 0.03)}
                          for a, b in zip(rng.random(40), 2 * rng.random(40)) for h in HEIGHTS])
-    return [GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS, response=y).fit(rows)
+    return [GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows[y])
             for y in ("repose_angle", "fullness")]
 
 
@@ -630,7 +634,8 @@ def test_the_surrogate_ratio_falls_as_heaps_teach_the_surrogate(gp):
     measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "mean": [30.0, 31.0, 32.0], "sd": 3.0, "n": 10})
     samples = pd.DataFrame({"a": np.random.default_rng(0).uniform(0.3, 0.5, 400),
                             "b": np.random.default_rng(1).uniform(0.8, 1.2, 400)})
-    few = GPSurrogate(["a", "b"], ["particle_d_min_mm", "fill_height_mm"], BOUNDS).fit(_design(3, 2.0, 1))
+    rows = _design(3, 2.0, 1)
+    few = GPSurrogate(["a", "b"], ["particle_d_min_mm", "fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
     many, sparse = surrogate_ratios(gp, None, measured, samples), surrogate_ratios(few, None, measured, samples)
     assert many["repose_angle"] < 1.0 < sparse["repose_angle"] and sparse["repose_angle"] > 3 * many["repose_angle"]
     assert many["combined"] == pytest.approx(many["repose_angle"])
@@ -671,7 +676,7 @@ def test_the_column_share_pins_where_fills_stand_which_no_angle_sees():
     rng = np.random.default_rng(8)
     rows = pd.DataFrame([{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1)}
                          for a, b in zip(rng.random(60), 2 * rng.random(60)) for h in HEIGHTS])
-    gp = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows)
+    gp = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
     stands = rows["b"].to_numpy() > 1.2
     model = ColumnModel(gp).fit(rows, stands)
     assert model.probability(np.array([[0.5, 1.8, 75.0]]))[0] > 0.8 > 0.2 > model.probability(np.array([[0.5, 0.4, 75.0]]))[0]
@@ -722,7 +727,7 @@ def test_the_answer_averages_an_effect_on_and_off_by_its_bayes_factor():
     rf, se = rng.uniform(0.05, 0.3, 60), rng.uniform(0.0, 1.0, 60)
     rows = pd.DataFrame([{"rolling_friction": r, "surface_energy": s, "fill_height_mm": h, "particle_d_min_mm": 4.0,
                           "repose_angle": angle(r, s, h) + rng.normal(0, 1.0)} for r, s in zip(rf, se) for h in HEIGHTS])
-    gp = GPSurrogate(list(bounds), ["particle_d_min_mm", "fill_height_mm"], bounds).fit(rows)
+    gp = GPSurrogate(list(bounds), ["particle_d_min_mm", "fill_height_mm"], bounds).fit(rows, rows["repose_angle"])
     measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "particle_d_min_mm": 4.0, "sd": 1.0, "n": 10,
                              "mean": angle(0.15, 0.0, HEIGHTS)})
     post = calibrate_posterior(gp, measured, bounds, n_walkers=16, n_steps=1500, seed=0)

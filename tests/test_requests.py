@@ -1,4 +1,4 @@
-"""The one request builder (calib_cli/requests.py) keeps every committed heap's seed and cache key.
+"""The one request builder (calib_cli/heaps/inputs.py) keeps every committed heap's seed and cache key.
 
 Every simulating command builds its requests through `build_requests` with the seed scheme of
 `seed_index`. A change of either would give the committed sample runs' heaps new hashes and
@@ -15,11 +15,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from calib_cli.campaign import CACHE_SOURCE, Request, derive_seed
 from calib_cli.cli import app
 from calib_cli.dem.heap import HeapCondition, Numerics
-from calib_cli.requests import (build_requests, condition_from_row, content_seed, heap_preset, request_from_row,
-                                seed_index, table_conditions)
+from calib_cli.heaps.inputs import (build_requests, condition_from_row, content_seed, heap_preset, request_from_row,
+                                    seed_index, table_conditions)
+from calib_cli.heaps.keys import CACHE_SOURCE, Request, derive_seed
 from calib_cli.settings import load_settings
 
 ROOT = Path(__file__).resolve().parents[1]

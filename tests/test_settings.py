@@ -40,7 +40,7 @@ def test_bad_settings_are_one_line_errors(bad):
 def test_heap_setup_of_a_run_is_a_setting_the_options_override():
     """[heap] preset / shear_modulus: the run's heaps; an option wins; the preset's own modulus is
     no modulus (the heaps' cache keys and the stages' hashes stay those of a run that named none)."""
-    from calib_cli.requests import heap_setup
+    from calib_cli.heaps.inputs import heap_setup
 
     assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None, "engine": "builtin"}
     stiff = load_settings(overrides=["heap.shear_modulus=1.5e8", "heap.preset='smoke'"])

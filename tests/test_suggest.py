@@ -366,6 +366,6 @@ def test_a_gain_where_the_surrogate_extrapolates_says_so(ranked):
     assert r.table.set_index("condition_id").loc["d4-5_D40_H75", "beyond_heaps"] == ""
     rows = pd.DataFrame({"a": np.linspace(0, 1, 12), "fill_height_mm": np.tile([50.0, 100.0], 6),
                          "repose_angle": np.linspace(20, 30, 12)})
-    gp = GPSurrogate(["a"], ["fill_height_mm"], {"a": (0.0, 1.0)}).fit(rows)
+    gp = GPSurrogate(["a"], ["fill_height_mm"], {"a": (0.0, 1.0)}).fit(rows, rows["repose_angle"])
     cand = pd.DataFrame({"fill_height_mm": [75.0, 150.0]})
     assert _beyond_heaps(gp, cand) == ["", "fill height 150 beyond the heaps' 50-100"]

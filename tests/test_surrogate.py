@@ -32,6 +32,28 @@ def test_metrics_are_eqs_8_to_10():
     assert r2(y, yh) == pytest.approx(1 - 1.25 / 2)
 
 
+def test_every_surrogate_has_one_interface(table7, xy):
+    """fit(X, y) returns the fitted surrogate, predict(X) the response (scikit-learn's shape): the three
+    of fit-surrogate, the BBD's response surface and the posterior's Gaussian process alike."""
+    import inspect
+
+    from calib_cli.doe.bbd import QuadraticRSM
+    from calib_cli.posterior.gp import GPSurrogate
+    from calib_cli.space import ParameterSpace
+    from calib_cli.surrogate.interface import Surrogate
+
+    X, y = xy
+    frame = table7[INP]
+    models = [(RSMSurrogate(INP), X), (BPNetwork(INP, epochs=5), X), (PSOBPNetwork(INP, epochs=5, iterations=2), X),
+              (QuadraticRSM(ParameterSpace.from_data(table7, INP)), frame), (GPSurrogate(INP, restarts=0), frame)]
+    for model, inputs in models:
+        assert isinstance(model, Surrogate), model
+        assert list(inspect.signature(model.fit).parameters)[:2] == ["X", "y"], model
+        assert list(inspect.signature(model.predict).parameters)[:1] == ["X"], model
+        assert model.fit(inputs, y) is model
+        assert model.predict(inputs).shape == (len(y),), model
+
+
 def test_rsm_reproduces_table9_rsm_row(xy):
     X, y = xy
     s = scores(y, RSMSurrogate(INP).fit(X, y).predict(X))
@@ -180,7 +202,8 @@ def _simulated_bbd(tmp_path, lost, var=("fill_height_mm", "H", (50.0, 100.0), -0
     """A run whose BBD was 'simulated' under two conditions, by default two fill heights (a plane
     plus the condition variable's effect); ``lost``: (run_id, condition_id) pairs that gave no
     angle (a timeout)."""
-    from calib_cli.campaign import CACHE_SOURCE, RESULTS
+    from calib_cli.heaps.index import RESULTS
+    from calib_cli.heaps.keys import CACHE_SOURCE
 
     name, tag, levels, slope = var
     run = tmp_path / "run"

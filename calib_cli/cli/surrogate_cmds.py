@@ -49,7 +49,7 @@ def predict(run: RunOpt, set_: Annotated[Optional[list[str]], typer.Option("--se
     """Evaluate the saved surrogate(s) at a point. Reads RUN/surrogate/models/*.json."""
     import numpy as np
 
-    from ..requests import parse_pairs, parse_params
+    from ..heaps.inputs import parse_pairs, parse_params
     from ..surrogate.store import load_models
 
     run = check_run_dir(run)

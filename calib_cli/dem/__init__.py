@@ -37,7 +37,7 @@ def _source_hash() -> str:
 
 #: hash of the kernel's source (dem/ and dem/laws/): names numba's cache folder only, because numba's own
 #: cache tracks each function's own file and would keep stale machine code of a law inlined from another
-#: module. Heaps' cache keys name the laws' versions instead (calib_cli.campaign.PHYSICS)
+#: module. Heaps' cache keys name the laws' versions instead (calib_cli.heaps.keys.PHYSICS)
 SOURCE_HASH = _source_hash()
 
 if "NUMBA_CACHE_DIR" not in os.environ:

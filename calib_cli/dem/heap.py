@@ -163,7 +163,7 @@ def interactions(params: Mapping[str, float], condition: HeapCondition | None = 
 
 def heap_model(params: Mapping[str, float], condition: HeapCondition | None = None) -> ContactModel:
     """The composition of contact laws a heap test of these parameters runs (its floor and its cylinder
-    are walls, which take the grains' laws): what its cache key names (calib_cli.campaign)."""
+    are walls, which take the grains' laws): what its cache key names (calib_cli.heaps.keys)."""
     return contact_model(*interactions(params, condition))
 
 

@@ -49,41 +49,45 @@ def quadratic_matrix(coded: np.ndarray) -> np.ndarray:
 
 
 class QuadraticRSM:
-    """The quadratic response surface as an estimator (fit / predict).
+    """The quadratic response surface over ``space`` (the factors and their coding) as an estimator:
+    ``fit(X, y)`` and ``predict(X)`` with X the factors in natural units (a frame with the space's
+    columns, or an (n, k) array in its order) and y the response.
 
-    Learned attributes: ``space_`` (the coding), ``terms_``, ``coef_`` (coded units,
-    a Series indexed by term, ``Intercept`` first), ``fit_`` (the :class:`LinearFit`
-    with ``anova`` and ``stats``).
+    Learned attributes: ``terms_``, ``coef_`` (coded units, a Series indexed by term, ``Intercept``
+    first), ``fit_`` (the :class:`LinearFit` with ``anova`` and ``stats``).
     """
 
-    def __init__(self, lack_of_fit: bool = True, drop_degenerate: bool = False):
+    def __init__(self, space: ParameterSpace, lack_of_fit: bool = True, drop_degenerate: bool = False):
+        self.space = space
         self.lack_of_fit = lack_of_fit
         self.drop_degenerate = drop_degenerate
 
-    def fit(self, data: pd.DataFrame, space: ParameterSpace, response: str = "repose_angle") -> "QuadraticRSM":
-        coded = space.to_coded(data[space.names].to_numpy(dtype=float))
-        y = data[response].to_numpy(dtype=float)
-        terms = quadratic_terms(space.names)
+    def fit(self, X, y) -> "QuadraticRSM":
+        coded = self._coded(X)
+        y = np.asarray(y, dtype=float)
+        terms = quadratic_terms(self.space.names)
         if self.drop_degenerate:
             # an input seen at only two levels has x^2 = a + b x: its square term cannot be estimated
-            two = {n for j, n in enumerate(space.names) if len(np.unique(np.round(coded[:, j], 9))) < 3}
+            two = {n for j, n in enumerate(self.space.names) if len(np.unique(np.round(coded[:, j], 9))) < 3}
             terms = [t for t in terms if not (t.endswith("^2") and t[:-2] in two)]
-        self.space_ = space
         self.terms_ = terms
         self.fit_ = fit_linear(y, self._matrix(coded), terms, points=coded, lack_of_fit=self.lack_of_fit)
         self.coef_ = self.fit_.coef
         return self
 
+    def _coded(self, X) -> np.ndarray:
+        if isinstance(X, pd.DataFrame):
+            X = X[self.space.names].to_numpy(dtype=float)
+        return self.space.to_coded(X)
+
     def _matrix(self, coded) -> np.ndarray:
-        full = quadratic_terms(self.space_.names)
+        full = quadratic_terms(self.space.names)
         idx = [full.index(t) for t in self.terms_]
         return quadratic_matrix(coded)[:, idx]
 
-    def predict(self, natural) -> np.ndarray:
-        """Predicted response at natural-unit points ((n, k) array or DataFrame)."""
-        if isinstance(natural, pd.DataFrame):
-            natural = natural[self.space_.names].to_numpy(dtype=float)
-        return self.predict_coded(self.space_.to_coded(natural))
+    def predict(self, X) -> np.ndarray:
+        """Predicted response at natural-unit points X."""
+        return self.predict_coded(self._coded(X))
 
     def predict_coded(self, coded) -> np.ndarray:
         M = self._matrix(coded)
@@ -100,8 +104,8 @@ class QuadraticRSM:
 
     def equation(self, digits: int = 4) -> str:
         """The fitted model written like the paper's Eq. 7 (coded units)."""
-        short = all(f.symbol for f in self.space_.factors)
-        sym = {f.name: (f.symbol if short else f.name) for f in self.space_.factors}
+        short = all(f.symbol for f in self.space.factors)
+        sym = {f.name: (f.symbol if short else f.name) for f in self.space.factors}
         join = "" if short else "*"
 
         def term_sym(t: str) -> str:

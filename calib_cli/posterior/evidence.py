@@ -17,10 +17,10 @@ from typing import Callable, Optional
 import numpy as np
 import pandas as pd
 
-from ..campaign import RESULTS, current_results, heap_setups
+from ..heaps.index import RESULTS, current_results, heap_setups
 from ..errors import CalibError
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
-from ..requests import COND_VARS
+from ..heaps.inputs import COND_VARS
 from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
                         calibrate_posterior, mean_variance, summarise)
 from .gp import ColumnModel, GPSurrogate, holdout_rmse, informative_conditions
@@ -138,8 +138,9 @@ def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: s
     the heaps have: it learns the ones that vary and records the ones they all shared (``constants_``),
     at which a measured or suggested condition elsewhere is beyond what it knows. Each parameter is
     scaled by ``scale`` (the prior's ranges; default each effect's own)."""
-    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns), response]
-    return GPSurrogate(model.parameters, COND_VARS, scale or effect_ranges(model), response, seed=seed).fit(rows[cols])
+    cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns)]
+    gp = GPSurrogate(model.parameters, COND_VARS, scale or effect_ranges(model), seed=seed)
+    return gp.fit(rows[cols], rows[response])
 
 
 def settings_ranges(cfg: dict) -> dict[str, tuple[float, float]]:

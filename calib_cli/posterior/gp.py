@@ -170,17 +170,19 @@ def informative_conditions(rows: pd.DataFrame, candidates: Sequence[str]) -> lis
 class GPSurrogate:
     """The angle's Gaussian process over ``parameters`` (scaled by ``bounds``: name -> (low, high);
     a parameter without bounds by its training range) and the ``conditions`` among the candidates
-    that vary in the training rows. Learned attributes end in ``_``: ``inputs_``, ``lows_``,
+    that vary in the training rows: ``fit(X, y)`` with X the heaps' frame (the parameters' and
+    any candidate conditions' columns) and y their response (the angle, or another such as the
+    fullness), ``predict(X)``. Learned attributes end in ``_``: ``inputs_``, ``lows_``,
     ``highs_``, ``constants_`` (the candidate conditions every row shares), ``noise_sd_`` (the piles'
     rms scatter), ``scatter_`` (:func:`scatter_model`'s fit, or None: one scatter), ``white_sd_``,
     ``signal_sd_``, ``length_scales_`` (scaled units, per input), ``n_train_``."""
 
     def __init__(self, parameters: Sequence[str], conditions: Sequence[str] = (),
-                 bounds: Mapping[str, tuple[float, float]] | None = None, response: str = "repose_angle",
-                 nu: float = NU, restarts: int = 2, seed: int = 0):
+                 bounds: Mapping[str, tuple[float, float]] | None = None, nu: float = NU, restarts: int = 2,
+                 seed: int = 0):
         self.parameters, self.conditions = list(parameters), list(conditions)
         self.bounds = dict(bounds or {})
-        self.response, self.nu, self.restarts, self.seed = response, float(nu), int(restarts), int(seed)
+        self.nu, self.restarts, self.seed = float(nu), int(restarts), int(seed)
 
     def _ranges(self, rows: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = [], []
@@ -192,38 +194,40 @@ class GPSurrogate:
             hi.append(b)
         return np.array(lo), np.array(hi)
 
-    def fit(self, rows: pd.DataFrame) -> "GPSurrogate":
+    def fit(self, X: pd.DataFrame, y) -> "GPSurrogate":
+        """Fit to the heaps X and their responses y (rows whose y is not finite are left out)."""
         from sklearn.exceptions import ConvergenceWarning
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
         from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
 
-        rows = rows[np.isfinite(rows[self.response].to_numpy(float))]
+        y = np.asarray(y, float)
+        keep = np.isfinite(y)
+        rows, y = X[keep], y[keep]
         conds = informative_conditions(rows, self.conditions)
         self.inputs_ = self.parameters + conds
         self.constants_ = {c: float(rows[c].iloc[0]) for c in self.conditions
                            if c in rows.columns and rows[c].nunique() == 1}
         self.lows_, self.highs_ = self._ranges(rows)
-        y = rows[self.response].to_numpy(float)
         self.y_mean_, self.y_sd_ = float(y.mean()), float(y.std()) or 1.0
-        X = self._scale(rows)
-        self.scatter_ = scatter_model(X, y)
+        Xs = self._scale(rows)
+        self.scatter_ = scatter_model(Xs, y)
         kernel = (ConstantKernel(1.0, (1e-3, 1e3))
                   * Matern(np.full(len(self.inputs_), 0.5), LENGTH_BOUNDS, nu=self.nu)
                   + WhiteKernel(0.1, (1e-6, 1.0)))
         # the scatter the repeated piles show, on each pile's diagonal; the white kernel adds what is left
-        alpha = 1e-10 if self.scatter_ is None else self.scatter_.variance(X) / self.y_sd_ ** 2
+        alpha = 1e-10 if self.scatter_ is None else self.scatter_.variance(Xs) / self.y_sd_ ** 2
         gp = GaussianProcessRegressor(kernel, alpha=alpha, n_restarts_optimizer=self.restarts, random_state=self.seed)
         # one BLAS thread: the matrices are a few hundred heaps a side, which threads speed up little, and on
         # a busy two-core machine the pool's waiting made hidden-effect's fit take 81 s instead of 4 s
         with warnings.catch_warnings(), threadpool_limits(1, user_api="blas"):
             # a length scale at its upper bound is an input that does not matter, not a failed fit
             warnings.simplefilter("ignore", ConvergenceWarning)
-            self.gp_ = gp.fit(X, (y - self.y_mean_) / self.y_sd_)
+            self.gp_ = gp.fit(Xs, (y - self.y_mean_) / self.y_sd_)
         k = self.gp_.kernel_
         self.latent_ = k.k1  # s^2 Matern: the kernel of f, without the piles' scatter
         self.white_sd_ = float(np.sqrt(k.k2.noise_level)) * self.y_sd_
-        self.noise_sd_ = float(np.sqrt(np.mean(self.pile_sd(X, scaled=True) ** 2)))
+        self.noise_sd_ = float(np.sqrt(np.mean(self.pile_sd(Xs, scaled=True) ** 2)))
         self.signal_sd_ = float(np.sqrt(k.k1.k1.constant_value)) * self.y_sd_
         self.length_scales_ = pd.Series(np.atleast_1d(k.k1.k2.length_scale), index=self.inputs_)
         self.n_train_ = len(y)
@@ -340,7 +344,7 @@ def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed,
     noise = []
     for k in range(fold.max() + 1):
         test = fold[pts] == k
-        gp = GPSurrogate(parameters, conditions, bounds, response, seed=seed).fit(rows[~test])
+        gp = GPSurrogate(parameters, conditions, bounds, seed=seed).fit(rows[~test], y[~test])
         noise.append(gp.noise_sd_)
         preds["gp"][test] = gp.predict(rows[test])
         X = rows[gp.inputs_].to_numpy(float)

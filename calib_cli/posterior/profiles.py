@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import RUNS
 from ..errors import CalibError
+from ..heaps.keys import RUNS
 from ..profile import fullness
 
 FULLNESS = "fullness"

@@ -58,7 +58,7 @@ def heap_setups(f: RunFiles) -> list[str]:
     rows = f.table("simulate/results.parquet")
     if rows is None or rows.empty:
         return []
-    from ..campaign import heap_setups as setups
+    from ..heaps.index import heap_setups as setups
 
     label = rows["design"].fillna("").replace("", "single runs") if "design" in rows.columns \
         else pd.Series("all", index=rows.index)

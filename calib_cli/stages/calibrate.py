@@ -21,7 +21,9 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import RESULTS, Request, run_campaign
+from ..heaps.index import RESULTS
+from ..heaps.keys import Request
+from ..heaps.runner import run_campaign
 from ..errors import CalibError
 from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
@@ -31,8 +33,8 @@ from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdi
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
-from ..requests import (COND_VARS, check_engine, condition_from_row, content_seed, engine_settings, heap_engine,
-                        heap_preset, heap_setup, modulus_settings)
+from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, engine_settings, heap_engine,
+                            heap_preset, heap_setup, modulus_settings)
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
 #: the results rows' design label of every heap a calibration's rounds simulate

@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import heap_setups, row_laws, row_moduli
 from ..dem.heap import Numerics
 from ..errors import CalibError
+from ..heaps.index import heap_setups, row_laws, row_moduli
 from ..settings import load_settings
 from ..space import ParameterSpace
 
@@ -117,7 +117,7 @@ def check_run_dir(run: Path) -> Path:
 
 def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str, say: Optional[Say] = None) -> None:
     """Warn when the run's design heaps (what a surrogate was fitted to) had another shear modulus."""
-    from ..campaign import current_results
+    from ..heaps.index import current_results
 
     rows = current_results(run)
     if rows.empty or "design" not in rows.columns:
@@ -189,7 +189,7 @@ def bbd_laws(run: Path) -> dict[str, float]:
     """The contact-law switches (e.g. ``rolling_spring`` 1) every heap of the BBD was simulated with
     (`simulate-heap --set`): the surrogate learnt that law, so the calibrated point is simulated
     with it too. Only laws switched on, so that runs with the default laws keep their cache keys."""
-    from ..campaign import current_results
+    from ..heaps.index import current_results
 
     if not (Path(run) / "simulate" / "results.parquet").is_file():
         return {}
@@ -213,7 +213,7 @@ def simulated_responses(run: Path, design_path: Path, factors: list[str], respon
         raise CalibError(f"no design at {design_path}; create it first (`design` subcommand) or pass --responses FILE")
     if not results_path.is_file():
         raise CalibError(f"no simulated responses in {run}: {hint}")
-    from ..campaign import current_results
+    from ..heaps.index import current_results
 
     design = art.read_table(design_path, what="design")
     art.read_table(results_path, columns=[*factors, response], what="simulation results")  # validates the file

@@ -11,13 +11,13 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import CACHE_SOURCE
+from ..heaps.keys import CACHE_SOURCE
 from ..discrepancy.point import model_and_theta, simulate_at
 from ..discrepancy.stats import residual_table, summary
 from ..measurements import measured_conditions
 from ..model import Model
 from ..plots import plt  # the Agg backend, set in one place
-from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
                      writes_run)
 

@@ -12,14 +12,14 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import CACHE_SOURCE
+from ..heaps.keys import CACHE_SOURCE
 from ..discrepancy.point import model_and_theta
 from ..discrepancy.sensitivity import signatures
 from ..discrepancy.stats import at_bounds, confound, confounded, score_effects, signature_noise, trends
 from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
-from ..requests import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
                      warn_other_modulus, writes_run)
 

@@ -324,7 +324,7 @@ def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings 
     st = stage(run, "bbd", "analyze", inputs=inputs, settings={"space": space.to_dicts(), "response": response})
     if st.up_to_date() and not force:
         return BBDResult(st, True)
-    rsm = bbd_mod.QuadraticRSM().fit(data, space, response)
+    rsm = bbd_mod.QuadraticRSM(space).fit(data[space.names], data[response])
     s = rsm.stats_
     fit = pd.DataFrame([{k: s[k] for k in ("r2", "r2_adj", "r2_pred", "adeq_precision", "cv_percent",
                                              "lack_of_fit_F", "lack_of_fit_p", "std_dev", "mean", "press",

@@ -12,14 +12,14 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import run_campaign
+from ..heaps.runner import run_campaign
 from ..dem.heap import PARAMETERS
 from ..discrepancy.stats import at_bounds, per_condition, residual_table
 from ..errors import CalibError
 from ..parameters import check
 from ..plots import plt  # the Agg backend, set in one place
-from ..requests import (COND_VARS, Pairs, build_requests, checked_condition, engine_settings, heap_engine,
-                        heap_preset, heap_setup, make_condition, modulus_settings, table_conditions)
+from ..heaps.inputs import (COND_VARS, Pairs, build_requests, checked_condition, engine_settings, heap_engine,
+                            heap_preset, heap_setup, make_condition, modulus_settings, table_conditions)
 from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters
 from ..surrogate.inversion import invert as invert_surrogate
 from ..surrogate.inversion import nearest, refine as refine_by_simulation

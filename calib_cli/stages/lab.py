@@ -12,12 +12,13 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import RUNS, run_campaign
 from ..dem.heap import FLOOR_VARIABLES, HeapCondition
 from ..errors import CalibError
-from ..requests import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
-                        parse_params)
-from ..requests import Pairs, given_pairs as pairs
+from ..heaps.inputs import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
+                            parse_params)
+from ..heaps.inputs import Pairs, given_pairs as pairs
+from ..heaps.keys import RUNS
+from ..heaps.runner import run_campaign
 
 
 def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:

@@ -11,7 +11,7 @@ from typing import Optional
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import RESULTS
+from ..heaps.index import RESULTS
 from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import MODEL_FILE, load_model

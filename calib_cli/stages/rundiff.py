@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..campaign import load_results
+from ..heaps.index import load_results
 from ..surrogate.inversion import solution_parameters
 from ..errors import CalibError
 

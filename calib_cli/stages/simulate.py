@@ -1,5 +1,5 @@
 """Simulate heaps into a run directory: a design's rows (or one point), crossed with a conditions
-table and repeats, on the built-in kernel or LAMMPS, cached by each heap's hash (calib_cli.campaign)."""
+table and repeats, on the built-in kernel or LAMMPS, cached by each heap's hash (calib_cli.heaps.keys)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,15 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import REUSE_ENV, RUNS, RESULTS, Request, reusable, run_campaign
+from ..heaps.index import RESULTS
+from ..heaps.keys import RUNS, Request
+from ..heaps.runner import REUSE_ENV, reusable, run_campaign
 from ..conditions import read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
 from ..measurements import CONDITIONS
-from ..requests import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine, heap_preset,
-                        heap_setup, make_condition, modulus_note, parse_params, table_conditions)
+from ..heaps.inputs import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine,
+                            heap_preset, heap_setup, make_condition, modulus_note, parse_params, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out

@@ -15,19 +15,19 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..campaign import RESULTS
+from ..heaps.index import RESULTS
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_rig, rank_conditions
-from ..requests import engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import engine_settings, heap_setup, modulus_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
 from ..discrepancy.point import model_and_theta
 from ..discrepancy.sensitivity import signatures
-from ..requests import Pairs
+from ..heaps.inputs import Pairs
 
 #: posterior draws the preposterior uses (evenly thinned)
 DRAWS = 2000

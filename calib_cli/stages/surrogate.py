@@ -15,7 +15,7 @@ from .. import artifacts as art
 from ..errors import CalibError
 from ..plots import plt  # the Agg backend, set in one place
 from ..posterior.gp import informative_conditions
-from ..requests import COND_VARS
+from ..heaps.inputs import COND_VARS
 from ..surrogate.metrics import leave_one_out, scores, split_80_20
 from ..surrogate.models import make_model
 from .common import Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage, writes_run
@@ -28,7 +28,7 @@ def _simulated_training_data(run: Path, stage: str, response: str, say: Say) -> 
     space = space_from_design(design)
     if space is None:
         raise CalibError(f"no design at {design}")
-    from ..campaign import current_results
+    from ..heaps.index import current_results
 
     res_path = run / "simulate" / "results.parquet"
     art.read_table(res_path, what="simulation results")  # validates the file

@@ -6,6 +6,8 @@ from typing import Callable
 
 import numpy as np
 
+from .interface import Surrogate
+
 
 def r2(y, yhat) -> float:
     """Eq. 8: 1 - sum (y - yhat)^2 / sum (y - ybar)^2."""
@@ -34,7 +36,7 @@ def split_80_20(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(idx[n_test:]), np.sort(idx[:n_test])
 
 
-def leave_one_out(make: Callable, X: np.ndarray, y: np.ndarray) -> np.ndarray:
+def leave_one_out(make: Callable[[], Surrogate], X: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Predictions of each sample by a model fitted without it."""
     out = np.empty(len(y))
     for i in range(len(y)):

@@ -1,4 +1,4 @@
-"""RSM, BP network and PSO-BP network behind one estimator interface (paper 3.5.1-3.5.2).
+"""RSM, BP network and PSO-BP network behind one estimator interface (paper 3.5.1-3.5.2; :mod:`.interface`).
 
 ``fit(X, y)`` / ``predict(X)`` with X in natural units, columns in ``inputs`` order; learned
 attributes end in ``_``; ``to_state()`` / ``from_state()`` round-trip through JSON.
@@ -36,10 +36,9 @@ class RSMSurrogate:
         self.inputs = list(inputs)
 
     def fit(self, X, y) -> "RSMSurrogate":
-        df = pd.DataFrame(np.asarray(X, float), columns=self.inputs)
-        df["y"] = np.asarray(y, float)
-        space = ParameterSpace.from_data(df, self.inputs)
-        self.rsm_ = QuadraticRSM(lack_of_fit=False, drop_degenerate=True).fit(df, space, "y")
+        X = pd.DataFrame(np.asarray(X, float), columns=self.inputs)
+        space = ParameterSpace.from_data(X, self.inputs)
+        self.rsm_ = QuadraticRSM(space, lack_of_fit=False, drop_degenerate=True).fit(X, y)
         self.coef_ = self.rsm_.coef_
         return self
 
@@ -47,14 +46,13 @@ class RSMSurrogate:
         return self.rsm_.predict(np.atleast_2d(np.asarray(X, float)))
 
     def to_state(self) -> dict:
-        return {"kind": "rsm", "inputs": self.inputs, "space": self.rsm_.space_.to_dicts(),
+        return {"kind": "rsm", "inputs": self.inputs, "space": self.rsm_.space.to_dicts(),
                 "terms": self.rsm_.terms_, "coef": self.coef_.tolist()}
 
     @classmethod
     def from_state(cls, st: dict) -> "RSMSurrogate":
         m = cls(st["inputs"])
-        r = QuadraticRSM(lack_of_fit=False)
-        r.space_ = ParameterSpace.from_dicts(st["space"])
+        r = QuadraticRSM(ParameterSpace.from_dicts(st["space"]), lack_of_fit=False)
         r.terms_ = st["terms"]
         r.coef_ = pd.Series(st["coef"], index=["Intercept", *st["terms"]])
         m.rsm_, m.coef_ = r, r.coef_

@@ -13,11 +13,11 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from calib_cli.campaign import load_results
 from calib_cli.dem.heap import run_heap
 from calib_cli.dem.render import render_side_view
+from calib_cli.heaps.index import load_results
+from calib_cli.heaps.inputs import request_from_row
 from calib_cli.imaging.measure import measure_image, overlay
-from calib_cli.requests import request_from_row
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:

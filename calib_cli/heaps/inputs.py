@@ -1,5 +1,6 @@
-"""Simulation requests: the one place that turns parameters, conditions and a heap setup into
-:class:`~calib_cli.campaign.Request` objects, with the one seed scheme every command uses.
+"""Heap inputs: a command's parameters, conditions and heap setup (preset, shear modulus, engine),
+checked, and turned into :class:`~calib_cli.heaps.keys.Request` objects with the one seed scheme
+every command uses.
 
 A campaign is a list of *points* (a design run id and its parameter values; a single point has
 id 0) crossed with *conditions* (a condition id and its :class:`HeapCondition`) and repeats. Each
@@ -18,14 +19,14 @@ from typing import Iterable, Mapping, Optional, Sequence, Union
 import numpy as np
 import pandas as pd
 
-from . import artifacts as art
-from .campaign import Request, derive_seed
-from .dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, condition_dict, get_preset
-from .engines.clumps import SPHERES
-from .errors import CalibError
-from .parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
-from .parameters import QUANTITIES, check
-from .settings import _parse_value
+from .. import artifacts as art
+from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, condition_dict, get_preset
+from ..engines.clumps import SPHERES
+from ..errors import CalibError
+from ..parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
+from ..parameters import QUANTITIES, check
+from ..settings import _parse_value
+from .keys import Request, derive_seed
 
 #: the heap-test variables a conditions table (or a surrogate's inputs) may carry
 COND_VARS = list(CONDITION_VARIABLES)
@@ -73,7 +74,7 @@ def check_engine(engine: str, mpi: int = 1, shape: str = "sphere") -> tuple[str,
         raise CalibError(f"unknown engine {engine!r}: builtin, lammps or gpu")
     if mpi > 1 and engine != "lammps":
         raise CalibError("--mpi applies to --engine lammps (the built-in kernel runs one heap per core)")
-    from .engines.clumps import parse_shapes
+    from ..engines.clumps import parse_shapes
 
     shapes = parse_shapes(shape)
     if shapes != SPHERES and engine != "lammps":
@@ -81,11 +82,11 @@ def check_engine(engine: str, mpi: int = 1, shape: str = "sphere") -> tuple[str,
     if shapes != SPHERES and mpi > 1:
         raise CalibError("--shape runs on one LAMMPS rank (--mpi 1)")
     if engine == "lammps":
-        from .engines.lammps import open_lammps
+        from ..engines.lammps import open_lammps
 
         open_lammps().close()  # fail now, with the extra named, not after the first run
     if engine == "gpu":
-        from .dem.gpu import cuda_module
+        from ..dem.gpu import cuda_module
 
         cuda_module()  # fail now: no GPU, or no CUDA driver
     return shapes

@@ -1,0 +1,9 @@
+"""Simulated heaps: their cache keys, the campaigns that run them, the index of their results.
+
+- :mod:`.keys`   physics versions, cache keys (:class:`~.keys.Request`), seeds, the host a heap ran on
+- :mod:`.inputs` a command's parameters, conditions and heap setup, checked and turned into requests
+- :mod:`.runner` running requests (cached, resumable; local pool, Dask or GPU batches)
+- :mod:`.index`  the results index ``RUN/simulate/results.parquet``: its readers and writer
+
+Most code only reads results (:mod:`.index`), which imports neither the kernel's runner nor the imaging.
+"""
