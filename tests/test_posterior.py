@@ -752,3 +752,31 @@ def test_the_answer_averages_an_effect_on_and_off_by_its_bayes_factor():
     bound = fit.table.assign(bf_upper=True)
     from dataclasses import replace
     assert averaged(replace(fit, table=bound), measured, bounds, None, walkers=16, steps=200, seed=0).averaged == {}
+
+
+def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
+    """Restitution crowding the box's top (0.5; its physical bound is 1): flagged "high", not identified,
+    the words say to widen factors.restitution.high. Cohesion crowding 0 (its neutral value, where the
+    Bayes factor speaks) and a narrow posterior inside the box are not flagged."""
+    from calib_cli.posterior.evidence import EDGE_SHARE, pressed_edge, verdicts
+
+    rng = np.random.default_rng(3)
+    table = pd.DataFrame({"parameter": ["restitution", "surface_energy", "rolling_friction"],
+                          "median": [0.48, 0.01, 0.15], "q05": [0.44, 0.0, 0.14], "q95": [0.499, 0.05, 0.16],
+                          "low": [0.1, 0.0, 0.1], "high": [0.5, 1.6, 0.3], "rel_width": [0.15, 0.03, 0.1],
+                          "identified": [True, True, True], "n_eff": [4000.0] * 3})
+    samples = pd.DataFrame({"restitution": 0.5 - np.abs(rng.normal(0, 0.03, 5000)),
+                            "surface_energy": np.abs(rng.normal(0, 0.02, 5000)),
+                            "rolling_friction": rng.normal(0.15, 0.006, 5000)})
+    t = verdicts(table, samples, ratio=0.3).set_index("parameter")
+    assert t.loc["restitution", "edge"] == "high" and not t.loc["restitution", "identified"]
+    assert "widen factors.restitution.high" in t.loc["restitution", "verdict"]
+    assert t.loc["surface_energy", "edge"] == "" and t.loc["rolling_friction", "edge"] == ""
+    assert t.loc["rolling_friction", "identified"]
+    # the rule's threshold: a flat posterior puts a quarter of EDGE_SHARE in the band; at its physical bound
+    # (restitution 1.0) nothing can be widened
+    assert pressed_edge(rng.uniform(0.1, 0.5, 20000), 0.1, 0.5) == ""
+    assert pressed_edge(np.full(100, 0.2), 0.1, 0.2) == "high"
+    assert EDGE_SHARE > 0.025
+    from calib_cli.model import EFFECTS
+    assert pressed_edge(np.full(100, 0.99), 0.5, 1.0, EFFECTS["restitution"]) == ""

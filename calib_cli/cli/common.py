@@ -245,7 +245,7 @@ def _width(t: Table) -> int:
 
 def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
     """A posterior's summary as printed: per parameter its median, 90 % interval, width over its range,
-    whether identified, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
+    whether identified or pressed against an edge of its range, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
     autocorrelation time and whether they are long enough for it."""
     import numpy as np
     import pandas as pd
@@ -254,8 +254,10 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
 
     upper = table["bf_upper"] if "bf_upper" in table.columns else pd.Series(False, index=table.index)
     bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
-    return table[["parameter", "median", "q05", "q95", "rel_width", "identified"]].assign(
-        bf_off=bf, autocorr_time=table["autocorr_time"], chain_ok=table["chain_ok"])
+    out = table[["parameter", "median", "q05", "q95", "rel_width", "identified"]]
+    if "edge" in table.columns and (table["edge"].fillna("") != "").any():
+        out = out.assign(at_edge=table["edge"])
+    return out.assign(bf_off=bf, autocorr_time=table["autocorr_time"], chain_ok=table["chain_ok"])
 
 
 def other_revision(run: Path, at_revision: Optional[int]) -> bool:

@@ -42,6 +42,9 @@ BOX_MARGIN = 0.05
 #: no verdict while the surrogate's variance at the posterior's draws exceeds the measured means' (its
 #: ratio r above this): the posterior's width is then the surrogate's ignorance, not the lab's evidence
 SURROGATE_RATIO_MAX = 1.0
+#: a posterior "presses against" a bound of its prior box when more than EDGE_SHARE of its draws lie in
+#: the outer EDGE_BAND of the range there (a flat posterior puts EDGE_BAND there: 4x less)
+EDGE_BAND, EDGE_SHARE = 0.025, 0.10
 
 Say = Callable[..., None]
 
@@ -282,7 +285,9 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0) -> 
     """Each parameter's verdict in words, and for an effect the model gained (not a default one) the
     Bayes factor of "off" against the posterior (``bf_off``; ``bf_upper`` where no draw fell near
     the neutral value and it is an upper bound from the effective draws). Where the surrogate is
-    unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against."""
+    unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against; a
+    posterior pressed against a bound of its box that could be wider (``edge``: low/high, see
+    :func:`pressed_edge`) is not called identified: its width is the box's, not the data's."""
     owner = {e.parameter: e for e in EFFECTS.values()}
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
@@ -292,9 +297,27 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0) -> 
     unsure = bool(ratio > SURROGATE_RATIO_MAX)
     table["bf_off"], table["bf_upper"] = [b for b, _ in bfs], [u for _, u in bfs]
     table["surrogate_ratio"], table["decided"] = float(ratio), not unsure
-    table["identified"] = table["identified"] & (not unsure)
+    table["edge"] = [pressed_edge(samples[r.parameter].to_numpy(float), r.low, r.high, owner.get(r.parameter),
+                                  r.neutral) for r in table.itertuples()]
+    table["identified"] = table["identified"] & (not unsure) & (table["edge"] == "")
     table["verdict"] = [_words(r, owner, unsure) for r in table.itertuples()]
     return table
+
+
+def pressed_edge(s: np.ndarray, lo: float, hi: float, effect=None, neutral: float = math.nan) -> str:
+    """"low" or "high" where the draws ``s`` crowd a bound of the prior box [lo, hi] (over EDGE_SHARE of
+    them in its outer EDGE_BAND) that is neither the ``effect``'s own physical bound nor the ``neutral``
+    value of an added effect (its Bayes factor speaks for that one); "" otherwise. Such a posterior is cut by the box: the data may lie
+    beyond it, or the model lacks an effect (or its engine differs from the lab's)."""
+    band = EDGE_BAND * (hi - lo)
+    if len(s) == 0 or not band > 0:
+        return ""
+    phys_lo, phys_hi = (effect.low, effect.high) if effect is not None else (-math.inf, math.inf)
+    for side, bound, near, wider in (("low", lo, s <= lo + band, lo > phys_lo + 1e-12),
+                                     ("high", hi, s >= hi - band, hi < phys_hi - 1e-12)):
+        if wider and bound != neutral and float(np.mean(near)) > EDGE_SHARE:
+            return side
+    return ""
 
 
 def bf_text(bf: float, upper: bool) -> str:
@@ -307,6 +330,11 @@ def _words(r, owner, unsure: bool) -> str:
         w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.3g}x "
              f"the measured means'); 90 % between {r.q05:.3g} and {r.q95:.3g}: simulate heaps where the posterior "
              "lies (`calib calibrate`)")
+    elif r.edge:
+        bound = r.low if r.edge == "low" else r.high
+        w = (f"at its range's {'lower' if r.edge == 'low' else 'upper'} edge: 90 % between {r.q05:.3g} and "
+             f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it (widen factors.{r.parameter}."
+             f"{r.edge} in settings.toml and calibrate again) or the model lacks an effect")
     elif r.identified:
         w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
     else:

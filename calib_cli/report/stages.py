@@ -89,7 +89,7 @@ def surrogate(f: RunFiles) -> str:
     r2.columns.name = None
     best = f.path("surrogate/best.json")
     pick = art.read_json(best) if best else {}  # a corrupt best.json: a CalibError naming it, not a traceback
-    body = (note(f"R&sup2; by model and split (train: in-sample, as the paper's Table 9; loo: leave-one-out). "
+    body = (note("R&sup2; by model and split (train: in-sample, as the paper's Table 9; loo: leave-one-out). "
                  + (f"Used for the inversion: <b>{esc(pick['best'])}</b> ({esc(pick.get('criterion', ''))})."
                     if "best" in pick else ""))
             + table(r2, digits=3) + figures(f, "surrogate"))

@@ -166,10 +166,14 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').")
+    edge = post["edge"].fillna("").astype(str) != "" if "edge" in post.columns else pd.Series(False, post.index)
     ident = list(post.loc[post["identified"].astype(bool), "parameter"])
-    loose = list(post.loc[~post["identified"].astype(bool), "parameter"])
+    loose = list(post.loc[~post["identified"].astype(bool) & ~edge, "parameter"])
+    cut = list(post.loc[edge, "parameter"])
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
-        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "")
+        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "") + \
+        (f" Pressed against an edge of its range, so cut by it: {words(cut)} (widen the range in settings.toml, "
+         "or the model lacks an effect)." if cut else "")
     owner = {e.parameter: e.name for e in EFFECTS.values()}
     said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide",
             "undecided": "undecided, the surrogate is unsure where the posterior lies"}

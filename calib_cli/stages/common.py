@@ -44,9 +44,11 @@ R = TypeVar("R")
 #: suggest 4: its surrogate's pile variances are that process's
 #: posterior 6: the scatter and the profile weighed wherever they can be; no verdict while the surrogate is unsure;
 #: a Bayes factor with no draw near its value is an upper bound
+#: posterior 8, calibrate-answer 3: a posterior pressed against a bound of its box that could be wider is not
+#: identified (its `edge` column)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 7, "suggest": 5, "calibrate": 1,
-                 "calibrate-answer": 2}
+                 "diagnose": 2, "posterior": 8, "suggest": 5, "calibrate": 1,
+                 "calibrate-answer": 3}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
