@@ -186,6 +186,28 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
     assert f"numpy {np.__version__}" in host() and f"numba {numba.__version__}" in host()
 
 
+def test_a_heap_whose_row_is_indexed_needs_no_folder_where_rows_suffice(tmp_path, monkeypatch):
+    """A committed run keeps its results rows, not its heaps' folders: a caller that reads rows only
+    (rows_suffice: the calibration's rounds, compare, diagnose) takes the indexed row, under its own
+    labels, and simulates nothing; any other caller, and --force, simulates the heap again."""
+    import shutil
+
+    from calib_cli.heaps import runner as runner_mod
+
+    reqs = [Request({"static_friction": 0.4}, TINY, TINY_NUM, derive_seed(0, 1, 0), "tiny", "", 1)]
+    first = run_campaign(reqs, tmp_path)
+    shutil.rmtree(tmp_path / "simulate" / "runs" / first.iloc[0]["run_hash"])
+    calls = []
+    real = runner_mod.execute
+    monkeypatch.setattr(runner_mod, "execute", lambda req, *a, **k: calls.append(req.hash) or real(req, *a, **k))
+    relabelled = [Request({"static_friction": 0.4}, TINY, TINY_NUM, derive_seed(0, 1, 0), "tiny", "again", 7)]
+    rows = run_campaign(relabelled, tmp_path, rows_suffice=True)
+    assert calls == [] and rows.iloc[0]["repose_angle"] == first.iloc[0]["repose_angle"]
+    assert (rows.iloc[0]["design"], rows.iloc[0]["run_id"]) == ("again", 7)
+    run_campaign(reqs, tmp_path)
+    assert calls == [reqs[0].hash]  # a caller that needs the folder gets it back
+
+
 def test_host_reports_the_simd_level_numpy_dispatches_on():
     """The level in the host column follows numpy's dispatch, NPY_DISABLE_CPU_FEATURES included
     (which is how performance.md's "Reproducibility" shows that the SIMD level changes heaps)."""

@@ -83,5 +83,5 @@ def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0,
     reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
                           repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True,
                           engine=heap_engine(resolve_settings(run, None, None)))
-    rows = run_campaign(reqs, run, workers)
+    rows = run_campaign(reqs, run, workers, rows_suffice=True)
     return per_condition(rows, conds["condition_id"]), rows

@@ -26,7 +26,7 @@ from ..dem.heap import HeapTest, Numerics, condition_dict, resume, run_heap
 from ..dem.render import render_side_view
 from ..imaging.measure import measure_image
 from ..profile import fullness
-from .index import append_index
+from .index import append_index, load_results
 from .keys import RUNS, Request, host
 
 #: environment variable: other run directories (os.pathsep-separated) whose finished runs a
@@ -186,8 +186,12 @@ def _reuse(run_hash: str, run_dir: Path) -> bool:
 def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
                  on_done: Callable[[Request, dict], None] | None = None,
                  on_progress: Callable | None = None, dask: str | None = None,
-                 reuse: bool = True, force: bool = False) -> pd.DataFrame:
+                 reuse: bool = True, force: bool = False, rows_suffice: bool = False) -> pd.DataFrame:
     """Run every request (cached ones are loaded, not recomputed); return their rows.
+
+    With ``rows_suffice`` (a caller that reads only the heaps' rows, not their folders: the posterior's
+    rounds, compare, diagnose) a heap whose row the run's results index holds is not simulated again
+    when its folder is gone: a committed run keeps its rows, not its heaps' folders.
 
     With ``reuse``, runs that the run directories in $CALIB_REUSE have finished are copied
     (:func:`reusable`). ``force`` (``--force``) recomputes every request, cached or not, and copies
@@ -215,7 +219,13 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
             on_done(requests[i], rows[i])
 
     todo, cached, twins = _plan(requests, run_dir, force, reuse)
-    append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached])
+    indexed = _indexed_rows(run_dir, [requests[i].hash for i in todo]) if rows_suffice and not force else {}
+    for i in [i for i in todo + twins if requests[i].hash in indexed]:
+        label(i, indexed[requests[i].hash])
+    todo, twins = [i for i in todo if rows[i] is None], [i for i in twins if rows[i] is None]
+    append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached]
+                 + [rows[i] for i in range(len(requests)) if rows[i] is not None and i not in cached])
+    cached = [i for i in range(len(requests)) if rows[i] is not None]
     for i in cached:  # one write of the index for all of them
         if on_done:
             on_done(requests[i], rows[i])
@@ -234,6 +244,17 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     for i in twins:  # computed once, above, under its first request's labels
         finish(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
     return pd.DataFrame([r for r in rows if r is not None])
+
+
+def _indexed_rows(run_dir: Path, hashes: list[str]) -> dict[str, dict]:
+    """The results index's row of each of ``hashes`` it holds (the last, where a heap was indexed twice),
+    without its labels (the request's are put on it)."""
+    index = load_results(run_dir)
+    if index.empty or "run_hash" not in index.columns or not hashes:
+        return {}
+    hit = index[index["run_hash"].isin(set(hashes))].drop_duplicates("run_hash", keep="last")
+    labels = {"design", "run_id", "repeat", "condition_id"}
+    return {r["run_hash"]: {k: v for k, v in r.items() if k not in labels} for r in hit.to_dict("records")}
 
 
 def _run_on_dask(todo: list[tuple[int, Request]], run_dir: Path, dask: str, workers: int, force: bool,

@@ -187,7 +187,8 @@ def _dir(run: Path, model: Model, k: int) -> Path:
 def _simulate(run: Path, design: pd.DataFrame, model: Model, conds: pd.DataFrame, setup: dict, plan: Plan,
               workers: int, dask: Optional[str], on_heap: Optional[Callable]) -> pd.DataFrame:
     """Run a round's heaps (cached ones are read); a kill loses only the heaps in flight."""
-    return run_campaign(_requests(design, model, conds, setup, plan), run, workers, on_done=on_heap, dask=dask)
+    return run_campaign(_requests(design, model, conds, setup, plan), run, workers, on_done=on_heap, dask=dask,
+                        rows_suffice=True)
 
 
 # ------------------------------------------------------------------ the posterior of a round
