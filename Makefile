@@ -95,12 +95,12 @@ foreign-control: setup
 
 # A slippery floor and cylinder: diagnose ranks wall friction first, the recalibration recovers it
 # (31 min on 2 cores with the hidden-effect run's heaps to copy, ~40 min from nothing;
-# docs/tutorial-hidden-effect.md section 7)
+# docs/changelog.md, the former tutorial section 7)
 hidden-wall: setup
 	$(CALIB) run stages/hidden-wall.toml --run $(WALL) --var reuse=$(LAB)
 
 # A rough floor and cylinder: not found, the grains' rolling friction absorbs it (39 min on 2 cores with
-# the hidden-effect run's heaps to copy, ~47 min from nothing; docs/tutorial-hidden-effect.md section 8)
+# the hidden-effect run's heaps to copy, ~47 min from nothing; docs/changelog.md, the former tutorial section 8)
 hidden-floor: setup
 	$(CALIB) run stages/hidden-floor.toml --run $(FLOOR) --var reuse=$(LAB)
 
@@ -149,6 +149,7 @@ sample-photos: setup
 docs: setup
 	$(VENV)/bin/typer calib_cli.cli utils docs --name calib --output docs/cli.md
 	$(PY) -m calib_cli.cli.docs docs/cli.md
+	$(PY) -m calib_cli.cli.docs outputs docs/tutorial-hidden-effect.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

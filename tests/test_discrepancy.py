@@ -519,7 +519,7 @@ def test_slippery_walls_are_found_on_dem_heaps(hidden_wall_lab):
 @pytest.mark.slow
 @pytest.mark.xfail(reason="on the sample run wall friction is first (p = 1.5e-6), but cohesion too passes the bar after "
                    "Bonferroni (p = 0.011 < 0.05/3), and revision 1 cut the RMSE by 1.99x (1.63 -> 0.82 deg), not 2x "
-                   "(docs/tutorial-hidden-effect.md section 7)", strict=False)
+                   "(docs/changelog.md, the former tutorial section 7)", strict=False)
 def test_diagnose_ranks_slippery_walls_first(hidden_wall_lab):
     """The issue's bar for `make hidden-wall`: diagnose ranks wall friction first and significant and
     nothing else, and the recalibration cuts the RMSE by a factor 2."""
@@ -534,7 +534,7 @@ def test_diagnose_ranks_slippery_walls_first(hidden_wall_lab):
 @pytest.mark.slow
 @pytest.mark.xfail(reason="not found: on the sample run revision 0 fails one condition and diagnose finds nothing "
                    "significant (best: cohesion p = 0.40; the floor p = 0.83, confounded with cohesion); adding the "
-                   "floor anyway gives 1.46 -> 0.62 deg and no failure (docs/tutorial-hidden-effect.md section 8)",
+                   "floor anyway gives 1.46 -> 0.62 deg and no failure (docs/changelog.md, the former tutorial section 8)",
                    strict=False)
 def test_rough_floor_is_found_on_dem_heaps(tmp_path):
     """`make hidden-floor`: the floor's rolling resistance 0.4 against the grains' 0.15, a third

@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Annotated, Optional
 
 import typer
+from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .common import AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, console, df_table, posterior_table, say
@@ -80,10 +81,22 @@ def calibrate(
     if r.skipped:
         console.print(f"[green]✓[/] calibrate rev{r.revision}: inputs and settings unchanged, nothing to do "
                       "(use --force to rerun)")
-    console.print(df_table(posterior_table(r.table), f"posterior of model revision {r.revision}: 90 % intervals"))
-    for row in r.table.itertuples():
-        console.print(f"[bold]{row.parameter}[/]: {row.verdict}")
-    console.print(df_table(r.per_round(), "rounds: heaps and 90 % intervals"))
-    console.print(f"stopped: {r.stop}")
+    show_calibration(r)
     console.print(f"next: `calib compare --run {run}` simulates the most probable draw at every condition; "
                   f"`calib suggest-conditions --run {run} --rig RIG.toml` names the conditions to measure next")
+
+
+def show_answer(r, out: Console = console) -> None:
+    """The posterior as `calib calibrate` prints it: its table, then each parameter's verdict."""
+    out.print(df_table(posterior_table(r.table), f"posterior of model revision {r.revision}: 90 % intervals",
+                       width=out.width))
+    for row in r.table.itertuples():
+        out.print(f"[bold]{row.parameter}[/]: {row.verdict}")
+
+
+def show_calibration(r, out: Console = console) -> None:
+    """A :class:`~calib_cli.stages.calibrate.CalibrateResult` as `calib calibrate` prints it: the answer, the
+    rounds that led to it and why they stopped."""
+    show_answer(r, out)
+    out.print(df_table(r.per_round(), "rounds: heaps and 90 % intervals", width=out.width))
+    out.print(f"stopped: {r.stop}")

@@ -244,9 +244,10 @@ def _width(t: Table) -> int:
 
 
 def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
-    """A posterior's summary as printed: per parameter its median, 90 % interval, width over its range,
-    whether identified or pressed against an edge of its range, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
-    autocorrelation time and whether they are long enough for it."""
+    """A posterior's summary as printed: per parameter its median and 90 % interval (3 digits, as its
+    verdict says them), the interval's width over its range, whether identified or pressed against an
+    edge of its range, the Bayes factor of its effect off ("< x" where it is a bound), and the chains'
+    autocorrelation time (tau, in steps) and whether they are long enough for it."""
     import numpy as np
     import pandas as pd
 
@@ -254,10 +255,11 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
 
     upper = table["bf_upper"] if "bf_upper" in table.columns else pd.Series(False, index=table.index)
     bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
-    out = table[["parameter", "median", "q05", "q95", "rel_width", "identified"]]
+    three = {c: [float(f"{v:.3g}") for v in table[c]] for c in ("median", "q05", "q95")}
+    out = table[["parameter"]].assign(**three, rel_width=table["rel_width"].round(2), identified=table["identified"])
     if "edge" in table.columns and (table["edge"].fillna("") != "").any():
         out = out.assign(at_edge=table["edge"])
-    return out.assign(bf_off=bf, autocorr_time=table["autocorr_time"], chain_ok=table["chain_ok"])
+    return out.assign(bf_off=bf, tau=table["autocorr_time"].round(1), chain_ok=table["chain_ok"])
 
 
 def other_revision(run: Path, at_revision: Optional[int]) -> bool:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
+from rich.console import Console
 
 from ..errors import CalibError
 from .common import (PRESETS_HELP, AtRevisionOpt, CalibCommand, CalibGroup, ForceOpt, PresetOpt, RunOpt,
@@ -112,11 +113,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats:
     r = compare_stage.compare(run, set_, preset, repeats, workers, shear_modulus, force, say=say)
     if r.skipped:
         return skipped(r.stage)
-    console.print(df_table(r.summary(), f"model vs measurements (revision {r.revision})"))
-    console.print(f"RMSE {r.stats['rmse']:.2f} deg, chi2/dof {r.stats['chi2_dof']:.2f}, "
-                  f"{r.stats['n_fail']} of {r.stats['n_conditions']} condition(s) fail (|z| > 2)")
-    if len(r.history) > 1:
-        console.print(df_table(r.history[["revision", "effects", "rmse", "chi2_dof", "n_fail"]], "error history"))
+    show_comparison(r)
 
 
 def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3,
@@ -145,9 +142,7 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
     r = diagnose_stage.diagnose(run, set_, preset, repeats, workers, shear_modulus, alpha, force, say=say)
     if r.skipped:
         return skipped(r.stage)
-    console.print(df_table(r.summary(), f"missing effects, ranked (model revision {r.revision})"))
-    for line in r.conclusion():
-        console.print(line)
+    show_ranking(r)
 
 
 def suggest_conditions(
@@ -188,9 +183,7 @@ def suggest_conditions(
                                          repeats=repeats, workers=workers, shear_modulus=shear_modulus)
     if r.skipped:
         return skipped(r.stage)
-    console.print(df_table(r.summary(), "the next conditions to measure, best first"))
-    for line in r.conclusion():
-        console.print(line)
+    show_suggestions(r)
     console.print(f"[green]✓[/] {r.dir / 'conditions.csv'}")
 
 
@@ -227,3 +220,32 @@ def synth_lab(
     r = lab.synth_lab(out, set_, hidden, sizes, cylinders, fill_ratio, fills, repeats, preset, workers, shear_modulus,
                       floor, noise, seed, engine, px_per_m)
     console.print(f"[green]✓[/] {r.summary()}")
+
+
+# ------------------------------------------------------------------ the tables, as printed (also by `make docs`)
+def show_comparison(r, out: Console = console) -> None:
+    """compare's table per condition, its fit in one line and the error history across revisions."""
+    out.print(df_table(r.summary(), f"model vs measurements (revision {r.revision})", width=out.width))
+    out.print(f"RMSE {r.stats['rmse']:.2f} deg, chi2/dof {r.stats['chi2_dof']:.2f}, "
+              f"{r.stats['n_fail']} of {r.stats['n_conditions']} condition(s) fail (|z| > 2)")
+    if len(r.history) > 1:
+        show_history(r, out)
+
+
+def show_history(r, out: Console = console) -> None:
+    out.print(df_table(r.history[["revision", "effects", "rmse", "chi2_dof", "n_fail"]], "error history",
+                       width=out.width))
+
+
+def show_ranking(r, out: Console = console) -> None:
+    """diagnose's ranking of the missing effects and each one's evidence in words."""
+    out.print(df_table(r.summary(), f"missing effects, ranked (model revision {r.revision})", width=out.width))
+    for line in r.conclusion():
+        out.print(line)
+
+
+def show_suggestions(r, out: Console = console) -> None:
+    """suggest-conditions' ranking and its reasons."""
+    out.print(df_table(r.summary(), "the next conditions to measure, best first", width=out.width))
+    for line in r.conclusion():
+        out.print(line)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.console import Console
 from rich.progress import Progress
 
 from .common import ForceOpt, RunOpt, console, df_table, say, skipped
@@ -68,8 +69,13 @@ def measure_angle(
                            f"measure-angle -> {res.dir / 'angles.parquet'}"))
     for note in res.notes():
         console.print(note)
-    console.print(df_table(res.summary(), "Per condition (cf. paper Table 1)"))
+    show_conditions(res)
     alike = floors_alike(res.conditions)
     if alike:
         console.print(f"[yellow]warning:[/] floors {', '.join(alike)} have no values that tell them apart "
                       f"({', '.join(FLOOR_VARIABLES)}): they will be simulated as one floor")
+
+
+def show_conditions(res, out: Console = console) -> None:
+    """measure-angle's per-condition statistics (paper Table 1) as the command prints them."""
+    out.print(df_table(res.summary(), "Per condition (cf. paper Table 1)", width=out.width))

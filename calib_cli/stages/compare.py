@@ -66,6 +66,11 @@ class CompareResult(Result):
         if self.residuals is None and (self.dir / "residuals.parquet").is_file():
             self.residuals = art.read_table(self.dir / "residuals.parquet")
             self.history = art.read_table(self.dir / "history.parquet")
+            self.revision = int(art.read_provenance(self.dir / "residuals.parquet").get("model_revision", 0))
+            row = self.history[self.history["revision"] == self.revision]
+            if len(row):
+                self.stats = {"rmse": float(row["rmse"].iloc[-1]), "chi2_dof": float(row["chi2_dof"].iloc[-1]),
+                              "n_fail": int(row["n_fail"].iloc[-1]), "n_conditions": int(row["n_conditions"].iloc[-1])}
 
     def summary(self) -> pd.DataFrame:
         """Measured against simulated angle per condition, the residual and its z."""

@@ -41,6 +41,7 @@ class DiagnoseResult(Result):
     def __post_init__(self):
         if self.ranking is None and (self.dir / "ranking.parquet").is_file():
             self.ranking = art.read_table(self.dir / "ranking.parquet")
+            self.revision = int(art.read_provenance(self.dir / "ranking.parquet").get("model_revision", 0))
 
     def summary(self) -> pd.DataFrame:
         return self.ranking[["effect", "score", "p_value", "explained_fraction", "signature_p"]]
