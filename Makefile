@@ -149,7 +149,7 @@ sample-photos: setup
 docs: setup
 	$(VENV)/bin/typer calib_cli.cli utils docs --name calib --output docs/cli.md
 	$(PY) -m calib_cli.cli.docs docs/cli.md
-	$(PY) -m calib_cli.cli.docs outputs docs/tutorial-hidden-effect.md
+	$(PY) -m calib_cli.cli.docs outputs docs/*.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

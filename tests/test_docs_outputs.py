@@ -34,3 +34,14 @@ def test_a_block_edited_by_hand_or_left_behind_by_its_run_is_stale():
     assert stale == [m["spec"]] and fixed == refresh(text, ROOT)[0]
     # each block begins with the command that wrote the files it shows
     assert m["body"].startswith("$ calib compare --run sample_runs/")
+
+
+def test_a_block_without_its_end_is_refused_not_merged_with_the_next():
+    """A lost end line must not let one block swallow the prose and the block after it."""
+    from calib_cli.errors import CalibError
+
+    text = TUTORIAL.read_text()
+    m = next(BLOCK.finditer(text))
+    broken = text[:m.start("tail")] + "```\n" + text[m.end("tail"):]
+    with pytest.raises(CalibError, match="end output"):
+        refresh(broken, ROOT)

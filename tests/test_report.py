@@ -93,6 +93,15 @@ def test_first_screen_of_a_run_with_diagnose():
     assert "No simulated side view is kept in this run directory for any condition" in top
 
 
+def test_first_screen_of_the_lammps_lab_flags_the_interval_its_box_cut():
+    """foreign-lab: restitution crowds the top of its prior (0.5): a red 'at upper edge', not 'identified',
+    and the headline says to widen the range; surface energy is identified and cohesion called for."""
+    top = summary_of(build_report(RUNS / "foreign-lab"))
+    assert "restitution</td><td>0.482</td>" in top and ">at upper edge<" in top
+    assert "Pressed against an edge of its range, so cut by it: restitution" in top
+    assert "Identified by the data: surface energy" in top and top.count(">identified<") == 1
+
+
 def test_first_screen_degrades_on_the_paper_and_smoke_runs():
     paper = summary_of(build_report(RUNS / "paper"))
     assert "Not checked by simulation" in paper and "surrogate prediction at the solution" in paper

@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import Callable
 
 WIDTH = 120
-BLOCK = re.compile(r"(?P<head><!-- output: (?P<spec>[^>]*?) -->\n```text\n)(?P<body>.*?)(?P<tail>```\n<!-- end output -->)",
-                   re.S)
+#: a block's body stops at its own end: it cannot run on into the next block's head
+BLOCK = re.compile(r"(?P<head><!-- output: (?P<spec>[^>]*?) -->\n```text\n)"
+                   r"(?P<body>(?:(?!<!-- (?:end )?output).)*?)(?P<tail>```\n<!-- end output -->)", re.S)
 
 
 def unescape_markdown(text: str) -> str:
@@ -44,6 +45,7 @@ def _calibrate(run: Path, out, revision: str | None = None, rounds: str = "yes")
     """The answer and the rounds of the run's current revision; of an earlier ``revision``, its last round's
     posterior (the answer sampled longer was replaced in posterior/ by the later revision's)."""
     from .. import artifacts as art
+    from ..errors import CalibError
     from ..stages.calibrate import CalibrateResult
     from .calibrate_cmd import show_answer, show_calibration
 
@@ -56,6 +58,10 @@ def _calibrate(run: Path, out, revision: str | None = None, rounds: str = "yes")
         last = int(r.rounds["round"].max())
         made = f"calibrate/rev{r.revision}/round-{last:02d}/summary.parquet"
         r.table, r.stop = art.read_table(run / made), str(r.rounds["stop"].iloc[-1])
+    revision_of = int(art.read_provenance(run / made).get("model_revision", r.revision))
+    if revision_of != r.revision:  # calibrate-posterior wrote it since: not this calibration's answer
+        raise CalibError(f"{run / made} holds revision {revision_of}'s posterior, not calibrate's of revision "
+                         f"{r.revision}")
     (show_calibration if rounds == "yes" else show_answer)(r, out)
     return made
 
@@ -117,7 +123,11 @@ def render(spec: str, root: Path) -> str:
 
 def refresh(text: str, root: Path) -> tuple[str, list[str]]:
     """``text`` with every output block rendered again, and the specs of the blocks that changed."""
+    from ..errors import CalibError
+
     stale: list[str] = []
+    if text.count("<!-- output:") != len(BLOCK.findall(text)):
+        raise CalibError("an output block lacks its ```text fence or its <!-- end output --> line")
 
     def one(m: re.Match) -> str:
         body = render(m["spec"], root)

@@ -5,5 +5,6 @@
 - :mod:`.runner` running requests (cached, resumable; local pool, Dask or GPU batches)
 - :mod:`.index`  the results index ``RUN/simulate/results.parquet``: its readers and writer
 
-Most code only reads results (:mod:`.index`), which imports neither the kernel's runner nor the imaging.
+Most code only reads results (:mod:`.index`), which imports neither :mod:`.runner` (the executors) nor the
+imaging (a contract in pyproject.toml holds it); it does import the heap's definitions (calib_cli.dem.heap).
 """

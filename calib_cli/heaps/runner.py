@@ -219,7 +219,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
             on_done(requests[i], rows[i])
 
     todo, cached, twins = _plan(requests, run_dir, force, reuse)
-    indexed = _indexed_rows(run_dir, [requests[i].hash for i in todo]) if rows_suffice and not force else {}
+    indexed = _indexed_rows(run_dir, [requests[i] for i in todo]) if rows_suffice and not force else {}
     for i in [i for i in todo + twins if requests[i].hash in indexed]:
         label(i, indexed[requests[i].hash])
     todo, twins = [i for i in todo if rows[i] is None], [i for i in twins if rows[i] is None]
@@ -246,15 +246,20 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     return pd.DataFrame([r for r in rows if r is not None])
 
 
-def _indexed_rows(run_dir: Path, hashes: list[str]) -> dict[str, dict]:
-    """The results index's row of each of ``hashes`` it holds (the last, where a heap was indexed twice),
-    without its labels (the request's are put on it)."""
+def _indexed_rows(run_dir: Path, requests: list[Request]) -> dict[str, dict]:
+    """The results index's row of each request's heap it holds, without its labels (the request's are put
+    on it): the row under the request's own labels where there is one (a heap recomputed under them with
+    --force is rewritten there), else any row of that heap."""
     index = load_results(run_dir)
-    if index.empty or "run_hash" not in index.columns or not hashes:
+    if index.empty or "run_hash" not in index.columns or not requests:
         return {}
-    hit = index[index["run_hash"].isin(set(hashes))].drop_duplicates("run_hash", keep="last")
-    labels = {"design", "run_id", "repeat", "condition_id"}
-    return {r["run_hash"]: {k: v for k, v in r.items() if k not in labels} for r in hit.to_dict("records")}
+    labels = ["design", "run_id", "repeat", "condition_id"]
+    hit = index[index["run_hash"].isin({r.hash for r in requests})]
+    own = {(r.hash, r.design, r.run_id, r.repeat, r.condition_id) for r in requests}
+    mine = [tuple(x) in own for x in hit[["run_hash", *labels]].itertuples(index=False)]
+    hit = hit.assign(_own=mine).sort_values("_own", kind="stable").drop_duplicates("run_hash", keep="last")
+    return {r["run_hash"]: {k: v for k, v in r.items() if k not in labels and k != "_own"}
+            for r in hit.to_dict("records")}
 
 
 def _run_on_dask(todo: list[tuple[int, Request]], run_dir: Path, dask: str, workers: int, force: bool,

@@ -153,7 +153,7 @@ def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
         decided = bool(getattr(r, "decided", True))
         edge = str(getattr(r, "edge", "") or "")
         state = (badge("undecided", "warn") if not decided
-                 else badge(f"at its range's {'lower' if edge == 'low' else 'upper'} edge: widen it", "fail") if edge
+                 else badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge
                  else badge("identified", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
         rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
