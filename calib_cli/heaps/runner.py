@@ -219,14 +219,15 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
             on_done(requests[i], rows[i])
 
     todo, cached, twins = _plan(requests, run_dir, force, reuse)
+    for i in cached:
+        label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
     indexed = _indexed_rows(run_dir, [requests[i] for i in todo]) if rows_suffice and not force else {}
     for i in [i for i in todo + twins if requests[i].hash in indexed]:
         label(i, indexed[requests[i].hash])
     todo, twins = [i for i in todo if rows[i] is None], [i for i in twins if rows[i] is None]
-    append_index(run_dir, [label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json")) for i in cached]
-                 + [rows[i] for i in range(len(requests)) if rows[i] is not None and i not in cached])
-    cached = [i for i in range(len(requests)) if rows[i] is not None]
-    for i in cached:  # one write of the index for all of them
+    cached = [i for i in range(len(requests)) if rows[i] is not None]  # from their folders or the index
+    append_index(run_dir, [rows[i] for i in cached])  # one write of the index for all of them
+    for i in cached:
         if on_done:
             on_done(requests[i], rows[i])
     on_gpu = [i for i in todo if requests[i].engine == "gpu"]
