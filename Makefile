@@ -35,8 +35,11 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 	$(VENV)/bin/pip install -q -c constraints.txt -e '.[test]'
 	touch $@
 
+# the tests on one process per core (pytest-xdist; tests/conftest.py compiles the kernel's law
+# compositions first, once each); TEST_PROCS=0 runs them in this process
+TEST_PROCS ?= auto
 test: setup
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" -n $(TEST_PROCS)
 
 test-all: setup
 	$(PY) -m pytest -q

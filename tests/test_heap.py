@@ -422,6 +422,7 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("needs 2 numba threads")
     params = {"static_friction": 0.3, "rolling_friction": 0.1, "surface_energy": 0.5, "restitution": 0.3}
+    before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
         a = run_heap(params, TINY, TINY_NUM, seed=3)
@@ -429,7 +430,7 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
         b = run_heap(params, TINY, TINY_NUM, seed=3, progress=lambda *_: numba.set_num_threads(1 + next(flip) % 2))
         assert next(flip) > 4  # the thread count changed many times
     finally:
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        numba.set_num_threads(before)
     np.testing.assert_array_equal(a.system.particles.pos, b.system.particles.pos)
     assert a.angle.angle == b.angle.angle and a.system.n_steps == b.system.n_steps
 

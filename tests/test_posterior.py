@@ -756,8 +756,9 @@ def test_the_answer_averages_an_effect_on_and_off_by_its_bayes_factor():
 
 def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     """Restitution crowding the box's top (0.5; its physical bound is 1): flagged "high", not identified,
-    the words say to widen factors.restitution.high. Cohesion crowding 0 (its neutral value, where the
-    Bayes factor speaks) and a narrow posterior inside the box are not flagged."""
+    the words say to widen factors.restitution.high (under --prior heaps: to simulate heaps beyond it).
+    Cohesion crowding 0 (its neutral value, where the Bayes factor speaks) and a narrow posterior inside
+    the box are not flagged."""
     from calib_cli.posterior.evidence import EDGE_SHARE, pressed_edge, verdicts
 
     rng = np.random.default_rng(3)
@@ -771,6 +772,10 @@ def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     t = verdicts(table, samples, ratio=0.3).set_index("parameter")
     assert t.loc["restitution", "edge"] == "high" and not t.loc["restitution", "identified"]
     assert "widen factors.restitution.high" in t.loc["restitution", "verdict"]
+    assert "heaps beyond" not in t.loc["restitution", "verdict"]
+    # with --prior heaps the box is the heaps' span: only heaps beyond it widen it
+    h = verdicts(table, samples, ratio=0.3, prior="heaps").set_index("parameter")
+    assert "simulate heaps beyond it (the prior is the span of the heaps at hand" in h.loc["restitution", "verdict"]
     assert t.loc["surface_energy", "edge"] == "" and t.loc["rolling_friction", "edge"] == ""
     assert t.loc["rolling_friction", "identified"]
     # the rule's threshold: a flat posterior puts a quarter of EDGE_SHARE in the band; at its physical bound

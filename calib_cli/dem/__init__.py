@@ -11,6 +11,7 @@ Imports nothing from the CLI. Layers, each usable alone:
 - :mod:`.neighbours` Verlet neighbour list from a cell list, contact history carried over
 - :mod:`.forces`     one composed contact, and every contact of a step
 - :mod:`.integrate`  velocity-Verlet steps in compiled chunks
+- :mod:`.compile`    each law composition's kernel compiled once per machine (a lock beside the cache)
 - :mod:`.timestep`   critical time steps
 - :mod:`.system`     a particle system with walls; a factory returns its step function
 - :mod:`.heap`      the heap test scenario (fill, settle, lift, rest) and presets

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibError
+from .compile import compile_composition
 from .forces import forces_of
 from .integrate import NEED_CAPACITY, stepper
 from .laws.columns import CYL, E_S, FLOOR, G_S, GAMMA, HIST, PP
@@ -119,6 +120,7 @@ class System:
         self.cnew = np.zeros(n)
         self._alloc(16 * n + 64)
         self._rebuild()
+        compile_composition(self.model.spec)  # once per machine: other processes wait, then load it
         forces_of(self.model.spec)(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
                        self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.gap, self.geo, self.grav, self.dt,
                        self.force, self.torque, self.ncont, self.cnew, self.pf)

@@ -281,13 +281,14 @@ def surrogate_ratios(gp: GPSurrogate, second: Optional[SecondResponse], measured
 
 
 # ------------------------------------------------------------------ the verdicts
-def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0) -> pd.DataFrame:
+def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, prior: str = "settings") -> pd.DataFrame:
     """Each parameter's verdict in words, and for an effect the model gained (not a default one) the
     Bayes factor of "off" against the posterior (``bf_off``; ``bf_upper`` where no draw fell near
     the neutral value and it is an upper bound from the effective draws). Where the surrogate is
     unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against; a
     posterior pressed against a bound of its box that could be wider (``edge``: low/high, see
-    :func:`pressed_edge`) is not called identified: its width is the box's, not the data's."""
+    :func:`pressed_edge`) is not called identified: its width is the box's, not the data's, and the verdict
+    says how to widen the box of this ``prior`` (:data:`PRIORS`)."""
     owner = {e.parameter: e for e in EFFECTS.values()}
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
@@ -300,7 +301,7 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0) -> 
     table["edge"] = [pressed_edge(samples[r.parameter].to_numpy(float), r.low, r.high, owner.get(r.parameter),
                                   r.neutral) for r in table.itertuples()]
     table["identified"] = table["identified"] & (not unsure) & (table["edge"] == "")
-    table["verdict"] = [_words(r, owner, unsure) for r in table.itertuples()]
+    table["verdict"] = [_words(r, owner, unsure, prior) for r in table.itertuples()]
     return table
 
 
@@ -325,7 +326,15 @@ def bf_text(bf: float, upper: bool) -> str:
     return f"< {bf:.2g}" if upper else f"{bf:.2g}"
 
 
-def _words(r, owner, unsure: bool) -> str:
+def _widen(r, prior: str) -> str:
+    """How to give a posterior pressed against its box's ``r.edge`` more room, by the prior's kind."""
+    if prior == "heaps":  # the box is the heaps' span: only heaps beyond it widen it
+        return (f"simulate heaps beyond it (the prior is the span of the heaps at hand; widen factors.{r.parameter}."
+                f"{r.edge} in settings.toml and run `calib calibrate`)")
+    return f"widen factors.{r.parameter}.{r.edge} in settings.toml and calibrate again"
+
+
+def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
     if unsure:
         w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.3g}x "
              f"the measured means'); 90 % between {r.q05:.3g} and {r.q95:.3g}: simulate heaps where the posterior "
@@ -333,8 +342,8 @@ def _words(r, owner, unsure: bool) -> str:
     elif r.edge:
         bound = r.low if r.edge == "low" else r.high
         w = (f"at its range's {'lower' if r.edge == 'low' else 'upper'} edge: 90 % between {r.q05:.3g} and "
-             f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it (widen factors.{r.parameter}."
-             f"{r.edge} in settings.toml and calibrate again) or the model lacks an effect")
+             f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it ({_widen(r, prior)}) or the model "
+             "lacks an effect")
     elif r.identified:
         w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
     else:
@@ -484,7 +493,7 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                scatter=evidence["scatter"], second=second, columns=share)
     ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
-    table = verdicts(post.summary(), post.samples_, ratios["combined"])
+    table = verdicts(post.summary(), post.samples_, ratios["combined"], prior)
     evidence.update(prior=prior, bounds=bounds)
     fit = PosteriorFit(model, table, post.samples_.assign(log_prob=post.log_prob_), held, gp, second, rows, ratios,
                        evidence, post)
@@ -513,7 +522,8 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
                               scatter=fit.evidence["scatter"], second=fit.second, columns=share)
     draws = averaged_draws(fit.samples, off.samples_.assign(**{r.parameter: r.neutral}, log_prob=off.log_prob_),
                            p_off, seed)
-    table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"])
+    table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"],
+                     fit.evidence.get("prior", "settings"))
     table["p_off"] = np.where(table["parameter"] == r.parameter, p_off, np.nan)
     name = next(e.name for e in EFFECTS.values() if e.parameter == r.parameter)
     table["verdict"] = [w + (f"; the intervals average {name} on and off (probability off {p_off:.2g})"

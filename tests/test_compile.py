@@ -1,0 +1,63 @@
+"""A law composition's kernel compiles once per machine (calib_cli.dem.compile)."""
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from calib_cli.dem.compile import compile_composition
+from calib_cli.dem.forces import forces_of
+from calib_cli.dem.integrate import stepper
+from calib_cli.dem.laws import ContactModel
+from calib_cli.dem.materials import Interaction, Material
+from calib_cli.dem.system import Particles, System, Walls
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_ahead_compile_has_the_types_a_system_calls_with():
+    """After compile_composition, a system of that composition (grains, floor, cylinder) adds no second
+    machine code to the step or the force function: what was compiled (or loaded) is what runs."""
+    spec = ContactModel(normal="jkr").spec
+    compile_composition(spec)
+    before = len(stepper(spec).signatures), len(forces_of(spec).signatures)
+    r = 2e-3
+    p = Particles([[0, 0, r], [2.5 * r, 0, r]], [r, r], vel=[[0.1, 0, 0], [0, 0, 0]])
+    it = Interaction(0.3, 0.1, 0.5, 0.4, 0.0, 0.0, 0.0)
+    s = System(p, material=Material(5e6, 0.25, 2600.0), pp=it, floor=it, cylinder=it,
+               walls=Walls(True, 0.02, 0.01, 0.0))
+    assert s.model.spec == spec
+    s.advance(20)
+    assert before == (1, 1)
+    assert (len(stepper(spec).signatures), len(forces_of(spec).signatures)) == before
+
+
+def test_a_second_process_waits_for_the_composition_another_compiles(tmp_path):
+    """While one process holds a composition's lock (compiling it), another asking for the same one waits
+    until it is released (then finds the machine code in the cache instead of compiling it again); a
+    different composition has a lock of its own."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
+    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
+            "with _machine_lock('a-spec'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
+    wait = ("import time\nfrom calib_cli.dem.compile import _machine_lock\n"
+            "with _machine_lock('another-spec'):\n    pass\n"
+            "print('asking', flush=True)\nt = time.perf_counter()\n"
+            "with _machine_lock('a-spec'):\n    print(time.perf_counter() - t, flush=True)\n")
+    run = dict(env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen([sys.executable, "-c", hold], **run)
+    waiter = None
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        waiter = subprocess.Popen([sys.executable, "-c", wait], **run)
+        assert waiter.stdout.readline().strip() == "asking"  # the other composition's lock was free
+        time.sleep(1.0)
+        holder.stdin.write("\n")
+        holder.stdin.flush()
+        assert float(waiter.stdout.readline()) > 0.9  # it waited until the holder let go
+    finally:
+        for proc in (holder, waiter):
+            if proc is not None:
+                proc.stdin.close()  # the holder lets go when its input ends
+                proc.wait(timeout=60)
+    assert len(list(tmp_path.glob("compile-*.lock"))) == 2  # one lock file per composition
