@@ -251,14 +251,14 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
     import numpy as np
     import pandas as pd
 
-    from ..posterior.evidence import bf_text
+    from ..posterior.evidence import bf_text, edges
 
     upper = table["bf_upper"] if "bf_upper" in table.columns else pd.Series(False, index=table.index)
     bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
     three = {c: [float(f"{v:.3g}") for v in table[c]] for c in ("median", "q05", "q95")}
     out = table[["parameter"]].assign(**three, rel_width=table["rel_width"].round(2), identified=table["identified"])
-    if "edge" in table.columns and (table["edge"].fillna("") != "").any():
-        out = out.assign(at_edge=table["edge"])
+    if (edges(table) != "").any():
+        out = out.assign(at_edge=edges(table))
     return out.assign(bf_off=bf, tau=table["autocorr_time"].round(1), chain_ok=table["chain_ok"])
 
 

@@ -50,14 +50,9 @@ def _calibrate(run: Path, out, revision: str | None = None, rounds: str = "yes")
     from .calibrate_cmd import show_answer, show_calibration
 
     r = CalibrateResult(_stage(run, "calibrate", "rounds"))
-    made = "posterior/summary.parquet"
-    if revision is not None and int(revision) != r.revision:
-        every = art.read_table(run / "calibrate" / "rounds.parquet")
-        r.revision = int(revision)
-        r.rounds = every[every["revision"] == r.revision].reset_index(drop=True)
-        last = int(r.rounds["round"].max())
-        made = f"calibrate/rev{r.revision}/round-{last:02d}/summary.parquet"
-        r.table, r.stop = art.read_table(run / made), str(r.rounds["stop"].iloc[-1])
+    if revision is not None:
+        r = r.at_revision(int(revision))
+    made = r.answer
     revision_of = int(art.read_provenance(run / made).get("model_revision", r.revision))
     if revision_of != r.revision:  # calibrate-posterior wrote it since: not this calibration's answer
         raise CalibError(f"{run / made} holds revision {revision_of}'s posterior, not calibrate's of revision "

@@ -305,6 +305,14 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     return table
 
 
+def edges(table: pd.DataFrame) -> pd.Series:
+    """Each parameter's ``edge`` of a summary ("low", "high" or ""; "" throughout in one written before the
+    column existed)."""
+    if "edge" not in table.columns:
+        return pd.Series("", index=table.index, dtype=object)
+    return table["edge"].fillna("").astype(str)
+
+
 def pressed_edge(s: np.ndarray, lo: float, hi: float, effect=None, neutral: float = math.nan) -> str:
     """"low" or "high" where the draws ``s`` crowd a bound of the prior box [lo, hi] (over EDGE_SHARE of
     them in its outer EDGE_BAND) that is neither the ``effect``'s own physical bound nor the ``neutral``

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ..model import EFFECTS
-from ..posterior.evidence import bf_text, effect_verdict
+from ..posterior.evidence import bf_text, edges, effect_verdict
 from ..posterior.suggest import best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
@@ -148,10 +148,9 @@ def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     units = {e.parameter: e.unit for e in EFFECTS.values()}
     rows = []
-    for r in post.itertuples(index=False):
+    for r, edge in zip(post.itertuples(index=False), edges(post)):
         unit = units.get(r.parameter, "-")
         decided = bool(getattr(r, "decided", True))
-        edge = str(getattr(r, "edge", "") or "")
         state = (badge("undecided", "warn") if not decided
                  else badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge
                  else badge("identified", "pass") if r.identified

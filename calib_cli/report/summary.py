@@ -161,12 +161,12 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
     each added effect's verdict with its Bayes factor."""
     from ..model import EFFECTS
-    from ..posterior.evidence import bf_text, effect_verdict
+    from ..posterior.evidence import bf_text, edges, effect_verdict
 
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').")
-    edge = post["edge"].fillna("").astype(str) != "" if "edge" in post.columns else pd.Series(False, post.index)
+    edge = edges(post) != ""
     ident = list(post.loc[post["identified"].astype(bool), "parameter"])
     loose = list(post.loc[~post["identified"].astype(bool) & ~edge, "parameter"])
     cut = list(post.loc[edge, "parameter"])

@@ -98,6 +98,7 @@ class CalibrateResult(Result):
     stop: str = ""
     revision: int = 0
     elsewhere: bool = False  # a step for another model revision: nothing to show
+    answer: str = "posterior/summary.parquet"  # the file ``table`` was read from, in the run directory
 
     def __post_init__(self):
         if self.rounds is None and not self.elsewhere and (self.dir / "rounds.parquet").is_file():
@@ -106,6 +107,20 @@ class CalibrateResult(Result):
             self.rounds = rounds[rounds["revision"] == self.revision].reset_index(drop=True)
             self.table = art.read_table(self.run_posterior / "summary.parquet")
             self.stop = str(self.rounds["stop"].iloc[-1]) if len(self.rounds) else ""
+
+    def at_revision(self, revision: int) -> "CalibrateResult":
+        """The run's calibration of model ``revision`` as its rounds left it: its rounds and, for an earlier
+        revision, its last round's posterior (posterior/ holds the current revision's answer)."""
+        if revision == self.revision:
+            return self
+        every = art.read_table(self.dir / "rounds.parquet")
+        rounds = every[every["revision"] == revision].reset_index(drop=True)
+        if rounds.empty:
+            raise CalibError(f"{self.dir} holds no calibration of model revision {revision}")
+        last = _round_dir(self.stage.run_dir, revision, int(rounds["round"].max())) / "summary.parquet"
+        answer = last.relative_to(self.stage.run_dir).as_posix()
+        return CalibrateResult(self.stage, rounds=rounds, table=art.read_table(self.stage.run_dir / answer),
+                               stop=str(rounds["stop"].iloc[-1]), revision=revision, answer=answer)
 
     @property
     def run_posterior(self) -> Path:
@@ -181,7 +196,12 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
 
 
 def _dir(run: Path, model: Model, k: int) -> Path:
-    return run / "calibrate" / f"rev{model.revision}" / f"round-{k:02d}"
+    return _round_dir(run, model.revision, k)
+
+
+def _round_dir(run: Path, revision: int, k: int) -> Path:
+    """Round ``k`` of model ``revision``'s calibration: its design, heaps' posterior and summary."""
+    return run / "calibrate" / f"rev{revision}" / f"round-{k:02d}"
 
 
 def _simulate(run: Path, design: pd.DataFrame, model: Model, conds: pd.DataFrame, setup: dict, plan: Plan,
