@@ -35,14 +35,14 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 	$(VENV)/bin/pip install -q -c constraints.txt -e '.[test]'
 	touch $@
 
-# the tests on one process per core (pytest-xdist; tests/conftest.py compiles the kernel's law
-# compositions first, once each); TEST_PROCS=0 runs them in this process
+# the tests on one process per core (pytest-xdist), each on one thread; a law composition's kernel
+# compiles once for all of them (calib_cli/dem/compile.py). TEST_PROCS=0 runs them in this process
 TEST_PROCS ?= auto
 test: setup
 	$(PY) -m pytest -q -m "not slow" -n $(TEST_PROCS)
 
 test-all: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_PROCS)
 
 # The main job: the paper's chain and a whole calibration from the sample photographs, computed into a
 # fresh folder runs/<date-time>/ (nothing of it is committed), then set beside the committed sample runs:
