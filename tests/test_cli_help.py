@@ -100,3 +100,23 @@ def test_a_wide_result_table_comes_in_parts_that_fit_100_columns(tmp_path, monke
         assert all(c in part for c in conditions)
     stats = art.read_table(tmp_path / "run" / "measure" / "conditions.parquet")
     assert f"{stats['ci95_high'].iloc[0]:.5g}" in per_condition
+
+
+@pytest.mark.parametrize("path", [p for p, _ in COMMANDS], ids=lambda p: " ".join(p))
+def test_the_description_is_wrapped_at_the_terminal_not_at_the_docstring(path):
+    """In an 80-column terminal each paragraph of the description fills its lines (typer keeps the
+    docstring's own line breaks after the first paragraph, which came out as ragged half-lines): every
+    line of a paragraph but its last reaches past half the width."""
+    r = CliRunner().invoke(app, [*path, "--help"], env={"COLUMNS": "80", "TERM": "dumb"})
+    head = r.output.split("╭")[0]  # the usage line and the description, before the options' boxes
+    paragraphs = [p.splitlines() for p in re.split(r"\n\s*\n", head.split("Usage:", 1)[1])[1:]]
+    short = [line for p in paragraphs for line in p[:-1] if len(line.rstrip()) < 40]
+    assert not short, short
+
+
+def test_unwrap_keeps_paragraphs_and_blocks_marked_as_written():
+    from calib_cli.cli.common import unwrap_paragraphs
+
+    assert unwrap_paragraphs("One\nline.\n\nTwo\n  lines.") == "One line.\n\nTwo lines."
+    assert unwrap_paragraphs("Intro.\n\n\b\na\nb") == "Intro.\n\n\b\na\nb"
+    assert unwrap_paragraphs(None) is None

@@ -70,11 +70,22 @@ def split_commas(params, args: list[str]) -> list[str]:
     return out
 
 
+def unwrap_paragraphs(text: Optional[str]) -> Optional[str]:
+    """Each paragraph of a command's help on one line, to be wrapped at the terminal's width: typer joins the
+    first paragraph's lines but keeps the later ones' line breaks, which a terminal narrower than the
+    docstring shows as ragged lines. Blocks marked ``\\b`` (click's "keep as written") are kept."""
+    if not text:
+        return text
+    return "\n\n".join(p if p.lstrip().startswith("\b") else " ".join(p.split())
+                       for p in text.split("\n\n"))
+
+
 class CalibCommand(TyperCommand):
     """Every calib command: flags shown without a value, options of several values comma-separated too."""
 
     def format_help(self, ctx, formatter) -> None:
         _bare_flags(self.get_params(ctx))
+        self.help = unwrap_paragraphs(self.help)
         return super().format_help(ctx, formatter)
 
     def parse_args(self, ctx, args: list[str]) -> list[str]:
@@ -86,6 +97,7 @@ class CalibGroup(TyperGroup):
 
     def format_help(self, ctx, formatter) -> None:
         _bare_flags(self.get_params(ctx))
+        self.help = unwrap_paragraphs(self.help)
         return super().format_help(ctx, formatter)
 
 #: Output to a log or a pipe (make, CI) is 120 columns, not rich's 80, which cut the result tables' headers
