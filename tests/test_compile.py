@@ -61,3 +61,23 @@ def test_a_second_process_waits_for_the_composition_another_compiles(tmp_path):
                 proc.stdin.close()  # the holder lets go when its input ends
                 proc.wait(timeout=60)
     assert len(list(tmp_path.glob("compile-*.lock"))) == 2  # one lock file per composition
+
+
+def test_a_holder_that_never_lets_go_delays_the_others_only_so_long(tmp_path):
+    """A process stopped or hung while holding a composition's lock makes the others wait LOCK_WAIT_S at
+    most; then they compile it themselves."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
+    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
+            "with _machine_lock('a-spec'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
+    wait = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 1.0\nt = time.perf_counter()\n"
+            "with c._machine_lock('a-spec'):\n    print(time.perf_counter() - t, flush=True)\n")
+    holder = subprocess.Popen([sys.executable, "-c", hold], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        out = subprocess.run([sys.executable, "-c", wait], env=env, capture_output=True, text=True, timeout=60,
+                             check=True)
+        assert 0.9 < float(out.stdout) < 10  # it gave up waiting after LOCK_WAIT_S, with the lock still held
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=60)

@@ -13,6 +13,7 @@ import contextlib
 import functools
 import hashlib
 import tempfile
+import time
 from pathlib import Path
 
 import numba
@@ -22,11 +23,15 @@ from .forces import forces_of
 from .integrate import stepper
 from .laws import columns
 
+#: the longest a process waits for another's compile of the same composition (one takes 10-60 s) before
+#: compiling it itself: a holder that was stopped (Ctrl-Z) or hangs must not stop every other process
+LOCK_WAIT_S = 600.0
+
 
 @contextlib.contextmanager
 def _machine_lock(spec: str):
     """Held while this process compiles ``spec``: another process of this machine that asks for it waits
-    here. Best effort: without fcntl (not POSIX) or a writable cache folder, no lock."""
+    here, at most LOCK_WAIT_S. Best effort: without fcntl (not POSIX) or a writable cache folder, no lock."""
     try:
         import fcntl
 
@@ -37,11 +42,20 @@ def _machine_lock(spec: str):
         yield
         return
     with handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
+        deadline, held = time.monotonic() + LOCK_WAIT_S, False
+        while not held:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held = True
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
         try:
             yield
         finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+            if held:
+                fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @functools.cache
