@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from calib_cli.dem.compile import compile_composition
+from calib_cli.dem.compile import compiled
 from calib_cli.dem.forces import forces_of
 from calib_cli.dem.integrate import stepper
 from calib_cli.dem.laws import ContactModel
@@ -17,10 +17,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_ahead_compile_has_the_types_a_system_calls_with():
-    """After compile_composition, a system of that composition (grains, floor, cylinder) adds no second
-    machine code to the step or the force function: what was compiled (or loaded) is what runs."""
+    """After compiled(), a system of that composition (grains, floor, cylinder) adds no second machine
+    code to the step or the force function: what was compiled (or loaded) is what runs."""
     spec = ContactModel(normal="jkr").spec
-    compile_composition(spec)
+    compiled(spec, "forces")
+    compiled(spec, "steps")
     before = len(stepper(spec).signatures), len(forces_of(spec).signatures)
     r = 2e-3
     p = Particles([[0, 0, r], [2.5 * r, 0, r]], [r, r], vel=[[0.1, 0, 0], [0, 0, 0]])
@@ -81,3 +82,46 @@ def test_a_holder_that_never_lets_go_delays_the_others_only_so_long(tmp_path):
     finally:
         holder.stdin.close()
         holder.wait(timeout=60)
+
+
+def test_a_compiled_kernel_is_loaded_without_waiting_for_the_lock():
+    """Once a kernel is marked compiled, a process loads it without the lock: a holder stuck on it (here:
+    one that holds it until told) delays nobody after the first compile."""
+    from calib_cli.dem.compile import _files
+
+    spec = ContactModel().spec
+    compiled(spec, "forces")
+    assert _files(spec, "forces")[1].is_file()
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
+            f"with _machine_lock({spec!r}, 'forces'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
+    load = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 30.0\nt = time.perf_counter()\n"
+            f"c.compiled({spec!r}, 'forces')\nprint(time.perf_counter() - t, flush=True)\n")
+    holder = subprocess.Popen([sys.executable, "-c", hold], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        out = subprocess.run([sys.executable, "-c", load], env=env, capture_output=True, text=True, timeout=120,
+                             check=True)
+        assert float(out.stdout) < 25  # did not wait out LOCK_WAIT_S on the held lock
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=60)
+
+
+def test_a_filesystem_that_does_not_lock_compiles_without_the_lock():
+    """flock failing otherwise than "held by another" (ENOLCK on some network filesystems): no wait."""
+    import errno
+
+    from calib_cli.dem.compile import _acquire
+
+    class NoLocks:
+        LOCK_EX, LOCK_NB = 2, 4
+
+        @staticmethod
+        def flock(handle, how):
+            raise OSError(errno.ENOLCK, "no locks available")
+
+    t = time.perf_counter()
+    assert _acquire(NoLocks, None) is False
+    assert time.perf_counter() - t < 1.0

@@ -1,15 +1,17 @@
-"""Compiling a law composition's kernel once per machine, not once per process.
+"""Compiling a law composition's kernels once per machine, not once per process.
 
 numba compiles the step loop once per composition of laws (:attr:`.laws.ContactModel.spec`), 10-20 s of
 one core each, and keeps the machine code in its disk cache. Processes that start together on a cold
 cache (a campaign's pool workers, a test session's workers) would each compile the same composition;
 here the first takes a lock file beside the cache while it compiles, the others wait for it and then
-load the machine code (milliseconds).
+load the machine code (milliseconds). A marker beside the lock says a kernel is compiled: later
+processes load it without taking the lock.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import hashlib
 import tempfile
@@ -23,34 +25,51 @@ from .forces import forces_of
 from .integrate import stepper
 from .laws import columns
 
-#: the longest a process waits for another's compile of the same composition (one takes 10-60 s) before
+#: the longest a process waits for another's compile of the same kernel (one takes 10-60 s) before
 #: compiling it itself: a holder that was stopped (Ctrl-Z) or hangs must not stop every other process
 LOCK_WAIT_S = 600.0
+#: the kernels of a composition: the force evaluation (every System) and the step loop (a System that steps)
+KERNELS = ("forces", "steps")
+_BUSY = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
+
+
+def _files(spec: str, kernel: str) -> tuple[Path, Path]:
+    """The lock file and the compiled marker of ``spec``'s ``kernel``, beside numba's cache."""
+    folder = Path(numba.config.CACHE_DIR or tempfile.gettempdir())
+    stem = f"compile-{hashlib.sha256(f'{spec}|{kernel}'.encode()).hexdigest()[:16]}"
+    return folder / f"{stem}.lock", folder / f"{stem}.done"
+
+
+def _acquire(fcntl, handle) -> bool:
+    """Take the lock, waiting at most LOCK_WAIT_S; False where it was not taken (the wait ran out, or the
+    filesystem does not lock, as some network ones)."""
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except OSError as e:
+            if e.errno not in _BUSY or time.monotonic() > deadline:
+                return False
+            time.sleep(0.1)
 
 
 @contextlib.contextmanager
-def _machine_lock(spec: str):
-    """Held while this process compiles ``spec``: another process of this machine that asks for it waits
-    here, at most LOCK_WAIT_S. Best effort: without fcntl (not POSIX) or a writable cache folder, no lock."""
+def _machine_lock(spec: str, kernel: str = "steps"):
+    """Held while this process compiles ``spec``'s ``kernel``: another process of this machine that asks
+    for it waits here (at most LOCK_WAIT_S). Best effort: without fcntl (not POSIX), a writable cache
+    folder or a filesystem that locks, no lock."""
     try:
         import fcntl
 
-        folder = Path(numba.config.CACHE_DIR or tempfile.gettempdir())
-        folder.mkdir(parents=True, exist_ok=True)
-        handle = open(folder / f"compile-{hashlib.sha256(spec.encode()).hexdigest()[:16]}.lock", "a")
+        lock, _ = _files(spec, kernel)
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(lock, "a")
     except (ImportError, OSError):
         yield
         return
     with handle:
-        deadline, held = time.monotonic() + LOCK_WAIT_S, False
-        while not held:
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                held = True
-            except BlockingIOError:
-                if time.monotonic() > deadline:
-                    break
-                time.sleep(0.1)
+        held = _acquire(fcntl, handle)
         try:
             yield
         finally:
@@ -58,11 +77,9 @@ def _machine_lock(spec: str):
                 fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-@functools.cache
-def compile_composition(spec: str) -> str:
-    """Compile (or load from numba's disk cache) :func:`.integrate.stepper` and :func:`.forces.forces_of` of
-    ``spec`` with the argument types :class:`.system.System` calls them with, under the machine's lock
-    for ``spec``; runs no step. Once per process and composition."""
+def _compile(spec: str, kernel: str) -> None:
+    """Call ``spec``'s ``kernel`` once with the argument types :class:`.system.System` gives it, running no
+    step: numba compiles it, or loads it from its disk cache."""
     n, cap, hist = 1, 4, columns.HIST
     pos, vel, omg, force, torque, ref = (np.zeros((n, 3)) for _ in range(6))
     rad, mass, inv, ncont, cnew = np.ones(n), np.ones(n), np.ones(n), np.zeros(n), np.zeros(n)
@@ -70,9 +87,27 @@ def compile_composition(spec: str) -> str:
     ht, sh, hf, hc = np.zeros((cap, hist)), np.zeros((cap, hist)), np.zeros((n, hist)), np.zeros((n, hist))
     prm, gap, geo, grav = np.zeros((3, columns.NCOL)), np.zeros(3), np.zeros(6), np.zeros(3)
     npairs, pf = np.zeros(1, np.int64), np.zeros((cap, 11))
-    with _machine_lock(spec):
-        stepper(spec)(0, 0.0, 1e-6, pos, vel, omg, force, torque, rad, mass, inv, pi, pj, npairs, ht, ref, 0.0, 0.0,
-                      hf, hc, prm, gap, geo, float(np.inf), grav, 0.1, 50.0, si, sj, sh, ncont, cnew, pf)
+    if kernel == "forces":
         forces_of(spec)(pos, vel, omg, rad, mass, inv, pi, pj, npairs[0], ht, hf, hc, prm, gap, geo, grav, 1e-6,
                         force, torque, ncont, cnew, pf)
+    else:
+        stepper(spec)(0, 0.0, 1e-6, pos, vel, omg, force, torque, rad, mass, inv, pi, pj, npairs, ht, ref, 0.0, 0.0,
+                      hf, hc, prm, gap, geo, float(np.inf), grav, 0.1, 50.0, si, sj, sh, ncont, cnew, pf)
+
+
+@functools.cache
+def compiled(spec: str, kernel: str) -> str:
+    """Compile (or load from numba's disk cache) ``spec``'s ``kernel`` (:data:`KERNELS`: ``forces``,
+    :func:`.forces.forces_of`; ``steps``, :func:`.integrate.stepper`) under the machine's lock for it, then
+    mark it compiled. Once per process, kernel and composition."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+    done = _files(spec, kernel)[1]
+    if done.is_file():  # compiled by another process: a cache load, no lock to wait for
+        _compile(spec, kernel)
+        return spec
+    with _machine_lock(spec, kernel):
+        _compile(spec, kernel)
+        with contextlib.suppress(OSError):
+            done.touch()
     return spec

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibError
-from .compile import compile_composition
+from .compile import compiled
 from .forces import forces_of
 from .integrate import NEED_CAPACITY, stepper
 from .laws.columns import CYL, E_S, FLOOR, G_S, GAMMA, HIST, PP
@@ -120,7 +120,7 @@ class System:
         self.cnew = np.zeros(n)
         self._alloc(16 * n + 64)
         self._rebuild()
-        compile_composition(self.model.spec)  # once per machine: other processes wait, then load it
+        compiled(self.model.spec, "forces")  # once per machine: other processes wait, then load it
         forces_of(self.model.spec)(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
                        self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.gap, self.geo, self.grav, self.dt,
                        self.force, self.torque, self.ncont, self.cnew, self.pf)
@@ -167,6 +167,7 @@ class System:
     def advance(self, nsteps: int) -> None:
         """Integrate ``nsteps`` steps; raises :class:`UnstableError` on blow-up."""
         p = self.particles
+        compiled(self.model.spec, "steps")  # here, not at set-up: the GPU engine sets systems up, never steps them
         done = 0
         while done < nsteps:
             status, k, worst, reb = stepper(self.model.spec)(
