@@ -120,3 +120,4 @@ def test_unwrap_keeps_paragraphs_and_blocks_marked_as_written():
     assert unwrap_paragraphs("One\nline.\n\nTwo\n  lines.") == "One line.\n\nTwo lines."
     assert unwrap_paragraphs("Intro.\n\n\b\na\nb") == "Intro.\n\n\b\na\nb"
     assert unwrap_paragraphs(None) is None
+    assert unwrap_paragraphs("Details.\n\f\n:param x: internal") == "Details."

@@ -73,11 +73,12 @@ def split_commas(params, args: list[str]) -> list[str]:
 def unwrap_paragraphs(text: Optional[str]) -> Optional[str]:
     """Each paragraph of a command's help on one line, to be wrapped at the terminal's width: typer joins the
     first paragraph's lines but keeps the later ones' line breaks, which a terminal narrower than the
-    docstring shows as ragged lines. Blocks marked ``\\b`` (click's "keep as written") are kept."""
+    docstring shows as ragged lines. Blocks marked ``\\b`` (click's "keep as written") are kept, and what
+    follows a ``\\f`` (click's "not for --help") is dropped, as typer would."""
     if not text:
         return text
     return "\n\n".join(p if p.lstrip().startswith("\b") else " ".join(p.split())
-                       for p in text.split("\n\n"))
+                       for p in text.partition("\f")[0].split("\n\n"))
 
 
 class CalibCommand(TyperCommand):

@@ -114,7 +114,9 @@ def bbd_design(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = 
     """Write the Box-Behnken design (3 factors, 5 centre points: 17 runs).
 
     Ranges: settings bbd.ranges, else RUN/ascent/bracket.parquet, else the factor table.
+
     Factors: settings bbd.factors, else the screening's significant factors.
+
     Writes RUN/bbd/design.parquet.
     """
     r = _doe().bbd_design(run, settings, setting, force)
