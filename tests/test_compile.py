@@ -1,5 +1,6 @@
 """A law composition's kernel compiles once per machine (calib_cli.dem.compile)."""
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -34,33 +35,47 @@ def test_the_ahead_compile_has_the_types_a_system_calls_with():
     assert (len(stepper(spec).signatures), len(forces_of(spec).signatures)) == before
 
 
+@contextlib.contextmanager
+def holding(spec: str, env: dict, kernel: str = "steps"):
+    """A process that holds ``spec``'s lock (as one compiling it would) until its input is written or closed;
+    yields it once it holds the lock."""
+    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
+            f"with _machine_lock({spec!r}, {kernel!r}):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
+    holder = subprocess.Popen([sys.executable, "-c", hold], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        yield holder
+    finally:
+        holder.stdin.close()  # the holder lets go when its input ends
+        holder.wait(timeout=60)
+
+
+def seconds(code: str, env: dict) -> float:
+    """What a python process running ``code`` prints (a duration)."""
+    return float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                                check=True).stdout)
+
+
 def test_a_second_process_waits_for_the_composition_another_compiles(tmp_path):
     """While one process holds a composition's lock (compiling it), another asking for the same one waits
     until it is released (then finds the machine code in the cache instead of compiling it again); a
     different composition has a lock of its own."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
-    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
-            "with _machine_lock('a-spec'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
     wait = ("import time\nfrom calib_cli.dem.compile import _machine_lock\n"
             "with _machine_lock('another-spec'):\n    pass\n"
             "print('asking', flush=True)\nt = time.perf_counter()\n"
             "with _machine_lock('a-spec'):\n    print(time.perf_counter() - t, flush=True)\n")
-    run = dict(env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    holder = subprocess.Popen([sys.executable, "-c", hold], **run)
-    waiter = None
-    try:
-        assert holder.stdout.readline().strip() == "held"
-        waiter = subprocess.Popen([sys.executable, "-c", wait], **run)
-        assert waiter.stdout.readline().strip() == "asking"  # the other composition's lock was free
-        time.sleep(1.0)
-        holder.stdin.write("\n")
-        holder.stdin.flush()
-        assert float(waiter.stdout.readline()) > 0.9  # it waited until the holder let go
-    finally:
-        for proc in (holder, waiter):
-            if proc is not None:
-                proc.stdin.close()  # the holder lets go when its input ends
-                proc.wait(timeout=60)
+    with holding("a-spec", env) as holder:
+        waiter = subprocess.Popen([sys.executable, "-c", wait], env=env, stdout=subprocess.PIPE, text=True)
+        try:
+            assert waiter.stdout.readline().strip() == "asking"  # the other composition's lock was free
+            time.sleep(1.0)
+            holder.stdin.write("\n")
+            holder.stdin.flush()
+            assert float(waiter.stdout.readline()) > 0.9  # it waited until the holder let go
+        finally:
+            waiter.wait(timeout=60)
     assert len(list(tmp_path.glob("compile-*.lock"))) == 2  # one lock file per composition
 
 
@@ -68,20 +83,10 @@ def test_a_holder_that_never_lets_go_delays_the_others_only_so_long(tmp_path):
     """A process stopped or hung while holding a composition's lock makes the others wait LOCK_WAIT_S at
     most; then they compile it themselves."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
-    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
-            "with _machine_lock('a-spec'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
     wait = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 1.0\nt = time.perf_counter()\n"
             "with c._machine_lock('a-spec'):\n    print(time.perf_counter() - t, flush=True)\n")
-    holder = subprocess.Popen([sys.executable, "-c", hold], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True)
-    try:
-        assert holder.stdout.readline().strip() == "held"
-        out = subprocess.run([sys.executable, "-c", wait], env=env, capture_output=True, text=True, timeout=60,
-                             check=True)
-        assert 0.9 < float(out.stdout) < 10  # it gave up waiting after LOCK_WAIT_S, with the lock still held
-    finally:
-        holder.stdin.close()
-        holder.wait(timeout=60)
+    with holding("a-spec", env):
+        assert 0.9 < seconds(wait, env) < 10  # it gave up waiting after LOCK_WAIT_S, the lock still held
 
 
 def test_a_compiled_kernel_is_loaded_without_waiting_for_the_lock():
@@ -93,20 +98,10 @@ def test_a_compiled_kernel_is_loaded_without_waiting_for_the_lock():
     compiled(spec, "forces")
     assert _files(spec, "forces")[1].is_file()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    hold = ("import sys\nfrom calib_cli.dem.compile import _machine_lock\n"
-            f"with _machine_lock({spec!r}, 'forces'):\n    print('held', flush=True)\n    sys.stdin.readline()\n")
     load = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 30.0\nt = time.perf_counter()\n"
             f"c.compiled({spec!r}, 'forces')\nprint(time.perf_counter() - t, flush=True)\n")
-    holder = subprocess.Popen([sys.executable, "-c", hold], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True)
-    try:
-        assert holder.stdout.readline().strip() == "held"
-        out = subprocess.run([sys.executable, "-c", load], env=env, capture_output=True, text=True, timeout=120,
-                             check=True)
-        assert float(out.stdout) < 25  # did not wait out LOCK_WAIT_S on the held lock
-    finally:
-        holder.stdin.close()
-        holder.wait(timeout=60)
+    with holding(spec, env, "forces"):
+        assert seconds(load, env) < 25  # did not wait out LOCK_WAIT_S on the held lock
 
 
 def test_a_filesystem_that_does_not_lock_compiles_without_the_lock():
