@@ -270,8 +270,9 @@ def posterior_table(table: pd.DataFrame) -> pd.DataFrame:
     bf = [bf_text(b, u) if np.isfinite(b) else "" for b, u in zip(table["bf_off"], upper)]
     three = {c: [float(f"{v:.3g}") for v in table[c]] for c in ("median", "q05", "q95")}
     out = table[["parameter"]].assign(**three, rel_width=table["rel_width"].round(2), identified=table["identified"])
-    if (edges(table) != "").any():
-        out = out.assign(at_edge=edges(table))
+    edge = edges(table)
+    if (edge != "").any():
+        out = out.assign(at_edge=edge)
     return out.assign(bf_off=bf, tau=table["autocorr_time"].round(1), chain_ok=table["chain_ok"])
 
 
