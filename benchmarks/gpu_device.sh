@@ -15,6 +15,8 @@
 #   python benchmarks/gpu_device_prep.py      # gpu_run/he_rev1
 #   git sparse-checkout set --no-cone '/*' '!/sample_runs/'   # the tree that travels is limited to 64 MiB
 # History: 2026-11-26 on an H200 the first version of this script (throughput, agreement, tests) took 133 s.
+#   2026-11-28 on an H200 (LIMIT=555): 540 s; throughput 117 s, the paper heap 117 s, the calibration ran out in
+#   round 5 after 306 s (it needs ~8 min alone: ~3 min of heaps, the rest fits and sampling on the CPU).
 set -o pipefail
 export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"

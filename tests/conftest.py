@@ -4,6 +4,11 @@ from pathlib import Path
 # the GPU engine's kernels run under numba's CUDA simulator unless told otherwise (CI has no GPU; on a
 # machine with one, NUMBA_ENABLE_CUDASIM=0 runs tests/test_gpu.py on it). Before numba reads its config.
 os.environ.setdefault("NUMBA_ENABLE_CUDASIM", "1")
+if os.environ["NUMBA_ENABLE_CUDASIM"] == "1":
+    # the simulator starts a Python thread per GPU thread per launch, so the default mode ("graph", which
+    # there launches all seven kernels every step) runs a heap test 5x slower than "launch" (9 s against 55 s
+    # for the checkpoint test); tests/test_gpu.py checks every mode's states against the CPU kernel itself
+    os.environ.setdefault("CALIB_GPU_STEP", "launch")
 # the CLI's tables are 120 columns wide unless $COLUMNS says otherwise (xdist's workers may inherit one)
 os.environ.pop("COLUMNS", None)
 if os.environ.get("PYTEST_XDIST_WORKER"):

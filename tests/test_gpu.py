@@ -25,7 +25,7 @@ MAT = Material(5e6, 0.25, 2600)
 LOOSE = 1.0 if gpu.SIMULATOR else 1e4
 #: the stepping modes a test runs on a GPU: all. Under the simulator the persistent kernel (one thread: fast
 #: there); the kernel-a-phase modes share its device functions and their own thin kernels, which the
-#: collision test and every run_heaps test (the default mode, "launch") exercise; "graph" is "device"'s
+#: collision test and every run_heaps test (conftest sets "launch" there) exercise; "graph" is "device"'s
 #: launches there (no graphs), and "device" is "launch" without the host's read (30 s more a test)
 MODES = ["persistent"] if gpu.SIMULATOR else list(gpu.MODES)
 

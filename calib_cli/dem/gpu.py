@@ -6,8 +6,9 @@ is switched off (``active``). A step is the CPU kernel's (:func:`.integrate.run_
 drift, a Verlet-list rebuild where a grain moved half the skin, the rim's height, forces, half kick, the
 overlap and speed checks. Each phase is a device function of one grain (or cell); how the phases are
 launched is the batch's mode (:data:`MODES`): a kernel a phase launched from Python every step (bound by
-the launches, ~70 us each on an H200), the same captured in a CUDA graph, or one persistent cooperative
-kernel a chunk, whose grid waits for itself between phases (docs/performance.md measures each).
+the launches, ~70 us each on an H200), the same captured in a CUDA graph (the default, the fastest measured),
+or one persistent cooperative kernel a chunk, whose grid waits for itself between phases
+(docs/performance.md measures each).
 
 One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
 run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
@@ -588,9 +589,9 @@ def compile_ptx(spec: str, systems: list, cc: tuple[int, int] = (9, 0)) -> dict[
 #: ``device``'s launches for :data:`GRAPH_STEPS` steps captured once in a CUDA graph and replayed;
 #: ``persistent``: one cooperative launch a chunk (:func:`_persistent_kernel`). Chosen by ``CALIB_GPU_STEP``.
 MODES = ("launch", "device", "graph", "persistent")
-#: the default: the one mode that has run on a GPU; the other three are bit for bit the CPU kernel under the
-#: simulator and compile for sm_90, but no GPU has run them yet (benchmarks/gpu_device.sh will)
-DEFAULT_MODE = "launch"
+#: the default: the fastest on an H200 at every batch measured, 1 to 256 `default` heaps and one `paper` heap
+#: (docs/performance.md, 2026-11-28: 48 us a step for one heap, against `persistent`'s 52 and `launch`'s 2,300)
+DEFAULT_MODE = "graph"
 GRAPH_STEPS = 50
 
 
