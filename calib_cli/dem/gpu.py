@@ -315,10 +315,11 @@ def _force_kernels(contact) -> dict:
         if active[h] == 0:
             return
         p = _raw(prm[h])
-        pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
-                 cnew, worst)
-        walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, cnew,
-                 worst)
+        most, nan, count = pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force,
+                                    torque, ncont, cnew)
+        most, nan, count = walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force,
+                                    torque, ncont, most, nan, count)
+        _settle(i, h, most, nan, count, cnew, worst)
 
     @cuda.jit
     def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
@@ -383,12 +384,14 @@ def _persistent_kernel(forces_one):
     return persistent
 
 def _pairs_of(contact):
-    """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically."""
+    """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
+    largest relative overlap, whether one was NaN, and its contacts counted (:func:`_settle` adds them)."""
 
     @cuda.jit(device=True)
     def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
-                 cnew, worst):
+                 cnew):
         ht = _raw(hist[i])
+        most, nan, count = 0.0, False, 0.0
         for s in range(nnb[i]):
             j = nbr[i, s]
             dx = pos[i, 0] - pos[j, 0]
@@ -417,11 +420,33 @@ def _pairs_of(contact):
             _add3(torque, i, tix, tiy, tiz)
             _add3(torque, j, tjx, tjy, tjz)
             if ht[s, A_OLD] > 0.0:
-                cuda.atomic.add(cnew, i, 1.0)
+                count += 1.0
                 cuda.atomic.add(cnew, j, 1.0)
-            cuda.atomic.max(worst, h, ov / min(Ri, Rj))
+            most, nan = _fold(most, nan, ov / min(Ri, Rj))
+        return most, nan, count
 
     return pairs_of
+
+
+@cuda.jit(device=True)
+def _fold(most, nan, v):
+    """A running maximum that remembers a NaN apart (an atomic maximum may keep or drop one)."""
+    if v != v:
+        return most, True
+    return (v if v > most else most), nan
+
+
+@cuda.jit(device=True)
+def _settle(i, h, most, nan, count, cnew, worst):
+    """Grain i's share of the step's tallies, once a grain instead of once a contact: its contact count (whole
+    numbers: exact in any order) and its largest overlap into the heap's (skipped where the heap's is larger
+    already: the maximum only grows within a chunk). Every contact of a heap once hit one address."""
+    if count > 0.0:
+        cuda.atomic.add(cnew, i, count)
+    if most > worst[h]:
+        cuda.atomic.max(worst, h, most)
+    if nan:
+        cuda.atomic.max(worst, h, math.nan)
 
 
 @cuda.jit(device=True)
@@ -436,27 +461,29 @@ def _walls_of(contact):
     """Grain i's floor and cylinder contacts and the settling drag (the CPU kernel's wall blocks)."""
 
     @cuda.jit(device=True)
-    def on_wall(i, h, nx, ny, nz, delta, gap, wall_vz, ht, row, Ri, vel, omg, mass, inv_inertia, ncont, p, dt,
-                force, torque, cnew, worst):
+    def on_wall(i, nx, ny, nz, delta, gap, wall_vz, ht, row, Ri, vel, omg, mass, inv_inertia, ncont, p, dt,
+                force, torque):
         """Grain i on a wall moving up at ``wall_vz``: its contact with history ``ht[i]`` and interaction
-        ``row`` added to its force and torque, or, out of reach, its history cleared."""
+        ``row`` added to its force and torque, or, out of reach, its history cleared. Returns its relative
+        overlap and 1 (a contact), or -1 and 0 out of reach."""
         if not delta > -gap:
             for c in range(ht.shape[1]):
                 if c != R13:
                     ht[i, c] = 0.0
-            return
+            return -1.0, 0.0
         fx, fy, fz, tix, tiy, tiz, _a, _b, _c, ov = contact(
             nx, ny, nz, delta, Ri - delta, 0.0, Ri, mass[i], inv_inertia[i], 0.0, ncont[i], 1.0,
             vel[i, 0], vel[i, 1], vel[i, 2] - wall_vz, omg[i, 0], omg[i, 1], omg[i, 2], 0.0, 0.0, 0.0,
             _raw(ht), i, p, row, dt)
         _add3(force, i, fx, fy, fz)
         _add3(torque, i, tix, tiy, tiz)
-        cuda.atomic.add(cnew, i, 1.0)
-        cuda.atomic.max(worst, h, ov / Ri)
+        return ov / Ri, 1.0
 
     @cuda.jit(device=True)
-    def walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, cnew,
-                 worst):
+    def walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, most,
+                 nan, count):
+        """Grain i's wall contacts, folded into its running tallies (``most``, ``nan``, ``count``: as
+        :func:`_pairs_of`'s), which it returns."""
         Ri = rad[i]
         drag = geo[h, 5]
         if drag > 0.0:  # settling aid only (set during the fill): background viscous drag
@@ -464,13 +491,20 @@ def _walls_of(contact):
             _add3(force, i, -m * vel[i, 0], -m * vel[i, 1], -m * vel[i, 2])
         # floor z = 0, normal +z
         if geo[h, 4] > 0.0:
-            on_wall(i, h, 0.0, 0.0, 1.0, Ri - pos[i, 2], gap[h, FLOOR], 0.0, hf, FLOOR, Ri, vel, omg, mass,
-                    inv_inertia, ncont, p, dt[h], force, torque, cnew, worst)
+            ov, hit = on_wall(i, 0.0, 0.0, 1.0, Ri - pos[i, 2], gap[h, FLOOR], 0.0, hf, FLOOR, Ri, vel, omg, mass,
+                              inv_inertia, ncont, p, dt[h], force, torque)
+            if hit > 0.0:
+                most, nan = _fold(most, nan, ov)
+                count += hit
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if geo[h, 3] > 0.0:
             delta, nx, ny, nz = cylinder_overlap(pos[i, 0], pos[i, 1], pos[i, 2], Ri, geo[h, 0], geo[h, 1])
-            on_wall(i, h, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass, inv_inertia,
-                    ncont, p, dt[h], force, torque, cnew, worst)
+            ov, hit = on_wall(i, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass,
+                              inv_inertia, ncont, p, dt[h], force, torque)
+            if hit > 0.0:
+                most, nan = _fold(most, nan, ov)
+                count += hit
+        return most, nan, count
 
     return walls_of
 
