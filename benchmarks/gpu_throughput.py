@@ -5,9 +5,10 @@ Each batch is B heaps of the preset's fill (seeds 0..B-1, the paper's Table 6 ce
 for a warm-up (and the kernels' compilation), then timed over --steps steps, once per stepping mode
 (calib_cli.dem.gpu.MODES: a kernel a phase launched from Python with the host's look at the rebuild flag,
 the same without it, those launches replayed from a CUDA graph, one persistent cooperative kernel a
-chunk), each mode from the same fills; the CPU kernel steps the same fills two ways: one after another on
-all its threads, and a heap per core at once (one thread each, as a campaign's --workers run). Prints
-particle-steps per second, the time a step and the ratios.
+chunk, one launch a chunk with a thread block a heap), each mode from the same fills; the CPU kernel
+steps the same fills two ways: one after another on all its threads, and a heap per core at once (one
+thread each, as a campaign's --workers run). Prints particle-steps per second, the time a step and the
+ratios.
 
     python benchmarks/gpu_throughput.py                       # 1, 4, 16, 64, 256 default heaps; 1, 4 paper
     NUMBA_ENABLE_CUDASIM=1 python benchmarks/gpu_throughput.py --preset smoke --batches 1,2 --steps 20 \\
@@ -33,7 +34,9 @@ def systems(preset: str, count: int):
 
 
 def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, int]:
-    batch = gpu.Batch(fills, mode=mode)
+    """``mode``: a stepping mode, or ``blocks:T`` for the thread-block-a-heap mode with T threads a heap."""
+    name, _, threads = mode.partition(":")
+    batch = gpu.Batch(fills, mode=name, **({"block": int(threads)} if threads else {}))
     batch.advance(warmup)
     t = time.perf_counter()
     status = batch.advance(steps)
@@ -90,7 +93,8 @@ def main():
     ap.add_argument("--preset", default="default")
     ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
-    ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated")
+    ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated; blocks:T for the "
+                    "thread-block-a-heap mode with T threads a heap (default: the engine's 128)")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")

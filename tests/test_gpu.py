@@ -26,8 +26,10 @@ LOOSE = 1.0 if gpu.SIMULATOR else 1e4
 #: the stepping modes a test runs on a GPU: all. Under the simulator the persistent kernel (one thread: fast
 #: there); the kernel-a-phase modes share its device functions and their own thin kernels, which the
 #: collision test and every run_heaps test (conftest sets "launch" there) exercise; "graph" is "device"'s
-#: launches there (no graphs), and "device" is "launch" without the host's read (30 s more a test)
+#: launches there (no graphs), and "device" is "launch" without the host's read (30 s more a test); "blocks"
+#: (a thread block a heap) for the tests that batch more than one heap, where heaps as blocks could mix
 MODES = ["persistent"] if gpu.SIMULATOR else list(gpu.MODES)
+MANY = ["persistent", "blocks"] if gpu.SIMULATOR else list(gpu.MODES)
 
 
 def pair():
@@ -90,7 +92,7 @@ def test_launching_every_kernel_without_the_hosts_look_steps_as_the_host_gated_l
     same_state(runs["launch"], runs["device"], 1e-12 * LOOSE)
 
 
-@pytest.mark.parametrize("gamma,mode", [(g, m) for g in (0.0, 0.5) for m in MODES])
+@pytest.mark.parametrize("gamma,mode", [(g, m) for g in (0.0, 0.5) for m in MANY])
 def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma, mode):
     """Floor, cylinder, the lift, neighbour-list rebuilds and history carried over them: each heap of
     the batch as the CPU kernel steps it alone, with its own friction, whichever way the steps launch."""
@@ -104,7 +106,7 @@ def test_two_heaps_in_one_batch_match_the_cpu_kernel_heap_by_heap(gamma, mode):
         assert b.max_overlap == pytest.approx(a.max_overlap, rel=1e-12 * LOOSE)
 
 
-@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("mode", MANY)
 def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun(mode):
     cpu, on_gpu = [column(2, 0.5)], [column(2, 0.5)]
     b = gpu.Batch(on_gpu, width=1, cell_cap=1, mode=mode)
@@ -116,7 +118,7 @@ def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun(mode):
     same_state(cpu[0], on_gpu[0], 1e-9 * LOOSE)
 
 
-@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("mode", MANY)
 def test_a_heap_that_blows_up_stops_alone(mode):
     wild = column(3, 0.5, kick=80.0)  # faster than any heap test: above the speed limit at once
     calm_cpu, calm = column(4, 0.5), column(4, 0.5)

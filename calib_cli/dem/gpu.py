@@ -7,8 +7,8 @@ drift, a Verlet-list rebuild where a grain moved half the skin, the rim's height
 overlap and speed checks. Each phase is a device function of one grain (or cell); how the phases are
 launched is the batch's mode (:data:`MODES`): a kernel a phase launched from Python every step (bound by
 the launches, ~70 us each on an H200), the same captured in a CUDA graph (the default, the fastest measured),
-or one persistent cooperative kernel a chunk, whose grid waits for itself between phases
-(docs/performance.md measures each).
+one persistent cooperative kernel a chunk, whose grid waits for itself between phases, or one launch a chunk
+with a thread block a heap, each block waiting only for itself (docs/performance.md measures each).
 
 One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
 run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
@@ -329,7 +329,7 @@ def _force_kernels(contact) -> dict:
             forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo,
                        dt, force, torque, ncont, cnew, worst)
 
-    return {"forces": forces, "persistent": _persistent_kernel(forces_one)}
+    return {"forces": forces, "persistent": _persistent_kernel(forces_one), "blocks": _block_kernel(forces_one)}
 
 
 def _persistent_kernel(forces_one):
@@ -382,6 +382,58 @@ def _persistent_kernel(forces_one):
             nstep[0] += nsteps
 
     return persistent
+
+def _block_kernel(forces_one):
+    """``nsteps`` whole steps in one launch of a thread block a heap: block h's threads stride over heap h's
+    grains (and cells) and wait for each other between phases with ``syncthreads`` (a barrier of one
+    multiprocessor, where the persistent kernel's grid sync spans the GPU); heaps never touch each other's
+    grains, so no block waits for another. A heap's rebuild runs on the steps where it asked for one. A heap
+    is as fast as one multiprocessor can step it: for batches of small heaps, not one large heap. Under
+    numba's simulator a block is one thread (grains in order, blocks one after another: each heap bit for bit
+    the CPU kernel's)."""
+
+    @cuda.jit
+    def blocks(nsteps, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel, omg, force, torque, rad,
+               mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0, lift_start, geo, lo, dims, side,
+               cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nnb, new_nbr, new_hist, hf, hc, prm, gap,
+               ncont, worst, status, nstep):
+        h = cuda.blockIdx.x
+        start, stride = first[h] + cuda.threadIdx.x, cuda.blockDim.x
+        end = first[h + 1]
+        for step in range(nsteps):
+            if active[h] == 0:  # read by every thread after the sync that ended the last step: all leave
+                break
+            for i in range(start, end, stride):
+                _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
+                           limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
+            cuda.syncthreads()
+            if rebuild[h] != 0:
+                for c in range(cell0[h] + cuda.threadIdx.x, cell0[h + 1], stride):
+                    count[c] = 0
+                cuda.syncthreads()
+                for i in range(start, end, stride):
+                    _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow)
+                cuda.syncthreads()
+                for i in range(start, end, stride):
+                    _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
+                              hist, new_nnb, new_nbr, new_hist, overflow)
+                cuda.syncthreads()
+                for i in range(start, end, stride):
+                    _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+                cuda.syncthreads()
+            for i in range(start, end, stride):
+                forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap,
+                           geo, dt, force, torque, ncont, cnew, worst)
+            cuda.syncthreads()
+            for i in range(start, end, stride):
+                _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont,
+                          cnew, overlap_limit, speed_limit, worst, status)
+            cuda.syncthreads()
+        if h == 0 and cuda.threadIdx.x == 0:
+            nstep[0] += nsteps
+
+    return blocks
+
 
 def _pairs_of(contact):
     """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
@@ -621,8 +673,9 @@ def compile_ptx(spec: str, systems: list, cc: tuple[int, int] = (9, 0)) -> dict[
 #: a neighbour rebuild (the engine as first measured); ``device``: the same kernels with no read-back, all
 #: seven launched every step and each heap's threads skipping a rebuild it did not ask for; ``graph``:
 #: ``device``'s launches for :data:`GRAPH_STEPS` steps captured once in a CUDA graph and replayed;
-#: ``persistent``: one cooperative launch a chunk (:func:`_persistent_kernel`). Chosen by ``CALIB_GPU_STEP``.
-MODES = ("launch", "device", "graph", "persistent")
+#: ``persistent``: one cooperative launch a chunk (:func:`_persistent_kernel`); ``blocks``: one launch a chunk, a
+#: thread block a heap (:func:`_block_kernel`). Chosen by ``CALIB_GPU_STEP``.
+MODES = ("launch", "device", "graph", "persistent", "blocks")
 #: the default: the fastest on an H200 at every batch measured, 1 to 256 `default` heaps and one `paper` heap
 #: (docs/performance.md, 2026-11-28: 48 us a step for one heap, against `persistent`'s 52 and `launch`'s 2,300)
 DEFAULT_MODE = "graph"
@@ -774,6 +827,11 @@ class Batch:
     def _steps_persistent(self, nsteps: int) -> None:
         kernel, grid, block = self._cooperative()
         kernel[grid, block](*self._args(kernel, {"nsteps": nsteps}))
+
+    def _steps_blocks(self, nsteps: int) -> None:
+        kernel = self.k["blocks"]
+        threads = 1 if SIMULATOR else self.block
+        kernel[len(self.systems), threads](*self._args(kernel, {"nsteps": nsteps}))
 
     def _cooperative(self):
         """The persistent kernel, specialized to the batch's arrays, with the most blocks that can all be
