@@ -47,8 +47,8 @@ R = TypeVar("R")
 #: posterior 8, calibrate-answer 3: a posterior pressed against a bound of its box that could be wider is not
 #: identified (its `edge` column)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 8, "suggest": 5, "calibrate": 1,
-                 "calibrate-answer": 3}
+                 "diagnose": 2, "posterior": 9, "suggest": 5, "calibrate": 2,
+                 "calibrate-answer": 4}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
