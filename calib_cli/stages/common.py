@@ -46,6 +46,8 @@ R = TypeVar("R")
 #: a Bayes factor with no draw near its value is an upper bound
 #: posterior 8, calibrate-answer 3: a posterior pressed against a bound of its box that could be wider is not
 #: identified (its `edge` column)
+#: posterior 9, calibrate 2, calibrate-answer 4: the surrogate/measurement variance ratio over 4,096 posterior
+#: draws, not 256 (its Monte Carlo spread was as wide as its distance from the bar)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
                  "diagnose": 2, "posterior": 9, "suggest": 5, "calibrate": 2,
                  "calibrate-answer": 4}
