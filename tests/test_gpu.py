@@ -130,6 +130,28 @@ def test_a_heap_that_blows_up_stops_alone(mode):
     same_state(calm_cpu, calm, 1e-9 * LOOSE)
 
 
+def test_a_grains_tallies_fold_its_contacts_as_the_per_contact_atomics_did():
+    """A grain's largest overlap (a NaN kept apart, not lost to a comparison) and its contact count, added to
+    the heap's once: the same maximum and sum as one atomic per contact, whose order never mattered."""
+    values = np.array([0.01, -0.2, 0.05, np.nan, 0.03])
+    out = np.zeros(3)
+    worst, cnew = np.array([0.02, 0.0]), np.zeros(2)
+
+    @gpu.cuda.jit
+    def fold(values, out, worst, cnew):
+        most, nan, count = 0.0, False, 0.0
+        for k in range(values.shape[0]):
+            most, nan = gpu._fold(most, nan, values[k])
+            count += 1.0
+        out[0], out[1], out[2] = most, 1.0 if nan else 0.0, count
+        gpu._settle(1, 0, most, False, count, cnew, worst)  # 0.05 > 0.02: the heap's maximum grows
+        gpu._settle(0, 0, 0.01, False, 0.0, cnew, worst)  # 0.01 < 0.05: nothing to add, no atomic
+
+    fold[1, 1](values, out, worst, cnew)
+    assert list(out) == [0.05, 1.0, 5.0]
+    assert list(worst) == [0.05, 0.0] and list(cnew) == [0.0, 5.0]
+
+
 def test_one_composition_a_batch_and_a_known_stepping_mode(monkeypatch):
     with pytest.raises(CalibError, match="one composition"):
         gpu.Batch([column(0, 0.3), column(0, 0.3, gamma=0.5)])
