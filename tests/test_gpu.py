@@ -197,11 +197,15 @@ def heap_tests_both_ways(num):
     return cpu, on_gpu
 
 
-def test_heap_tests_run_together_as_the_cpu_engine_runs_each():
+@pytest.mark.parametrize("mode", [None, "blocks"])
+def test_heap_tests_run_together_as_the_cpu_engine_runs_each(mode, monkeypatch):
     """The heap protocol (settle, lift, rest) driving a batch: every phase change on the device as
-    on the CPU. Cut short (90 steps) for make test; the slow test below runs a whole short heap."""
+    on the CPU, in the default mode and with a thread block a heap (whose heaps never wait for each
+    other). Cut short (90 steps) for make test; the slow test below runs a whole short heap."""
     from calib_cli.dem.heap import Numerics
 
+    if mode:
+        monkeypatch.setenv("CALIB_GPU_STEP", mode)
     cpu, _ = heap_tests_both_ways(Numerics(time_max=0.004, settle_time_max=0.0015, rest_time_min=0.001, chunk=30))
     assert all(np.isfinite(r.t_settled) and len(r.energy) >= 3 for r in cpu)  # settled, then lifted
 
