@@ -37,6 +37,8 @@ def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, in
     """``mode``: a stepping mode, or ``blocks:T`` for the thread-block-a-heap mode with T threads a heap."""
     name, _, threads = mode.partition(":")
     batch = gpu.Batch(fills, mode=name, **({"block": int(threads)} if threads else {}))
+    if name == "blocks" and threads and batch.heap_threads != int(threads):  # the kernel's registers allow fewer
+        print(f"blocks:{threads} runs {batch.heap_threads} threads a heap, as many as the kernel's registers allow")
     batch.advance(warmup)
     t = time.perf_counter()
     status = batch.advance(steps)

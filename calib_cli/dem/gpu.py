@@ -315,11 +315,11 @@ def _force_kernels(contact) -> dict:
         if active[h] == 0:
             return
         p = _raw(prm[h])
-        most, nan, count = pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force,
-                                    torque, ncont, cnew)
-        most, nan, count = walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force,
-                                    torque, ncont, most, nan, count)
-        _settle(i, h, most, nan, count, cnew, worst)
+        most, count = pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque,
+                               ncont, cnew)
+        most, count = walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque,
+                               ncont, most, count)
+        _settle(i, h, most, count, cnew, worst)
 
     @cuda.jit
     def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
@@ -437,13 +437,13 @@ def _block_kernel(forces_one):
 
 def _pairs_of(contact):
     """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
-    largest relative overlap, whether one was NaN, and its contacts counted (:func:`_settle` adds them)."""
+    largest relative overlap and its contacts counted (:func:`_settle` adds them)."""
 
     @cuda.jit(device=True)
     def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
                  cnew):
         ht = _raw(hist[i])
-        most, nan, count = 0.0, False, 0.0
+        most, count = 0.0, 0.0
         for s in range(nnb[i]):
             j = nbr[i, s]
             dx = pos[i, 0] - pos[j, 0]
@@ -474,22 +474,21 @@ def _pairs_of(contact):
             if ht[s, A_OLD] > 0.0:
                 count += 1.0
                 cuda.atomic.add(cnew, j, 1.0)
-            most, nan = _fold(most, nan, ov / min(Ri, Rj))
-        return most, nan, count
+            most = _fold(most, ov / min(Ri, Rj))
+        return most, count
 
     return pairs_of
 
 
 @cuda.jit(device=True)
-def _fold(most, nan, v):
-    """A running maximum that remembers a NaN apart (an atomic maximum may keep or drop one)."""
-    if v != v:
-        return most, True
-    return (v if v > most else most), nan
+def _fold(most, v):
+    """A running maximum that passes over a NaN, as numba's atomic maximum did when each contact called it
+    (a heap whose overlaps are NaN is stopped by the speed check)."""
+    return v if v > most else most
 
 
 @cuda.jit(device=True)
-def _settle(i, h, most, nan, count, cnew, worst):
+def _settle(i, h, most, count, cnew, worst):
     """Grain i's share of the step's tallies, once a grain instead of once a contact: its contact count (whole
     numbers: exact in any order) and its largest overlap into the heap's (skipped where the heap's is larger
     already: the maximum only grows within a chunk). Every contact of a heap once hit one address."""
@@ -497,8 +496,6 @@ def _settle(i, h, most, nan, count, cnew, worst):
         cuda.atomic.add(cnew, i, count)
     if most > worst[h]:
         cuda.atomic.max(worst, h, most)
-    if nan:
-        cuda.atomic.max(worst, h, math.nan)
 
 
 @cuda.jit(device=True)
@@ -533,8 +530,8 @@ def _walls_of(contact):
 
     @cuda.jit(device=True)
     def walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, p, gap, geo, dt, force, torque, ncont, most,
-                 nan, count):
-        """Grain i's wall contacts, folded into its running tallies (``most``, ``nan``, ``count``: as
+                 count):
+        """Grain i's wall contacts, folded into its running tallies (``most``, ``count``: as
         :func:`_pairs_of`'s), which it returns."""
         Ri = rad[i]
         drag = geo[h, 5]
@@ -546,7 +543,7 @@ def _walls_of(contact):
             ov, hit = on_wall(i, 0.0, 0.0, 1.0, Ri - pos[i, 2], gap[h, FLOOR], 0.0, hf, FLOOR, Ri, vel, omg, mass,
                               inv_inertia, ncont, p, dt[h], force, torque)
             if hit > 0.0:
-                most, nan = _fold(most, nan, ov)
+                most = _fold(most, ov)
                 count += hit
         # cylinder: vertical, axis through the origin, open bottom rim at z_edge moving up at vlift
         if geo[h, 3] > 0.0:
@@ -554,9 +551,9 @@ def _walls_of(contact):
             ov, hit = on_wall(i, nx, ny, nz, delta, gap[h, CYL], geo[h, 2], hc, CYL, Ri, vel, omg, mass,
                               inv_inertia, ncont, p, dt[h], force, torque)
             if hit > 0.0:
-                most, nan = _fold(most, nan, ov)
+                most = _fold(most, ov)
                 count += hit
-        return most, nan, count
+        return most, count
 
     return walls_of
 
@@ -680,6 +677,8 @@ MODES = ("launch", "device", "graph", "persistent", "blocks")
 #: (docs/performance.md, 2026-11-28: 48 us a step for one heap, against `persistent`'s 52 and `launch`'s 2,300)
 DEFAULT_MODE = "graph"
 GRAPH_STEPS = 50
+#: the blocks mode's threads a heap under the simulator: one keeps its arithmetic in the CPU kernel's order
+SIM_BLOCK_THREADS = 1
 
 
 def step_mode(mode: str | None = None) -> str:
@@ -716,7 +715,7 @@ class Batch:
         self.first = self.host["first"]
         self.width = self.host["nbr"].shape[1]
         self.d = {k: self.cuda.to_device(v) for k, v in self.host.items()}
-        self._graphs, self._coop, self._stream, self._kept = {}, None, None, None
+        self._graphs, self._coop, self._blk, self._stream, self._kept = {}, None, None, None, None
 
     def _set(self, name: str, value: np.ndarray) -> None:
         """Host values into device array ``name``, in place (its address stays)."""
@@ -829,9 +828,27 @@ class Batch:
         kernel[grid, block](*self._args(kernel, {"nsteps": nsteps}))
 
     def _steps_blocks(self, nsteps: int) -> None:
-        kernel = self.k["blocks"]
-        threads = 1 if SIMULATOR else self.block
+        kernel, threads = self._blocks()
         kernel[len(self.systems), threads](*self._args(kernel, {"nsteps": nsteps}))
+
+    def _blocks(self):
+        """The block-a-heap kernel, specialized to the batch's arrays, and its threads a heap: ``block``, at most
+        what its registers leave room for (its kernel takes ~130 registers a thread: 512 threads do not fit
+        a multiprocessor's 65,536 for every composition); :data:`SIM_BLOCK_THREADS` under the simulator."""
+        if self._blk is None:
+            kernel = self.k["blocks"]
+            if SIMULATOR:
+                self._blk = (kernel, SIM_BLOCK_THREADS)
+            else:
+                kernel = kernel.specialize(*self._args(kernel, {"nsteps": 1}))
+                self._blk = (kernel, max(1, min(self.block, kernel.get_max_threads_per_block())))
+        return self._blk
+
+    @property
+    def heap_threads(self) -> int:
+        """The threads a heap in the ``blocks`` mode (``block``, or fewer where the kernel's registers allow
+        no more)."""
+        return self._blocks()[1]
 
     def _cooperative(self):
         """The persistent kernel, specialized to the batch's arrays, with the most blocks that can all be
@@ -870,7 +887,8 @@ class Batch:
         for name, v in {**slots, "count": grids["count"], "slots": grids["slots"]}.items():
             self.host[name] = v
             self.d[name] = self.cuda.to_device(v)
-        self._graphs, self._coop, self._kept = {}, None, None  # they hold the old arrays (and the cell count)
+        # they hold the old arrays (and the cell count)
+        self._graphs, self._coop, self._blk, self._kept = {}, None, None, None
 
     # -------------------------------------------------------------- exchange with the systems
     def pull(self, lists: bool = False) -> None:
