@@ -6,7 +6,7 @@ from pathlib import Path
 os.environ.setdefault("NUMBA_ENABLE_CUDASIM", "1")
 if os.environ["NUMBA_ENABLE_CUDASIM"] == "1":
     # the simulator starts a Python thread per GPU thread per launch, so the default mode ("graph", which
-    # there launches all seven kernels every step) runs a heap test 5x slower than "launch" (9 s against 55 s
+    # there launches all five kernels every step) runs a heap test 5x slower than "launch" (9 s against 55 s
     # for the checkpoint test); tests/test_gpu.py checks every mode's states against the CPU kernel itself
     os.environ.setdefault("CALIB_GPU_STEP", "launch")
 # the CLI's tables are 120 columns wide unless $COLUMNS says otherwise (xdist's workers may inherit one)

@@ -169,9 +169,10 @@ def _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, ov
 
 
 @cuda.jit(device=True)
-def _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
+def _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
               new_nnb, new_nbr, new_hist, overflow):
-    """Grain i's neighbours j > i within reach, from the 27 cells around it, each with its old history."""
+    """Grain i's neighbours j > i within reach, from the 27 cells around it, each with its old history; they
+    become its list, and its position the list's reference."""
     h = heap[i]
     if rebuild[h] == 0:
         return
@@ -205,20 +206,30 @@ def _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, s
                     for col in range(hist.shape[2]):
                         new_hist[i, m, col] = hist[i, old, col] if old >= 0 else 0.0
                     m += 1
+    # the new list replaces the old at once: no other thread reads grain i's slots, histories or reference
+    # position during the search (a grain reads only its own)
     new_nnb[i] = m
-
-
-@cuda.jit(device=True)
-def _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
-    if rebuild[heap[i]] == 0:
-        return
-    nnb[i] = new_nnb[i]
-    for s in range(new_nnb[i]):
+    nnb[i] = m
+    for s in range(m):
         nbr[i, s] = new_nbr[i, s]
         for col in range(hist.shape[2]):
             hist[i, s, col] = new_hist[i, s, col]
     for d in range(3):
         ref_pos[i, d] = pos[i, d]
+
+
+@cuda.jit(device=True)
+def _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count):
+    """Grain i's cell emptied again after a rebuild (every search has read it by then), so that the next
+    rebuild bins into empty cells: a grain's work, where clearing every cell of a heap's box cost ~110 us a
+    step for 256 heaps (23.6 million cells) on an H200 whenever one heap rebuilt (docs/performance.md)."""
+    h = heap[i]
+    if rebuild[h] == 0:
+        return
+    cx = _cell_of(pos, i, lo, dims, side, h, 0)
+    cy = _cell_of(pos, i, lo, dims, side, h, 1)
+    cz = _cell_of(pos, i, lo, dims, side, h, 2)
+    count[cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz] = 0
 
 
 @cuda.jit(device=True)
@@ -243,7 +254,7 @@ def _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass
 
 
 # ------------------------------------------------------------------ a kernel a phase (modes launch, device, graph)
-# A thread a grain (a cell for clear_cells). The step number within the chunk is read from the device
+# A thread a grain. The step number within the chunk is read from the device
 # (``nstep``, counted by ``kick``), so that a captured CUDA graph replays the same launches step after step.
 
 @cuda.jit
@@ -256,13 +267,6 @@ def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, i
 
 
 @cuda.jit
-def clear_cells(ncells, cell_heap, rebuild, count):
-    c = cuda.grid(1)
-    if c < ncells and rebuild[cell_heap[c]] != 0:
-        count[c] = 0
-
-
-@cuda.jit
 def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
     i = cuda.grid(1)
     if i < n:
@@ -270,19 +274,12 @@ def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, 
 
 
 @cuda.jit
-def find_neighbours(n, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+def find_neighbours(n, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
                     nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
     i = cuda.grid(1)
     if i < n:
-        _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
-                  new_nnb, new_nbr, new_hist, overflow)
-
-
-@cuda.jit
-def adopt(n, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist):
-    i = cuda.grid(1)
-    if i < n:
-        _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+        _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
+                  hist, new_nnb, new_nbr, new_hist, overflow)
 
 
 @cuda.jit
@@ -299,13 +296,13 @@ def kick(n, active, heap, first, rebuild, anyreb, dt, vel, omg, force, torque, m
 
 
 #: the kernels that take no contact law (one set for every composition)
-STEP_KERNELS = dict(kick_drift=kick_drift, clear_cells=clear_cells, bin_grains=bin_grains,
-                    find_neighbours=find_neighbours, adopt=adopt, kick=kick)
+STEP_KERNELS = dict(kick_drift=kick_drift, bin_grains=bin_grains, find_neighbours=find_neighbours, kick=kick)
 
 
 def _force_kernels(contact) -> dict:
     """The step's contacts around the composed ``contact`` (a compiled function of :mod:`.forces`): one
-    kernel, a thread a grain, its pairs and then its walls; and the persistent kernel, which calls it."""
+    kernel, a thread a grain, its pairs and then its walls (and its cell emptied after a rebuild); and the
+    persistent and block kernels, which call the same."""
     pairs_of, walls_of = _pairs_of(contact), _walls_of(contact)
 
     @cuda.jit(device=True)
@@ -323,9 +320,10 @@ def _force_kernels(contact) -> dict:
 
     @cuda.jit
     def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
-               force, torque, ncont, cnew, worst):
+               force, torque, ncont, cnew, worst, rebuild, lo, dims, side, cell0, count):
         i = cuda.grid(1)
         if i < n:
+            _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
             forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo,
                        dt, force, torque, ncont, cnew, worst)
 
@@ -333,15 +331,15 @@ def _force_kernels(contact) -> dict:
 
 
 def _persistent_kernel(forces_one):
-    """``nsteps`` whole steps in one cooperative launch: every thread strides over the grains (cells) of a
+    """``nsteps`` whole steps in one cooperative launch: every thread strides over the grains of a
     phase, and the grid waits for all before the next (``this_grid().sync()``, a cooperative launch that
-    numba makes when a kernel syncs its grid). The rebuild's four phases run only on a step where some
+    numba makes when a kernel syncs its grid). The rebuild's two phases run only on a step where some
     heap asked for one (``anyreb``, read by every thread after the sync that follows the drift). Under
     numba's simulator a grid is one block, launched here with one thread: phases in grain order, as the
     per-phase kernels run there, so the states stay bit for bit the CPU kernel's."""
 
     @cuda.jit
-    def persistent(nsteps, n, ncells, cap, overlap_limit, speed_limit, active, heap, first, cell_heap, dt, pos, vel,
+    def persistent(nsteps, n, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel,
                    omg, force, torque, rad, mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0,
                    lift_start, geo, lo, dims, side, cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nnb,
                    new_nbr, new_hist, hf, hc, prm, gap, ncont, worst, status, nstep):
@@ -354,21 +352,15 @@ def _persistent_kernel(forces_one):
                            limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
             grid.sync()
             if anyreb[0] != 0:
-                for c in range(start, ncells, stride):
-                    if rebuild[cell_heap[c]] != 0:
-                        count[c] = 0
-                grid.sync()
                 for i in range(start, n, stride):
                     _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow)
                 grid.sync()
                 for i in range(start, n, stride):
-                    _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
-                              hist, new_nnb, new_nbr, new_hist, overflow)
-                grid.sync()
-                for i in range(start, n, stride):
-                    _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+                    _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+                              nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow)
                 grid.sync()
             for i in range(start, n, stride):
+                _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
                 forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap,
                            geo, dt, force, torque, ncont, cnew, worst)
             grid.sync()
@@ -383,9 +375,10 @@ def _persistent_kernel(forces_one):
 
     return persistent
 
+
 def _block_kernel(forces_one):
     """``nsteps`` whole steps in one launch of a thread block a heap: block h's threads stride over heap h's
-    grains (and cells) and wait for each other between phases with ``syncthreads`` (a barrier of one
+    grains and wait for each other between phases with ``syncthreads`` (a barrier of one
     multiprocessor, where the persistent kernel's grid sync spans the GPU); heaps never touch each other's
     grains, so no block waits for another. A heap's rebuild runs on the steps where it asked for one. A heap
     is as fast as one multiprocessor can step it: for batches of small heaps, not one large heap. Under
@@ -408,20 +401,15 @@ def _block_kernel(forces_one):
                            limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
             cuda.syncthreads()
             if rebuild[h] != 0:
-                for c in range(cell0[h] + cuda.threadIdx.x, cell0[h + 1], stride):
-                    count[c] = 0
-                cuda.syncthreads()
                 for i in range(start, end, stride):
                     _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow)
                 cuda.syncthreads()
                 for i in range(start, end, stride):
-                    _find_one(i, heap, rebuild, pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
-                              hist, new_nnb, new_nbr, new_hist, overflow)
-                cuda.syncthreads()
-                for i in range(start, end, stride):
-                    _adopt_one(i, heap, rebuild, pos, ref_pos, nnb, nbr, hist, new_nnb, new_nbr, new_hist)
+                    _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
+                              nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow)
                 cuda.syncthreads()
             for i in range(start, end, stride):
+                _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
                 forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap,
                            geo, dt, force, torque, ncont, cnew, worst)
             cuda.syncthreads()
@@ -437,47 +425,72 @@ def _block_kernel(forces_one):
 
 def _pairs_of(contact):
     """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
-    largest relative overlap and its contacts counted (:func:`_settle` adds them)."""
+    largest relative overlap and its contacts counted (:func:`_settle` adds them).
+
+    Two passes over each window of :data:`WINDOW` slots: the first marks the pairs within reach (a bit each)
+    and clears the others' history, the second runs the contact law on the marked ones in slot order. So
+    the threads of a warp each compute their k-th contact together, where one pass ran the law for slot s
+    whenever any thread's slot s touched, the others waiting (7.7 of 32 threads active on an H200 at 64
+    heaps, docs/performance.md). The sums' order within a grain is the one pass's."""
 
     @cuda.jit(device=True)
     def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
                  cnew):
         ht = _raw(hist[i])
         most, count = 0.0, 0.0
-        for s in range(nnb[i]):
-            j = nbr[i, s]
-            dx = pos[i, 0] - pos[j, 0]
-            dy = pos[i, 1] - pos[j, 1]
-            dz = pos[i, 2] - pos[j, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            Ri = rad[i]
-            Rj = rad[j]
-            reach = Ri + Rj + gap[h, PP]
-            if d2 >= reach * reach:
-                for c in range(hist.shape[2]):
-                    if c != R13:
-                        ht[s, c] = 0.0
-                continue
-            Rs = Ri * Rj / (Ri + Rj)
-            d = math.sqrt(d2)
-            inv = 1.0 / d
-            delta = Ri + Rj - d
-            fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = contact(
-                dx * inv, dy * inv, dz * inv, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs,
-                mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
-                vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
-                omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
-            _add3(force, i, fx, fy, fz)
-            _add3(force, j, -fx, -fy, -fz)
-            _add3(torque, i, tix, tiy, tiz)
-            _add3(torque, j, tjx, tjy, tjz)
-            if ht[s, A_OLD] > 0.0:
-                count += 1.0
-                cuda.atomic.add(cnew, j, 1.0)
-            most = _fold(most, ov / min(Ri, Rj))
+        Ri = rad[i]
+        for base in range(0, nnb[i], WINDOW):
+            mask = 0
+            for s in range(base, min(base + WINDOW, nnb[i])):
+                j = nbr[i, s]
+                reach = Ri + rad[j] + gap[h, PP]
+                if not _dist2(pos, i, j) >= reach * reach:  # a NaN distance too, as the one pass ran it
+                    mask |= 1 << (s - base)
+                else:
+                    for c in range(hist.shape[2]):
+                        if c != R13:
+                            ht[s, c] = 0.0
+            while mask != 0:
+                low = mask & -mask
+                mask ^= low
+                s = base + cuda.popc(low - 1)
+                j = nbr[i, s]
+                Rj = rad[j]
+                dx = pos[i, 0] - pos[j, 0]
+                dy = pos[i, 1] - pos[j, 1]
+                dz = pos[i, 2] - pos[j, 2]
+                Rs = Ri * Rj / (Ri + Rj)
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                inv = 1.0 / d
+                delta = Ri + Rj - d
+                fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = contact(
+                    dx * inv, dy * inv, dz * inv, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs,
+                    mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
+                    vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
+                    omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
+                _add3(force, i, fx, fy, fz)
+                _add3(force, j, -fx, -fy, -fz)
+                _add3(torque, i, tix, tiy, tiz)
+                _add3(torque, j, tjx, tjy, tjz)
+                if ht[s, A_OLD] > 0.0:
+                    count += 1.0
+                    cuda.atomic.add(cnew, j, 1.0)
+                most = _fold(most, ov / min(Ri, Rj))
         return most, count
 
     return pairs_of
+
+
+#: slots a grain's pairs are marked in at a time (bits of one int64 mask, the sign bit unused)
+WINDOW = 32
+
+
+@cuda.jit(device=True)
+def _dist2(pos, i, j):
+    dx = pos[i, 0] - pos[j, 0]
+    dy = pos[i, 1] - pos[j, 1]
+    dz = pos[i, 2] - pos[j, 2]
+    return dx * dx + dy * dy + dz * dz
 
 
 @cuda.jit(device=True)
@@ -611,7 +624,6 @@ def _grids(systems: list, cell_cap: int) -> dict:
     cell0 = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     return {"lo": np.stack([g.lo for g in grids]), "dims": np.stack([g.dims for g in grids]),
             "side": np.array([g.side for g in grids]), "cell0": cell0,
-            "cell_heap": np.repeat(np.arange(len(grids)), sizes).astype(np.int64),
             "count": np.zeros(cell0[-1], np.int64), "slots": np.zeros((cell0[-1], cell_cap), np.int64)}
 
 
@@ -635,7 +647,7 @@ def _params(kernel) -> tuple[str, ...]:
 
 
 def _scalars(host: dict, systems: list, cell_cap: int, nsteps: int = 1) -> dict:
-    return {"n": len(host["heap"]), "ncells": len(host["count"]), "cap": cell_cap,
+    return {"n": len(host["heap"]), "cap": cell_cap,
             "nsteps": nsteps, "overlap_limit": float(systems[0].overlap_limit),
             "speed_limit": float(systems[0].speed_limit)}
 
@@ -668,13 +680,13 @@ def compile_ptx(spec: str, systems: list, cc: tuple[int, int] = (9, 0)) -> dict[
 #: how a batch runs its steps (docs/performance.md measures each on a GPU):
 #: ``launch``: a kernel a phase, launched from Python every step, the host reading whether any heap asked for
 #: a neighbour rebuild (the engine as first measured); ``device``: the same kernels with no read-back, all
-#: seven launched every step and each heap's threads skipping a rebuild it did not ask for; ``graph``:
+#: five launched every step and each heap's threads skipping a rebuild it did not ask for; ``graph``:
 #: ``device``'s launches for :data:`GRAPH_STEPS` steps captured once in a CUDA graph and replayed;
 #: ``persistent``: one cooperative launch a chunk (:func:`_persistent_kernel`); ``blocks``: one launch a chunk, a
 #: thread block a heap (:func:`_block_kernel`). Chosen by ``CALIB_GPU_STEP``.
 MODES = ("launch", "device", "graph", "persistent", "blocks")
-#: the default: the fastest on an H200 at every batch measured, 1 to 256 `default` heaps and one `paper` heap
-#: (docs/performance.md, 2026-11-28: 48 us a step for one heap, against `persistent`'s 52 and `launch`'s 2,300)
+#: the default: the fastest on an H200 from 16 to 256 `default` heaps and for one `paper` heap, and within 2 % of
+#: `persistent` for one `default` heap (docs/performance.md, 2026-11-28: 36.7 us a step against 36.0)
 DEFAULT_MODE = "graph"
 GRAPH_STEPS = 50
 #: the blocks mode's threads a heap under the simulator: one keeps its arithmetic in the CPU kernel's order
@@ -768,16 +780,15 @@ class Batch:
         for _ in range(nsteps):
             self._launch("kick_drift", n)
             # skip a rebuild no heap asked for (same result): here a step is bound by its launches (~70 us each
-            # on an H200, docs/performance.md), and reading one flag costs less than four launches
+            # on an H200, docs/performance.md), and reading one flag costs less than two launches
             if self.d["anyreb"].copy_to_host()[0]:
                 self._rebuild(n)
             self._launch("forces", n)
             self._launch("kick", n)
 
     def _rebuild(self, n: int, stream=None) -> None:
-        self._launch("clear_cells", len(self.host["count"]), stream)
-        for name in ("bin_grains", "find_neighbours", "adopt"):
-            self._launch(name, n, stream)
+        self._launch("bin_grains", n, stream)
+        self._launch("find_neighbours", n, stream)
 
     def _steps_device(self, nsteps: int, stream=None) -> None:
         n = len(self.host["heap"])
@@ -860,7 +871,7 @@ class Batch:
             else:
                 kernel = kernel.specialize(*self._args(kernel, {"nsteps": 1}))
                 most = next(iter(kernel.overloads.values())).max_cooperative_grid_blocks(self.block)
-                need = (max(len(self.host["heap"]), len(self.host["count"])) + self.block - 1) // self.block
+                need = (len(self.host["heap"]) + self.block - 1) // self.block
                 self._coop = (kernel, max(1, min(most, need)), self.block)
         return self._coop
 
