@@ -15,7 +15,7 @@ import pytest
 
 from calib_cli.dem import gpu
 from calib_cli.dem.materials import Interaction, Material
-from calib_cli.dem.system import Particles, System, Walls
+from calib_cli.dem.system import Particles, System, UnstableError, Walls
 from calib_cli.errors import CalibError
 
 R = 1.5e-3
@@ -120,14 +120,21 @@ def test_neighbour_slots_that_overflow_are_grown_and_the_chunk_rerun(mode):
 
 @pytest.mark.parametrize("mode", MANY)
 def test_a_heap_that_blows_up_stops_alone(mode):
-    wild = column(3, 0.5, kick=80.0)  # faster than any heap test: above the speed limit at once
+    """A heap that blows up stops, its neighbour goes on; it stops where the CPU kernel stops it: after the
+    step that blew up, every grain's half kick of that step done (a grain's thread once switched the heap off
+    while others of it had yet to read the switch)."""
+    wild_cpu, wild = column(3, 0.5, kick=80.0), column(3, 0.5, kick=80.0)  # above the speed limit at once
     calm_cpu, calm = column(4, 0.5), column(4, 0.5)
     b = gpu.Batch([wild, calm], mode=mode)
     status = b.advance(50)
     calm_cpu.advance(50)
+    with pytest.raises(UnstableError):
+        wild_cpu.advance(50)
     b.pull()
     assert list(status) == [gpu.SPEED, gpu.OK] and list(b.host["active"]) == [0, 1]
     same_state(calm_cpu, calm, 1e-9 * LOOSE)
+    for x, y in ((wild_cpu.particles.pos, wild.particles.pos), (wild_cpu.particles.vel, wild.particles.vel)):
+        assert np.max(np.abs(x - y)) <= 1e-12 * LOOSE * np.max(np.abs(x))
 
 
 def test_a_grains_tallies_fold_its_contacts_as_the_per_contact_atomics_did():

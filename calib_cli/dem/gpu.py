@@ -122,12 +122,19 @@ def _half_kick(i, half, vel, omg, force, torque, mass, inv_inertia):
 # kernel (:func:`_persistent_kernel`) call the same ones, so every stepping mode runs the same arithmetic.
 
 @cuda.jit(device=True)
-def _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
-               rebuild, anyreb, grav, cnew, step, t0, lift_start, geo):
+def _drift_one(i, active, status, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
+               limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo):
     """The step's first half: half kick and drift, the rebuild flag where a grain moved half the skin,
-    the force reset to gravity for the step's contacts; a heap's first grain moves its cylinder."""
+    the force reset to gravity for the step's contacts; a heap's first grain moves its cylinder. A heap
+    whose last step blew up (``status``, set during that step's kick) stops here: its first grain switches
+    it off for the rest of the step and after, so every grain of it finished that step, as the CPU kernel
+    ends a run, and no thread reads ``active`` in the phase that writes it."""
     h = heap[i]
     if active[h] == 0:
+        return
+    if status[h] != OK:
+        if i == first[h]:
+            active[h] = 0
         return
     _half_kick(i, 0.5 * dt[h], vel, omg, force, torque, mass, inv_inertia)
     for d in range(3):
@@ -235,8 +242,9 @@ def _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count):
 @cuda.jit(device=True)
 def _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass, inv_inertia, ncont, cnew,
               overlap_limit, speed_limit, worst, status):
-    """The step's second half: half kick, the contact counts, the overlap and speed checks; a heap's
-    first grain clears its rebuild flag (the lists were rebuilt earlier in the step)."""
+    """The step's second half: half kick, the contact counts, the overlap and speed checks (a heap that
+    blew up stops at the next step's drift, :func:`_drift_one`); a heap's first grain clears its rebuild
+    flag (the lists were rebuilt earlier in the step)."""
     h = heap[i]
     if i == first[h]:
         rebuild[h] = 0
@@ -249,8 +257,6 @@ def _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass
         status[h] = SPEED
     if worst[h] > overlap_limit and status[h] == OK:
         status[h] = OVERLAP
-    if status[h] != OK:  # a heap that blew up stops where it is (the others go on)
-        active[h] = 0
 
 
 # ------------------------------------------------------------------ a kernel a phase (modes launch, device, graph)
@@ -258,12 +264,12 @@ def _kick_one(i, active, heap, first, rebuild, dt, vel, omg, force, torque, mass
 # (``nstep``, counted by ``kick``), so that a captured CUDA graph replays the same launches step after step.
 
 @cuda.jit
-def kick_drift(n, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
+def kick_drift(n, active, status, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
                rebuild, anyreb, grav, cnew, nstep, t0, lift_start, geo):
     i = cuda.grid(1)
     if i < n:
-        _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos, limit2,
-                   rebuild, anyreb, grav, cnew, nstep[0], t0, lift_start, geo)
+        _drift_one(i, active, status, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
+                   limit2, rebuild, anyreb, grav, cnew, nstep[0], t0, lift_start, geo)
 
 
 @cuda.jit
@@ -348,8 +354,8 @@ def _persistent_kernel(forces_one):
         stride = cuda.gridsize(1)
         for step in range(nsteps):
             for i in range(start, n, stride):
-                _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
-                           limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
+                _drift_one(i, active, status, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia,
+                           ref_pos, limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
             grid.sync()
             if anyreb[0] != 0:
                 for i in range(start, n, stride):
@@ -394,11 +400,13 @@ def _block_kernel(forces_one):
         start, stride = first[h] + cuda.threadIdx.x, cuda.blockDim.x
         end = first[h + 1]
         for step in range(nsteps):
-            if active[h] == 0:  # read by every thread after the sync that ended the last step: all leave
+            # read by every thread after the sync that ended the last step (the drift below may switch the heap
+            # off, but only once its status says so): all leave together
+            if active[h] == 0 or status[h] != OK:
                 break
             for i in range(start, end, stride):
-                _drift_one(i, active, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia, ref_pos,
-                           limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
+                _drift_one(i, active, status, heap, first, dt, pos, vel, omg, force, torque, mass, inv_inertia,
+                           ref_pos, limit2, rebuild, anyreb, grav, cnew, step, t0, lift_start, geo)
             cuda.syncthreads()
             if rebuild[h] != 0:
                 for i in range(start, end, stride):
@@ -764,7 +772,9 @@ class Batch:
                 s.t += nsteps * s.dt
                 s.n_steps += nsteps
                 s.max_overlap = max(s.max_overlap, float(worst[h]))
-        self.host["active"] = self.d["active"].copy_to_host()
+        # a heap that blew up on the chunk's last step has not reached the drift that switches it off
+        self.host["active"] = np.where(status == OK, self.d["active"].copy_to_host(), 0)
+        self._set("active", self.host["active"])
         return status
 
     def _chunk(self, nsteps: int) -> None:
