@@ -1,5 +1,5 @@
 #!/bin/bash
-# One prepared call on a lent GPU machine (the device tool's `run`, carry [".whl", "gpu_run"], timeout_s 590),
+# One prepared call on a lent GPU machine (the device tool's `run`, carry [".whl"], timeout_s 590),
 # for the GPU engine's figures in docs/performance.md, in the order of what matters most:
 #  1. throughput against batch size for each stepping mode (benchmarks/gpu_throughput.py), beside the CPU
 #     kernel on the machine's cores;

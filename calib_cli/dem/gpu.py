@@ -160,14 +160,20 @@ def _cell_of(pos, i, lo, dims, side, h, d):
 
 
 @cuda.jit(device=True)
+def _grain_cell(pos, i, lo, dims, side, cell0, h):
+    """The index of grain i's cell in the batch's cells (heap h's box)."""
+    cx = _cell_of(pos, i, lo, dims, side, h, 0)
+    cy = _cell_of(pos, i, lo, dims, side, h, 1)
+    cz = _cell_of(pos, i, lo, dims, side, h, 2)
+    return cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
+
+
+@cuda.jit(device=True)
 def _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, overflow):
     h = heap[i]
     if rebuild[h] == 0:
         return
-    cx = _cell_of(pos, i, lo, dims, side, h, 0)
-    cy = _cell_of(pos, i, lo, dims, side, h, 1)
-    cz = _cell_of(pos, i, lo, dims, side, h, 2)
-    c = cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz
+    c = _grain_cell(pos, i, lo, dims, side, cell0, h)
     s = cuda.atomic.add(count, c, 1)
     if s < cap:
         slots[c, s] = i
@@ -233,10 +239,7 @@ def _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count):
     h = heap[i]
     if rebuild[h] == 0:
         return
-    cx = _cell_of(pos, i, lo, dims, side, h, 0)
-    cy = _cell_of(pos, i, lo, dims, side, h, 1)
-    cz = _cell_of(pos, i, lo, dims, side, h, 2)
-    count[cell0[h] + (cx * dims[h, 1] + cy) * dims[h, 2] + cz] = 0
+    count[_grain_cell(pos, i, lo, dims, side, cell0, h)] = 0
 
 
 @cuda.jit(device=True)
