@@ -183,7 +183,7 @@ def _bin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, ov
 
 @cuda.jit(device=True)
 def _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr, hist,
-              new_nnb, new_nbr, new_hist, overflow):
+              new_nbr, new_hist, overflow):
     """Grain i's neighbours j > i within reach, from the 27 cells around it, each with its old history; they
     become its list, and its position the list's reference."""
     h = heap[i]
@@ -221,7 +221,6 @@ def _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0,
                     m += 1
     # the new list replaces the old at once: no other thread reads grain i's slots, histories or reference
     # position during the search (a grain reads only its own)
-    new_nnb[i] = m
     nnb[i] = m
     for s in range(m):
         nbr[i, s] = new_nbr[i, s]
@@ -284,11 +283,11 @@ def bin_grains(n, heap, rebuild, pos, lo, dims, side, cell0, count, slots, cap, 
 
 @cuda.jit
 def find_neighbours(n, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
-                    nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow):
+                    nnb, nbr, hist, new_nbr, new_hist, overflow):
     i = cuda.grid(1)
     if i < n:
         _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap, nnb, nbr,
-                  hist, new_nnb, new_nbr, new_hist, overflow)
+                  hist, new_nbr, new_hist, overflow)
 
 
 @cuda.jit
@@ -350,8 +349,8 @@ def _persistent_kernel(forces_one):
     @cuda.jit
     def persistent(nsteps, n, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel,
                    omg, force, torque, rad, mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0,
-                   lift_start, geo, lo, dims, side, cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nnb,
-                   new_nbr, new_hist, hf, hc, prm, gap, ncont, worst, status, nstep):
+                   lift_start, geo, lo, dims, side, cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nbr,
+                   new_hist, hf, hc, prm, gap, ncont, worst, status, nstep):
         grid = cuda.cg.this_grid()
         start = cuda.grid(1)
         stride = cuda.gridsize(1)
@@ -366,7 +365,7 @@ def _persistent_kernel(forces_one):
                 grid.sync()
                 for i in range(start, n, stride):
                     _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
-                              nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow)
+                              nnb, nbr, hist, new_nbr, new_hist, overflow)
                 grid.sync()
             for i in range(start, n, stride):
                 _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
@@ -397,7 +396,7 @@ def _block_kernel(forces_one):
     @cuda.jit
     def blocks(nsteps, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel, omg, force, torque, rad,
                mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0, lift_start, geo, lo, dims, side,
-               cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nnb, new_nbr, new_hist, hf, hc, prm, gap,
+               cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nbr, new_hist, hf, hc, prm, gap,
                ncont, worst, status, nstep):
         h = cuda.blockIdx.x
         start, stride = first[h] + cuda.threadIdx.x, cuda.blockDim.x
@@ -417,7 +416,7 @@ def _block_kernel(forces_one):
                 cuda.syncthreads()
                 for i in range(start, end, stride):
                     _find_one(i, heap, rebuild, pos, ref_pos, rad, reach, lo, dims, side, cell0, count, slots, cap,
-                              nnb, nbr, hist, new_nnb, new_nbr, new_hist, overflow)
+                              nnb, nbr, hist, new_nbr, new_hist, overflow)
                 cuda.syncthreads()
             for i in range(start, end, stride):
                 _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
@@ -625,8 +624,7 @@ def _slots(systems: list, first: np.ndarray, width: int) -> dict:
     nbr = np.zeros((n, width), np.int64)
     hist = np.zeros((n, width, HIST))
     nbr[pi, slot], hist[pi, slot] = pj, ht
-    return {"nnb": nnb, "nbr": nbr, "hist": hist, "new_nnb": np.zeros_like(nnb), "new_nbr": np.zeros_like(nbr),
-            "new_hist": np.zeros_like(hist)}
+    return {"nnb": nnb, "nbr": nbr, "hist": hist, "new_nbr": np.zeros_like(nbr), "new_hist": np.zeros_like(hist)}
 
 
 def _grids(systems: list, cell_cap: int) -> dict:
@@ -903,8 +901,7 @@ class Batch:
         n = len(self.host["heap"])
         old_nbr, old_hist, old_nnb = state.pop("nbr"), state.pop("hist"), state.pop("nnb")
         slots = {"nnb": old_nnb, "nbr": np.zeros((n, self.width), np.int64), "hist": np.zeros((n, self.width, HIST)),
-                 "new_nnb": np.zeros(n, np.int64), "new_nbr": np.zeros((n, self.width), np.int64),
-                 "new_hist": np.zeros((n, self.width, HIST))}
+                 "new_nbr": np.zeros((n, self.width), np.int64), "new_hist": np.zeros((n, self.width, HIST))}
         w = old_nbr.shape[1]
         slots["nbr"][:, :w], slots["hist"][:, :w] = old_nbr, old_hist
         grids = _grids(self.systems, self.cell_cap)
