@@ -10,11 +10,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from calib_cli import artifacts as art
 from calib_cli.errors import CalibError
 from calib_cli.posterior.calibrate import (OWN_SD_PILES, SecondResponse, calibrate_posterior, mean_variance,
+                                          moderated_variances,
                                           savage_dickey, scatter_log_likelihood)
 from calib_cli.posterior.gp import GPSurrogate, informative_conditions
 from calib_cli.stages.posterior import posterior
@@ -109,6 +112,49 @@ def test_a_measured_mean_s_variance_pools_few_piles_with_the_simulated_scatter()
     assert v[0] == pytest.approx(9.0 / OWN_SD_PILES)
     assert v[1] == pytest.approx((2 * 9.0 + 4 * 1.0) / 6 / 3)
     assert v[2] == pytest.approx(1.0)  # one pile: the simulated scatter alone
+
+
+def test_moderation_recovers_the_spread_of_the_conditions_variances():
+    # 400 conditions whose variances are s0^2 d0 / chi2_d0 (d0 20, s0 2), each measured by ten piles
+    rng = np.random.default_rng(1)
+    true = 4.0 * 20 / rng.chisquare(20, 400)
+    s2 = true * rng.chisquare(9, 400) / 9
+    post, d0, s0_2 = moderated_variances(s2, np.full(400, 9.0))
+    assert 10 < d0 < 40 and s0_2 == pytest.approx(4.0, rel=0.1)
+    # the moderated variance is nearer the truth than the condition's own, on the whole
+    assert np.mean(np.log(post / true) ** 2) < 0.6 * np.mean(np.log(s2 / true) ** 2)
+
+
+def test_a_chance_low_sd_is_moderated_and_truly_different_ones_are_kept():
+    # the control lab's six sds of ten dry piles: no more spread than chance, so all near their pool
+    sd = np.array([1.18, 1.72, 1.51, 1.59, 0.89, 1.75])
+    v = mean_variance(sd, np.full(6, 10), noise_sd=5.0)
+    assert np.all(np.abs(np.sqrt(10 * v) - 1.47) < 0.12)
+    # dry and cohesive conditions (1 and 6 deg, 20 piles each): the spread is real and little moves
+    sd = np.array([1.0, 1.1, 0.9, 6.0, 5.5, 6.5])
+    post, d0, _ = moderated_variances(sd ** 2, np.full(6, 19.0))
+    assert d0 < 3 and np.all(np.abs(np.sqrt(post) / sd - 1) < 0.15)
+
+
+def test_moderated_means_are_as_often_two_sds_off_as_stated():
+    # six conditions of ten piles, one true sd: |ybar - mu| / sqrt(v) > 2 should happen 4.6 % of the time;
+    # with each condition's own sd 7.7 % (a t with 9 dof; 8.0 % here), moderated 5.4 % here
+    rng = np.random.default_rng(2)
+    labs, n = 3000, 10
+    piles = rng.normal(0.0, 1.5, (labs, 6, n))
+    ybar, sd = piles.mean(axis=2), piles.std(axis=2, ddof=1)
+    own = np.mean(np.abs(ybar) / (sd / np.sqrt(n)) > 2)
+    mod = np.mean([np.abs(ybar[k]) / np.sqrt(mean_variance(sd[k], np.full(6, n), 1.0)) > 2 for k in range(labs)])
+    assert own > 0.065 and 0.035 < mod < 0.058
+
+
+@given(st.lists(st.floats(0.1, 10.0), min_size=3, max_size=8), st.integers(1, 15))
+@settings(max_examples=60, deadline=None)
+def test_a_moderated_variance_lies_between_its_own_and_the_prior(sds, dof):
+    s2 = np.asarray(sds) ** 2
+    post, _, s0_2 = moderated_variances(s2, np.full(len(s2), float(dof)))
+    lo, hi = np.minimum(s2, s0_2), np.maximum(s2, s0_2)
+    assert np.all(post >= lo * (1 - 1e-9)) and np.all(post <= hi * (1 + 1e-9))
 
 
 def test_the_bayes_factor_of_an_effect_off_reads_the_density_at_its_bound():

@@ -2,6 +2,7 @@
 ranking, photographs) comes before the paper's stages and the raw tables; every committed kind of
 run renders, whatever stages it lacks; wide tables scroll inside their box; raw tables are collapsed."""
 
+import json
 import re
 import shutil
 from html.parser import HTMLParser
@@ -71,35 +72,52 @@ def test_every_committed_run_renders_its_sections_in_order(name):
 
 def test_first_screen_of_a_run_with_diagnose():
     """hidden-effect: the loop calibrated in rounds; cohesion added after diagnose ranked it; the first
-    screen leads with the posterior (no GA point, nothing called pinned); no side view is committed."""
+    screen leads with the posterior (no GA point, nothing called pinned); no side view is committed.
+    compare's four heaps a condition at revision 1's point miss three conditions: the headline says so."""
     top = summary_of(build_report(RUNS / "hidden-effect"))
     assert "60 photographed heaps under 6 conditions" in top
-    assert "Model revision 1 reproduces all 6 conditions" in top and "badge pass" in top
+    assert "Model revision 1 misses 3 of 6 conditions" in top and "badge fail'>misfit" in top
     assert "ranked capillary and cohesion significant; revision 1 adds cohesion" in top
     assert top.index("Calibrated parameters: the posterior") < top.index("Fit per condition")
-    assert "Cohesion: the data call for it (Bayes factor of off &lt; 0.066)" in top
-    assert "surface_energy</td><td>0.491</td><td>0.333 &ndash; 1.01</td><td>J/m2</td>" in top
+    assert "Cohesion: the data call for it (Bayes factor of off &lt; 0.047)" in top
+    assert "surface_energy</td><td>0.547</td><td>0.402 &ndash; 0.749</td><td>J/m2</td>" in top
     assert ">pinned<" not in top and "best fit (GA)" not in top
     assert "8 rounds, 240 heaps simulated, the posterior on 372" in top
-    # fit per condition: one chart row per condition, all passing, from compare's residuals
+    # fit per condition: one chart row per condition, pass or fail as compare's residuals say
     sol = art.read_table(RUNS / "hidden-effect" / "compare" / "residuals.parquet")
     chart = top[top.index("<svg"):top.index("</svg>")]
-    assert all(c in chart for c in sol["condition_id"]) and chart.count(">pass<") == len(sol)
+    assert all(c in chart for c in sol["condition_id"])
+    assert chart.count(">pass<") == (~sol["fails"]).sum() and chart.count(">fail<") == sol["fails"].sum() == 3
     # error history and ranking with verdicts
-    assert "+ cohesion" in top and "2 of 6 fail" in top and "0 of 6 fail" in top
+    assert "+ cohesion" in top and "1 of 6 fail" in top and "3 of 6 fail" in top
     assert ">significant<" in top and "not significant" in top
-    # one photograph per condition, and an honest word about the missing simulated side views
+    # one photograph per condition, and an honest word about the missing simulated side views (a clone
+    # keeps none; a checkout that ran the pipeline keeps its heaps' folders, and shows them)
     assert top.count('src="measure/overlays/') == len(sol)
-    assert "No simulated side view is kept in this run directory for any condition" in top
+    kept = any((RUNS / "hidden-effect" / "simulate" / "runs").glob("*/side.png"))
+    assert ("No simulated side view is kept in this run directory for any condition" in top) != kept
 
 
-def test_first_screen_of_the_lammps_lab_flags_the_interval_its_box_cut():
-    """foreign-lab: restitution crowds the top of its prior (0.5): a red 'at upper edge', not 'identified',
-    and the headline says to widen the range; surface energy is identified and cohesion called for."""
-    top = summary_of(build_report(RUNS / "foreign-lab"))
+def test_first_screen_flags_an_interval_its_box_cut(tmp_path):
+    """A posterior crowding the top of its prior (the LAMMPS lab's restitution of 2026-11-27: 0.438-0.498 of
+    0.1-0.5, truth 0.3): a red 'at upper edge', not 'identified', and the headline says to widen the range."""
+    run = tmp_path / "run"
+    shutil.copytree(RUNS / "foreign-lab", run, ignore=shutil.ignore_patterns("runs", ".runs"))
+    path = run / "posterior" / "summary.parquet"
+    table, meta = art.read_table(path), art.read_provenance(path)
+    at = table["parameter"] == "restitution"
+    table.loc[at, ["median", "q05", "q95", "rel_width", "edge"]] = [0.482, 0.438, 0.498, 0.15, "high"]
+    table[["surrogate_ratio", "decided"]] = [0.79, True]  # that run's surrogates were sure enough
+    table.loc[~at, "edge"] = ""
+    art.write_table(path, table, meta)
+    lock = run / "posterior" / "sample.lock.json"  # the edit is this test's, not a corrupt artefact
+    record = json.loads(lock.read_text())
+    record["outputs"]["summary.parquet"] = art.file_hash(path)
+    lock.write_text(json.dumps(record))
+    top = summary_of(build_report(run))
     assert "restitution</td><td>0.482</td>" in top and ">at upper edge<" in top
     assert "Pressed against an edge of its range, so cut by it: restitution" in top
-    assert "Identified by the data: surface energy" in top and top.count(">identified<") == 1
+    assert ">identified<" not in top.split("restitution</td>")[1].split("</tr>")[0]
 
 
 def test_first_screen_degrades_on_the_paper_and_smoke_runs():

@@ -48,9 +48,11 @@ R = TypeVar("R")
 #: identified (its `edge` column)
 #: posterior 9, calibrate 2, calibrate-answer 4: the surrogate/measurement variance ratio over 4,096 posterior
 #: draws, not 256 (its Monte Carlo spread was as wide as its distance from the bar)
+#: posterior 10, calibrate 3, calibrate-answer 5: each condition's pile variance moderated across the
+#: conditions (limma's empirical Bayes) in the measured means' variances
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 1,
-                 "diagnose": 2, "posterior": 9, "suggest": 5, "calibrate": 2,
-                 "calibrate-answer": 4}
+                 "diagnose": 2, "posterior": 10, "suggest": 5, "calibrate": 3,
+                 "calibrate-answer": 5}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
