@@ -74,9 +74,9 @@ def mean_variance(sd, n, noise_sd: float) -> np.ndarray:
     """v_c = s~_c^2 / n_c, the variance of a measured mean, s~_c^2 the condition's pile variance moderated
     across the conditions (:func:`moderated_variances`): the sd of ten piles is more than a quarter off
     its truth about three times in ten, and taken alone a chance-low one makes its mean look sharper
-    than it is (and the surrogate look unsure there). With fewer than 3 conditions of two or more piles: s^2 = s_c^2
-    when n_c >= OWN_SD_PILES, else ((n_c - 1) s_c^2 + POOL_DOF noise_sd^2) / (n_c - 1 + POOL_DOF)
-    (one pile: the simulated scatter)."""
+    than it is (and the surrogate look unsure there). With fewer than 3 conditions of two or more
+    piles: s^2 = s_c^2 when n_c >= OWN_SD_PILES, else ((n_c - 1) s_c^2 + POOL_DOF noise_sd^2) /
+    (n_c - 1 + POOL_DOF) (one pile: the simulated scatter)."""
     sd, n = np.asarray(sd, float), np.asarray(n, float)
     dof = np.maximum(n - 1, 0)
     own = np.where(dof > 0, np.nan_to_num(sd) ** 2, 0.0)
