@@ -384,8 +384,8 @@ def test_a_pile_s_two_responses_correlate_in_the_means_covariance_and_nowhere_el
     X = np.random.default_rng(0).random((2, 3, 3)) * [1, 2, 0] + [0, 0, 75]
     v, sd2, n2 = np.array([0.1, 0.2, 0.3]), np.array([0.03, 0.04, 0.05]), np.full(3, 10.0)
     second = SecondResponse(full, np.ones(3), sd2, n2, rho=0.5)
-    r, V = _joint_terms(angle, second, X, X, np.zeros(3), v)
     v2 = mean_variance(sd2, n2, full.noise_sd_)
+    r, V = _joint_terms(angle, second, X, X, np.zeros(3), v, v2)
     assert r.shape == (2, 6) and V.shape == (2, 6, 6) and np.allclose(V, V.transpose(0, 2, 1))
     assert np.allclose(V[:, :3, 3:], np.diag(0.5 * np.sqrt(v * v2)))
     assert np.allclose(V[:, 3:, :3], np.diag(0.5 * np.sqrt(v * v2)))  # the triangle Cholesky reads

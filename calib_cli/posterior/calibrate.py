@@ -256,15 +256,15 @@ def _inputs(gp, t: np.ndarray, names: list[str], fixed: Mapping[str, float], con
     return X
 
 
-def _joint_terms(gp, second: Optional[SecondResponse], X, X2, ybar, v):
+def _joint_terms(gp, second: Optional[SecondResponse], X, X2, ybar, v, v2):
     """The residual vector and its covariance of the means (one response, or both stacked: the two
-    surrogates' errors apart, the measured means correlated within each condition)."""
+    surrogates' errors apart, the measured means correlated within each condition); v and v2 the two
+    responses' measured means' variances (:func:`mean_variance`)."""
     mu, cov = gp.predict_joint(X)
     r, V = ybar[None, :] - mu, cov + np.diag(v + 1e-9)  # the jitter: a measured sd of 0
     if second is None:
         return r, V
     mu2, cov2 = second.gp.predict_joint(X2)
-    v2 = mean_variance(second.sd, second.n, second.gp.noise_sd_)
     cross = np.diag(second.rho * np.sqrt(v * v2))
     V = np.block([[V, np.broadcast_to(cross, V.shape)], [np.broadcast_to(cross, V.shape), cov2 + np.diag(v2 + 1e-12)]])
     return np.concatenate([r, second.mean[None, :] - mu2], axis=1), V
@@ -278,6 +278,9 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
     ``second`` response; with ``scatter``, each condition's pile variance too)."""
     C, ybar = len(measured), measured["mean"].to_numpy(float)
     v = mean_variance(measured["sd"], measured["n"], gp.noise_sd_)
+    # once, not per call: the moderation fits its prior by a root search (~0.2 ms), and the sampler calls
+    # log_prob twice a step
+    v2 = mean_variance(second.sd, second.n, second.gp.noise_sd_) if second is not None else None
     lo, hi = np.array([bounds[p][0] for p in names]), np.array([bounds[p][1] for p in names])
     conds = {c for g in (gp, second.gp if second else gp) for c in g.inputs_ if c not in g.parameters}
     cond_vals = {c: measured[c].to_numpy(float) for c in conds}
@@ -293,7 +296,7 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
         t = theta[inside]
         X = _inputs(gp, t, names, fixed, cond_vals, C)
         X2 = _inputs(second.gp, t, names, fixed, cond_vals, C) if second else None
-        out[inside] = mvn_logpdf(*_joint_terms(gp, second, X, X2, ybar, v))
+        out[inside] = mvn_logpdf(*_joint_terms(gp, second, X, X2, ybar, v, v2))
         if scatter:
             lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
             out[inside] += scatter_log_likelihood(lv, U, s2, n)
