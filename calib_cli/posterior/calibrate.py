@@ -41,7 +41,7 @@ POOL_DOF = 4
 CHAIN_TAUS = 50
 
 
-def moderated_variances(s2, dof) -> tuple[np.ndarray, float, float]:
+def moderated_variances(s2, dof) -> Optional[tuple[np.ndarray, float, float]]:
     """Each condition's pile variance moderated across the conditions (limma's empirical Bayes, Smyth,
     Stat. Appl. Genet. Mol. Biol. 3, 2004, section 6): the s_c^2 (dof d_c) are taken as scaled
     chi-squares about variances drawn from s0^2 d0 / chi^2_d0, whose d0 and s0^2 are fitted by moments of
@@ -50,19 +50,20 @@ def moderated_variances(s2, dof) -> tuple[np.ndarray, float, float]:
 
         s~_c^2 = (d0 s0^2 + d_c s_c^2) / (d0 + d_c)   (d0 = inf, variances no more spread than chance: s0^2).
 
-    Returns (s~^2, d0, s0^2); conditions with d_c = 0 or s_c^2 = 0 take s0^2 and do not fit it. Raises
-    ValueError with fewer than 3 conditions to fit from."""
+    Returns (s~^2, d0, s0^2); conditions with d_c = 0 or s_c^2 = 0 take s0^2 and do not fit it. None with
+    fewer than 3 conditions to fit from."""
     from scipy.optimize import brentq
     from scipy.special import digamma, polygamma
 
     s2, dof = np.asarray(s2, float), np.asarray(dof, float)
     ok = (dof > 0) & np.isfinite(s2) & (s2 > 0)
     if ok.sum() < 3:
-        raise ValueError("fewer than 3 conditions with a pile variance")
+        return None
     e = np.log(s2[ok]) - digamma(dof[ok] / 2) + np.log(dof[ok] / 2)
     excess = float(np.var(e, ddof=1) - np.mean(polygamma(1, dof[ok] / 2)))
-    # psi'(x) falls from 1e12 at 1e-6 to 1e-6 at 1e6: an excess below that is no spread beyond chance
-    d0 = np.inf if excess <= 1e-6 else 2.0 * brentq(lambda x: polygamma(1, x) - excess, 1e-6, 1e6)
+    # psi'(x) falls from 1e12 at 1e-6 to 1e-6 at 1e6, the root's bracket: an excess below that is no spread
+    # beyond chance (d0 infinite)
+    d0 = np.inf if excess <= polygamma(1, 1e6) else 2.0 * brentq(lambda x: polygamma(1, x) - excess, 1e-6, 1e6)
     s0_2 = float(np.exp(e.mean() if np.isinf(d0) else e.mean() + digamma(d0 / 2) - np.log(d0 / 2)))
     own = np.where(ok, s2, 0.0)
     d = np.where(ok, dof, 0.0)
@@ -80,11 +81,11 @@ def mean_variance(sd, n, noise_sd: float) -> np.ndarray:
     sd, n = np.asarray(sd, float), np.asarray(n, float)
     dof = np.maximum(n - 1, 0)
     own = np.where(dof > 0, np.nan_to_num(sd) ** 2, 0.0)
-    try:
-        return moderated_variances(own, dof)[0] / n
-    except ValueError:
-        pooled = (dof * own + POOL_DOF * noise_sd ** 2) / (dof + POOL_DOF)
-        return np.where(n >= OWN_SD_PILES, own, pooled) / n
+    moderated = moderated_variances(own, dof)
+    if moderated is not None:
+        return moderated[0] / n
+    pooled = (dof * own + POOL_DOF * noise_sd ** 2) / (dof + POOL_DOF)
+    return np.where(n >= OWN_SD_PILES, own, pooled) / n
 
 
 @dataclass
