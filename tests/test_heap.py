@@ -447,6 +447,27 @@ def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
     assert sorted(cur["run_hash"]) == ["a", "c"]  # the old kernel's row is not a repeat, nor is a duplicate
 
 
+def test_analyses_see_rows_in_one_order_whatever_order_the_heaps_finished_in(tmp_path):
+    """Workers append rows as they finish; a surrogate fitted to them must not depend on that order
+    (a fresh clone of a sample run gave other digits than the committed one before this)."""
+    from calib_cli.heaps.index import current_results
+    from calib_cli.heaps.keys import CACHE_SOURCE
+
+    rng = np.random.default_rng(0)
+    n = 40
+    rows = pd.DataFrame({"run_hash": [f"{h:04x}" for h in rng.permutation(n)],
+                         "design": rng.choice(["calibrate", "bbd", "compare"], n), "run_id": rng.integers(0, 6, n),
+                         "repeat": rng.integers(0, 3, n), "condition_id": rng.choice(["c1", "c2"], n),
+                         "source": CACHE_SOURCE, "repose_angle": rng.normal(30, 3, n)})
+    seen = []
+    for k in range(4):
+        art.write_table(tmp_path / "simulate" / "results.parquet", rows.sample(frac=1, random_state=k))
+        seen.append(current_results(tmp_path))
+    for other in seen[1:]:
+        pd.testing.assert_frame_equal(seen[0], other)
+    assert list(seen[0]["design"]) == sorted(seen[0]["design"])
+
+
 def test_a_heap_does_not_depend_on_numpys_simd_level():
     """The same two smoke heaps (one cohesive) in two processes, one as this CPU runs and one
     with numpy's AVX-512 targets switched off and OpenBLAS/OpenCV set down (as on an AVX2 CPU),

@@ -58,7 +58,8 @@ def current_results(run_dir: Path) -> pd.DataFrame:
 
     The index keeps rows of older kernel or law versions (their artefacts stay in the cache), but they
     are other simulations: averaging them with the current ones as if they were repeats shifted
-    a whole calibration (found on a fresh clone whose committed index held older rows).
+    a whole calibration (found on a fresh clone whose committed index held older rows). Rows come in
+    a canonical order (design, run, condition, repeat), not the order the heaps finished in.
     """
     df = load_results(run_dir)
     if df.empty:
@@ -68,7 +69,11 @@ def current_results(run_dir: Path) -> pd.DataFrame:
     if "run_hash" not in df.columns:  # not an index written by calib: nothing to de-duplicate by
         return df.reset_index(drop=True)
     keys = [k for k in ("run_hash", "design", "run_id", "repeat", "condition_id") if k in df.columns]
-    return df.drop_duplicates(subset=keys, keep="last").reset_index(drop=True)
+    df = df.drop_duplicates(subset=keys, keep="last")
+    # the index holds rows in the order the workers finished them; a surrogate's fit (and so the next
+    # round's heaps) depends on row order, so the same run on another machine must see the same order
+    order = [k for k in ("design", "run_id", "condition_id", "repeat", "run_hash") if k in df.columns]
+    return df.sort_values(order, kind="mergesort", na_position="last").reset_index(drop=True)
 
 
 def row_moduli(rows: pd.DataFrame) -> pd.Series:
