@@ -175,6 +175,9 @@ def _effects_table(post: pd.DataFrame) -> str:
                       "compact")
 
 
+_STOPS = {"budget": "its budget", "stable": "the stability rule"}  # calibrate's stop reasons, as a sentence reads them
+
+
 def _rounds_note(f: RunFiles, rev) -> str:
     rounds = f.table("calibrate/rounds.parquet")
     if rounds is None or rounds.empty:
@@ -183,8 +186,9 @@ def _rounds_note(f: RunFiles, rev) -> str:
     if r.empty:
         return ""
     last = r[r["round"] == r["round"].max()].iloc[0]
+    why = str(last["stop"]).split(":")[0]
     return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, {int(last['calibration_heaps'])} heaps "
-                f"simulated, the posterior on {int(last['heaps'])}; stopped by {esc(str(last['stop']).split(':')[0])} "
+                f"simulated, the posterior on {int(last['heaps'])}; stopped by {esc(_STOPS.get(why, why))} "
                 "(<a href='calibrate/rounds.png'>the intervals round by round</a>).", "prov")
 
 
