@@ -257,6 +257,15 @@ def _inputs(gp, t: np.ndarray, names: list[str], fixed: Mapping[str, float], con
     return X
 
 
+def response_variances(gp, measured: pd.DataFrame, second: Optional[SecondResponse]) -> list[tuple]:
+    """Each response's surrogate with its measured means' variances (:func:`mean_variance`): the angle's
+    (``measured``'s sd and n), then the second response's where there is one."""
+    out = [(gp, mean_variance(measured["sd"], measured["n"], gp.noise_sd_))]
+    if second is not None:
+        out.append((second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_)))
+    return out
+
+
 def _joint_terms(gp, second: Optional[SecondResponse], X, X2, ybar, v, v2):
     """The residual vector and its covariance of the means (one response, or both stacked: the two
     surrogates' errors apart, the measured means correlated within each condition); v and v2 the two
@@ -278,10 +287,10 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
     for every walker under every condition, with each walker's C x C covariance (2C x 2C with a
     ``second`` response; with ``scatter``, each condition's pile variance too)."""
     C, ybar = len(measured), measured["mean"].to_numpy(float)
-    v = mean_variance(measured["sd"], measured["n"], gp.noise_sd_)
     # once, not per call: the moderation fits its prior by a root search (~0.2 ms), and the sampler calls
     # log_prob twice a step
-    v2 = mean_variance(second.sd, second.n, second.gp.noise_sd_) if second is not None else None
+    (_, v), *rest = response_variances(gp, measured, second)
+    v2 = rest[0][1] if rest else None
     lo, hi = np.array([bounds[p][0] for p in names]), np.array([bounds[p][1] for p in names])
     conds = {c for g in (gp, second.gp if second else gp) for c in g.inputs_ if c not in g.parameters}
     cond_vals = {c: measured[c].to_numpy(float) for c in conds}

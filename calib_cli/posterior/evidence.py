@@ -22,7 +22,7 @@ from ..errors import CalibError
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
 from ..heaps.inputs import COND_VARS
 from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
-                        calibrate_posterior, mean_variance, summarise)
+                        calibrate_posterior, response_variances, summarise)
 from .gp import ColumnModel, GPSurrogate, holdout_rmse, informative_conditions
 from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
 
@@ -274,9 +274,7 @@ def surrogate_ratios(gp: GPSurrogate, second: Optional[SecondResponse], measured
     C = len(measured)
     conds = {c: measured[c].to_numpy(float) for c in measured.columns if c in COND_VARS}
     out = {}
-    for name, g, v in [(RESPONSE, gp, mean_variance(measured["sd"], measured["n"], gp.noise_sd_)),
-                       *([(FULLNESS, second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_))]
-                         if second is not None else [])]:
+    for name, (g, v) in zip((RESPONSE, FULLNESS), response_variances(gp, measured, second)):
         X = _inputs(g, t, names, {}, conds, C).reshape(-1, len(g.inputs_))
         _, sd = g.predict(X, return_std=True)
         out[name] = float(np.mean(sd.reshape(len(t), C) ** 2 / np.maximum(v, 1e-12)[None, :]))

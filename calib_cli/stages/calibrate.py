@@ -28,7 +28,7 @@ from ..errors import CalibError
 from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
 from ..posterior.adaptive import RULES, acquire, first_design, stop_reason
-from ..posterior.calibrate import mean_variance
+from ..posterior.calibrate import response_variances
 from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
@@ -189,10 +189,7 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
             cond_vars = informative_conditions(rows, COND_VARS)
             second = second_response(run, profile_rows(run, rows, model, cond_vars), model, conds, plan.seed,
                                      scale=plan.bounds)
-    out = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_))]
-    if second is not None:
-        out.append((second.gp, mean_variance(second.sd, second.n, second.gp.noise_sd_)))
-    return out
+    return response_variances(gp, conds, second)
 
 
 def _dir(run: Path, model: Model, k: int) -> Path:
