@@ -98,10 +98,11 @@ def test_a_compiled_kernel_is_loaded_without_waiting_for_the_lock():
     compiled(spec, "forces")
     assert _files(spec, "forces")[1].is_file()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    load = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 30.0\nt = time.perf_counter()\n"
+    load = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 100.0\nt = time.perf_counter()\n"
             f"c.compiled({spec!r}, 'forces')\nprint(time.perf_counter() - t, flush=True)\n")
     with holding(spec, env, "forces"):
-        assert seconds(load, env) < 25  # did not wait out LOCK_WAIT_S on the held lock
+        # did not wait out LOCK_WAIT_S on the held lock; a load alone took 39 s once, beside two busy test workers
+        assert seconds(load, env) < 90
 
 
 def test_a_filesystem_that_does_not_lock_compiles_without_the_lock():
