@@ -2,8 +2,9 @@
 (so the time is the GPU's, not Python's launch), for batches of `default` heaps, beside the share of
 steps on which a heap asked for a neighbour rebuild. One run prints, per batch size:
 
-- each kernel's time a launch, the rebuild's (bin, search) as most steps run them (no heap asked: every
-  thread returns at once, the cost of the graph node itself), and a rebuild of every heap;
+- each kernel's time a launch (and the ``pair`` contact layout's two kernels in place of ``forces``), the
+  rebuild's (bin, search) as most steps run them (no heap asked: every thread returns at once, the cost of
+  the graph node itself), and a rebuild of every heap;
 - the share of steps with a rebuild (from a stretch of --probe steps, the host reading the flag), and
   the step's time these add up to, beside a whole step's time replayed from the engine's graph.
 
@@ -101,11 +102,19 @@ def profile(preset: str, count: int, warmup: int, probe: int, reps: int) -> None
     fresh()
     batch._set("rebuild", np.ones(len(fills), np.int64))
     trio = replayed(batch, [("bin_grains", n), ("find_neighbours", n), ("forces", n)], reps) / reps * 1e6
+    # the pair layout's two kernels in place of forces (CALIB_GPU_CONTACTS=pair), from the same state
+    pair = {}
+    for name, threads in (("pair_forces", n * batch.width), ("wall_forces", n)):
+        fresh()
+        pair[name] = replayed(batch, [(name, threads)], reps) / reps * 1e6
+    print(f"  {'pair layout':16} {sum(pair.values()):9.1f} us a step's contacts: pair_forces {pair['pair_forces']:.1f} "
+          f"({n * batch.width} threads) + wall_forces {pair['wall_forces']:.1f}, against forces {off['forces']:.1f}")
     fresh()
     on = trio - off["forces"]
     total = sum(off.values()) + heap_share * (on - off["bin_grains"] - off["find_neighbours"])
     if not gpu.SIMULATOR:
-        regs = {k: sorted(set(batch.k[k].get_regs_per_thread().values())) for k in ("forces", "find_neighbours")}
+        regs = {k: sorted(set(batch.k[k].get_regs_per_thread().values()))
+                for k in ("forces", "pair_forces", "wall_forces", "find_neighbours")}
         print(f"  registers a thread: {regs}")
     print(f"  {'a rebuild':16} {on:9.1f} us for every heap's bin and search (and emptied cells)")
     print(f"  {'sum':16} {total:9.1f} us: the kernels of a step, a rebuild on {heap_share:.1%} of heaps (the graph's "

@@ -34,9 +34,13 @@ def systems(preset: str, count: int):
 
 
 def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, int]:
-    """``mode``: a stepping mode, or ``blocks:T`` for the thread-block-a-heap mode with T threads a heap."""
+    """``mode``: ``NAME[:T][+LAYOUT][@CAP]``: a stepping mode, T threads a block (a heap for ``blocks``), the
+    contact layout (``+pair``: a thread a neighbour slot) and the force kernels' register cap (``@96``)."""
+    mode, _, cap = mode.partition("@")
+    mode, _, layout = mode.partition("+")
     name, _, threads = mode.partition(":")
-    batch = gpu.Batch(fills, mode=name, **({"block": int(threads)} if threads else {}))
+    os.environ["CALIB_GPU_MAXREG"] = cap or "0"  # read when the batch compiles its kernels
+    batch = gpu.Batch(fills, mode=name, contacts=layout or None, **({"block": int(threads)} if threads else {}))
     if name == "blocks" and threads and batch.heap_threads != int(threads):  # the kernel's registers allow fewer
         print(f"blocks:{threads} runs {batch.heap_threads} threads a heap, as many as the kernel's registers allow")
     batch.advance(warmup)
@@ -95,8 +99,9 @@ def main():
     ap.add_argument("--preset", default="default")
     ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
-    ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated; blocks:T for the "
-                    "thread-block-a-heap mode with T threads a heap (default: the engine's 128)")
+    ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated, each NAME[:T]"
+                    "[+pair][@CAP]: T threads a block (a heap for blocks; default 128), +pair a thread a neighbour "
+                    "slot for the contacts, @CAP the force kernels' registers a thread")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
@@ -109,7 +114,7 @@ def main():
     cpu = {p: cpu_rate(p, a.cpu_heaps, a.steps, a.warmup) for p in presets}
     pool = {p: cpu_pool_rate(p, a.cpu_workers, a.steps, a.warmup) if a.cpu_workers else np.nan for p in presets}
     print("CPU 1 heap: one heap at a time on every thread; CPU per core: a heap per core at once (a campaign)")
-    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'mode':>10} {'GPU p-steps/s':>14} {'a step [us]':>11} "
+    print(f"{'preset':8} {'heaps':>5} {'grains':>9} {'mode':>16} {'GPU p-steps/s':>14} {'a step [us]':>11} "
           f"{'CPU 1 heap':>11} {'GPU/that':>8} {'CPU per core':>12} {'GPU/that':>8}")
     runs = [(a.preset, int(b)) for b in a.batches.split(",") if b] + \
            [("paper", int(b)) for b in a.paper_batches.split(",") if b]
@@ -119,9 +124,9 @@ def main():
             try:
                 rate, n = gpu_rate(fills, a.steps, a.warmup, mode)
             except Exception as e:  # noqa: BLE001 - a mode that fails on this machine is reported, the rest go on
-                print(f"{preset:8} {count:5d} {'':9} {mode:>10} FAILED {type(e).__name__}: {str(e)[:300]}", flush=True)
+                print(f"{preset:8} {count:5d} {'':9} {mode:>16} FAILED {type(e).__name__}: {str(e)[:300]}", flush=True)
                 continue
-            print(f"{preset:8} {count:5d} {n:9d} {mode:>10} {rate:14.3g} {n / rate * 1e6:11.1f} {cpu[preset]:11.3g} "
+            print(f"{preset:8} {count:5d} {n:9d} {mode:>16} {rate:14.3g} {n / rate * 1e6:11.1f} {cpu[preset]:11.3g} "
                   f"{rate / cpu[preset]:8.1f} {pool[preset]:12.3g} {rate / pool[preset]:8.1f}", flush=True)
 
 

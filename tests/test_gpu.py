@@ -201,6 +201,45 @@ def test_pairs_marked_in_windows_give_the_one_pass_sums(monkeypatch):
     same_state(cpu, on_gpu, 0.0)
 
 
+@pytest.mark.parametrize("case", ["two heaps", "overflow", "lattice"])
+def test_a_thread_a_neighbour_slot_steps_as_the_cpu_kernel(case):
+    """The pair layout (a thread a neighbour slot, then a thread a grain for the walls) against the CPU kernel:
+    two heaps with cohesion through the lift and their list rebuilds; slots and cells that overflow (the
+    threads a launch grow with the slots); a lattice whose grains have several pairs each. Each grain's sums
+    come in the grain layout's order (its pairs, then its walls), so under the simulator bit for bit."""
+    if case == "lattice":
+        cpu, on_gpu, batch, steps = [lattice(1)], [lattice(1)], {}, 40
+    else:
+        cpu = [column(0, 0.3, 0.5), column(1, 0.7, 0.5)][:2 if case == "two heaps" else 1]
+        on_gpu = [column(0, 0.3, 0.5), column(1, 0.7, 0.5)][:len(cpu)]
+        batch, steps = ({"width": 1, "cell_cap": 1} if case == "overflow" else {}), 200
+    b = gpu.Batch(on_gpu, mode="launch" if gpu.SIMULATOR else "graph", contacts="pair", **batch)
+    for _ in range(2):
+        for s in cpu:
+            s.advance(steps // 2)
+        status = b.advance(steps // 2)
+    b.pull()
+    assert list(status) == [gpu.OK] * len(cpu)
+    assert case != "overflow" or b.width > 1
+    for a, g in zip(cpu, on_gpu):
+        assert case == "lattice" or a.n_rebuilds >= 2
+        same_state(a, g, 0.0 if gpu.SIMULATOR else 1e-9 * LOOSE)
+        assert g.max_overlap == pytest.approx(a.max_overlap, rel=1e-12 * LOOSE)
+
+
+def test_a_known_contact_layout_and_register_cap(monkeypatch):
+    with pytest.raises(CalibError, match="unknown GPU contact layout 'pairs'.*grain, pair"):
+        gpu.Batch([column(0, 0.3)], contacts="pairs")
+    for bad in ("abc", "16", "300", "-1"):
+        monkeypatch.setenv("CALIB_GPU_MAXREG", bad)
+        with pytest.raises(CalibError, match="CALIB_GPU_MAXREG must be a whole number of registers from 32 to 255"):
+            gpu.register_cap()
+    monkeypatch.setenv("CALIB_GPU_MAXREG", "96")
+    assert gpu.register_cap() == (0 if gpu.SIMULATOR else 96)  # the simulator has no registers to cap
+    monkeypatch.setenv("CALIB_GPU_MAXREG", "0")
+    assert gpu.register_cap() == 0
+
+
 def test_one_composition_a_batch_and_a_known_stepping_mode(monkeypatch):
     with pytest.raises(CalibError, match="one composition"):
         gpu.Batch([column(0, 0.3), column(0, 0.3, gamma=0.5)])

@@ -8,7 +8,8 @@ overlap and speed checks. Each phase is a device function of one grain (or cell)
 launched is the batch's mode (:data:`MODES`): a kernel a phase launched from Python every step (bound by
 the launches, ~70 us each on an H200), the same captured in a CUDA graph (the default, the fastest measured),
 one persistent cooperative kernel a chunk, whose grid waits for itself between phases, or one launch a chunk
-with a thread block a heap, each block waiting only for itself (docs/performance.md measures each).
+with a thread block a heap, each block waiting only for itself (docs/performance.md measures each). The
+kernel-a-phase modes run a step's pair contacts a thread a grain or a thread a neighbour slot (:data:`CONTACTS`).
 
 One physics source: a contact is :func:`.forces.contact_of` (the laws of :mod:`.laws`, composed by the
 run's spec), the same compiled function the CPU kernel calls, compiled here for the GPU. What is this
@@ -96,16 +97,33 @@ class Grid:
 
 
 @functools.cache
-def kernels(spec: str) -> dict:
-    """The step's kernels for one composition of laws (``spec``), compiled once per process."""
+def kernels(spec: str, cap: int = 0) -> dict:
+    """The step's kernels for one composition of laws (``spec``), compiled once per process (the force
+    kernels at most ``cap`` registers a thread, where not 0: :func:`register_cap`)."""
     cuda_module()
-    return _build(contact_of(spec))
+    return _build(contact_of(spec), cap)
 
 
-def _build(contact) -> dict:
+def _build(contact, cap: int = 0) -> dict:
     """The step's kernels: the ones that call the composed ``contact`` (pair and wall forces), compiled
     around it, and the ones that do not (integration, neighbour lists, per-heap bookkeeping)."""
-    return {**STEP_KERNELS, **_force_kernels(contact)}
+    return {**STEP_KERNELS, **_force_kernels(contact, cap)}
+
+
+def register_cap(cap: int | None = None) -> int:
+    """The force kernels' registers a thread asked for (``cap``, else ``CALIB_GPU_MAXREG``, else 0: the
+    compiler's choice, 140-152 for the grain kernel): a cap lets more warps share a multiprocessor and spills
+    the rest to local memory (``benchmarks/gpu_compile.py --registers`` prints both, with no GPU). Not under
+    the simulator, which has no registers."""
+    raw = cap if cap is not None else os.environ.get("CALIB_GPU_MAXREG") or 0
+    try:
+        cap = int(raw)
+    except ValueError:
+        cap = -1
+    if cap != 0 and not 32 <= cap <= 255:
+        raise CalibError(f"CALIB_GPU_MAXREG must be a whole number of registers from 32 to 255 (or 0: the "
+                         f"compiler's choice), not {raw!r}")
+    return 0 if SIMULATOR else cap
 
 
 @cuda.jit(device=True)
@@ -307,11 +325,14 @@ def kick(n, active, heap, first, rebuild, anyreb, dt, vel, omg, force, torque, m
 STEP_KERNELS = dict(kick_drift=kick_drift, bin_grains=bin_grains, find_neighbours=find_neighbours, kick=kick)
 
 
-def _force_kernels(contact) -> dict:
+def _force_kernels(contact, cap: int = 0) -> dict:
     """The step's contacts around the composed ``contact`` (a compiled function of :mod:`.forces`): one
-    kernel, a thread a grain, its pairs and then its walls (and its cell emptied after a rebuild); and the
-    persistent and block kernels, which call the same."""
-    pairs_of, walls_of = _pairs_of(contact), _walls_of(contact)
+    kernel, a thread a grain, its pairs and then its walls (and its cell emptied after a rebuild); the
+    ``pair`` layout's two, a thread a neighbour slot for the pairs, then a thread a grain for the walls (each
+    grain's sums in the same order: its pairs, then its walls); and the persistent and block kernels, which
+    call the first's device function. ``cap``: their registers a thread, where not 0."""
+    (pairs_of, pair_of), walls_of = _pairs_of(contact), _walls_of(contact)
+    jit = functools.partial(cuda.jit, max_registers=cap) if cap else cuda.jit
 
     @cuda.jit(device=True)
     def forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
@@ -326,7 +347,7 @@ def _force_kernels(contact) -> dict:
                                ncont, most, count)
         _settle(i, h, most, count, cnew, worst)
 
-    @cuda.jit
+    @jit
     def forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo, dt,
                force, torque, ncont, cnew, worst, rebuild, lo, dims, side, cell0, count):
         i = cuda.grid(1)
@@ -335,10 +356,32 @@ def _force_kernels(contact) -> dict:
             forces_one(i, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, hf, hc, prm, gap, geo,
                        dt, force, torque, ncont, cnew, worst)
 
-    return {"forces": forces, "persistent": _persistent_kernel(forces_one), "blocks": _block_kernel(forces_one)}
+    @jit
+    def pair_forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, prm, gap, dt, force,
+                    torque, ncont, cnew, worst):
+        t = cuda.grid(1)
+        i = t // nbr.shape[1]
+        if i < n:
+            pair_of(i, t - i * nbr.shape[1], active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist,
+                    prm, gap, dt, force, torque, ncont, cnew, worst)
+
+    @jit
+    def wall_forces(n, active, heap, pos, vel, omg, rad, mass, inv_inertia, hf, hc, prm, gap, geo, dt, force, torque,
+                    ncont, cnew, worst, rebuild, lo, dims, side, cell0, count):
+        i = cuda.grid(1)
+        if i < n:
+            _unbin_one(i, heap, rebuild, pos, lo, dims, side, cell0, count)
+            h = heap[i]
+            if active[h] != 0:
+                most, hits = walls_of(i, h, pos, vel, omg, rad, mass, inv_inertia, hf, hc, _raw(prm[h]), gap, geo, dt,
+                                      force, torque, ncont, 0.0, 0.0)
+                _settle(i, h, most, hits, cnew, worst)
+
+    return {"forces": forces, "pair_forces": pair_forces, "wall_forces": wall_forces,
+            "persistent": _persistent_kernel(forces_one, jit), "blocks": _block_kernel(forces_one, jit)}
 
 
-def _persistent_kernel(forces_one):
+def _persistent_kernel(forces_one, jit=cuda.jit):
     """``nsteps`` whole steps in one cooperative launch: every thread strides over the grains of a
     phase, and the grid waits for all before the next (``this_grid().sync()``, a cooperative launch that
     numba makes when a kernel syncs its grid). The rebuild's two phases run only on a step where some
@@ -346,7 +389,7 @@ def _persistent_kernel(forces_one):
     numba's simulator a grid is one block, launched here with one thread: phases in grain order, as the
     per-phase kernels run there, so the states stay bit for bit the CPU kernel's."""
 
-    @cuda.jit
+    @jit
     def persistent(nsteps, n, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel,
                    omg, force, torque, rad, mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0,
                    lift_start, geo, lo, dims, side, cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nbr,
@@ -384,7 +427,7 @@ def _persistent_kernel(forces_one):
     return persistent
 
 
-def _block_kernel(forces_one):
+def _block_kernel(forces_one, jit=cuda.jit):
     """``nsteps`` whole steps in one launch of a thread block a heap: block h's threads stride over heap h's
     grains and wait for each other between phases with ``syncthreads`` (a barrier of one
     multiprocessor, where the persistent kernel's grid sync spans the GPU); heaps never touch each other's
@@ -393,7 +436,7 @@ def _block_kernel(forces_one):
     numba's simulator a block is one thread (grains in order, blocks one after another: each heap bit for bit
     the CPU kernel's)."""
 
-    @cuda.jit
+    @jit
     def blocks(nsteps, cap, overlap_limit, speed_limit, active, heap, first, dt, pos, vel, omg, force, torque, rad,
                mass, inv_inertia, ref_pos, limit2, rebuild, anyreb, grav, cnew, t0, lift_start, geo, lo, dims, side,
                cell0, count, slots, overflow, reach, nnb, nbr, hist, new_nbr, new_hist, hf, hc, prm, gap,
@@ -435,13 +478,42 @@ def _block_kernel(forces_one):
 
 def _pairs_of(contact):
     """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
-    largest relative overlap and its contacts counted (:func:`_settle` adds them).
+    largest relative overlap and its contacts counted (:func:`_settle` adds them); and the same for one slot
+    (``pair_of``: the ``pair`` layout's thread, ``pair_forces`` in :func:`_force_kernels`).
 
     Two passes over each window of :data:`WINDOW` slots: the first marks the pairs within reach (a bit each)
     and clears the others' history, the second runs the contact law on the marked ones in slot order. So
     the threads of a warp each compute their k-th contact together, where one pass ran the law for slot s
     whenever any thread's slot s touched, the others waiting (7.7 of 32 threads active on an H200 at 64
     heaps, docs/performance.md). The sums' order within a grain is the one pass's."""
+
+    @cuda.jit(device=True)
+    def law_on(i, s, h, Ri, pos, vel, omg, rad, mass, inv_inertia, nbr, ht, p, dt, force, torque, ncont, cnew):
+        """Slot s's contact (within reach) added to both grains; returns its overlap over the smaller radius,
+        and 1 where it counts as a contact (grain j's count added here, grain i's by the caller)."""
+        j = nbr[i, s]
+        Rj = rad[j]
+        dx = pos[i, 0] - pos[j, 0]
+        dy = pos[i, 1] - pos[j, 1]
+        dz = pos[i, 2] - pos[j, 2]
+        Rs = Ri * Rj / (Ri + Rj)
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        inv = 1.0 / d
+        delta = Ri + Rj - d
+        fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = contact(
+            dx * inv, dy * inv, dz * inv, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs,
+            mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
+            vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
+            omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
+        _add3(force, i, fx, fy, fz)
+        _add3(force, j, -fx, -fy, -fz)
+        _add3(torque, i, tix, tiy, tiz)
+        _add3(torque, j, tjx, tjy, tjz)
+        hit = 0.0
+        if ht[s, A_OLD] > 0.0:
+            hit = 1.0
+            cuda.atomic.add(cnew, j, 1.0)
+        return ov / min(Ri, Rj), hit
 
     @cuda.jit(device=True)
     def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
@@ -452,43 +524,54 @@ def _pairs_of(contact):
         for base in range(0, nnb[i], WINDOW):
             mask = 0
             for s in range(base, min(base + WINDOW, nnb[i])):
-                j = nbr[i, s]
-                reach = Ri + rad[j] + gap[h, PP]
-                if not _dist2(pos, i, j) >= reach * reach:  # a NaN distance too, as the one pass ran it
+                if _within(i, s, h, Ri, pos, rad, nbr, gap):
                     mask |= 1 << (s - base)
                 else:
-                    for c in range(hist.shape[2]):
-                        if c != R13:
-                            ht[s, c] = 0.0
+                    _clear(ht, s)
             while mask != 0:
                 low = mask & -mask
                 mask ^= low
                 s = base + cuda.popc(low - 1)
-                j = nbr[i, s]
-                Rj = rad[j]
-                dx = pos[i, 0] - pos[j, 0]
-                dy = pos[i, 1] - pos[j, 1]
-                dz = pos[i, 2] - pos[j, 2]
-                Rs = Ri * Rj / (Ri + Rj)
-                d = math.sqrt(dx * dx + dy * dy + dz * dz)
-                inv = 1.0 / d
-                delta = Ri + Rj - d
-                fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, ov = contact(
-                    dx * inv, dy * inv, dz * inv, delta, Ri - 0.5 * delta, Rj - 0.5 * delta, Rs,
-                    mass[i] * mass[j] / (mass[i] + mass[j]), inv_inertia[i], inv_inertia[j], ncont[i], ncont[j],
-                    vel[i, 0] - vel[j, 0], vel[i, 1] - vel[j, 1], vel[i, 2] - vel[j, 2],
-                    omg[i, 0], omg[i, 1], omg[i, 2], omg[j, 0], omg[j, 1], omg[j, 2], ht, s, p, PP, dt[h])
-                _add3(force, i, fx, fy, fz)
-                _add3(force, j, -fx, -fy, -fz)
-                _add3(torque, i, tix, tiy, tiz)
-                _add3(torque, j, tjx, tjy, tjz)
-                if ht[s, A_OLD] > 0.0:
-                    count += 1.0
-                    cuda.atomic.add(cnew, j, 1.0)
-                most = _fold(most, ov / min(Ri, Rj))
+                ov, hit = law_on(i, s, h, Ri, pos, vel, omg, rad, mass, inv_inertia, nbr, ht, p, dt, force, torque,
+                                 ncont, cnew)
+                count += hit
+                most = _fold(most, ov)
         return most, count
 
-    return pairs_of
+    @cuda.jit(device=True)
+    def pair_of(i, s, active, heap, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, prm, gap, dt, force,
+                torque, ncont, cnew, worst):
+        """Slot s of grain i alone: its contact, or its history cleared out of reach; its tallies straight
+        into the grain's count and the heap's largest overlap (whole numbers and a maximum: any order)."""
+        h = heap[i]
+        if active[h] == 0 or s >= nnb[i]:
+            return
+        ht = _raw(hist[i])
+        Ri = rad[i]
+        if not _within(i, s, h, Ri, pos, rad, nbr, gap):
+            _clear(ht, s)
+            return
+        ov, hit = law_on(i, s, h, Ri, pos, vel, omg, rad, mass, inv_inertia, nbr, ht, _raw(prm[h]), dt, force,
+                         torque, ncont, cnew)
+        _settle(i, h, _fold(0.0, ov), hit, cnew, worst)
+
+    return pairs_of, pair_of
+
+
+@cuda.jit(device=True)
+def _within(i, s, h, Ri, pos, rad, nbr, gap):
+    """Whether slot s's pair is within reach (a NaN distance too, as the law always ran on it)."""
+    j = nbr[i, s]
+    reach = Ri + rad[j] + gap[h, PP]
+    return not _dist2(pos, i, j) >= reach * reach
+
+
+@cuda.jit(device=True)
+def _clear(ht, s):
+    """A slot's history out of reach: springs and contact radius cleared; the cached R*^(1/3) stays valid."""
+    for c in range(ht.shape[1]):
+        if c != R13:
+            ht[s, c] = 0.0
 
 
 #: slots a grain's pairs are marked in at a time (bits of one int64 mask, the sign bit unused)
@@ -702,6 +785,24 @@ GRAPH_STEPS = 50
 SIM_BLOCK_THREADS = 1
 
 
+#: how a step's contacts are shared among threads in the kernel-a-phase modes (``launch``, ``device``, ``graph``):
+#: ``grain``: a thread a grain, its pairs one after another, then its walls (:func:`_pairs_of`); ``pair``: a thread
+#: a neighbour slot (grains x slots threads, most of them idle where no pair is within reach), then a thread a
+#: grain for the walls: for few heaps, where a grain's thread stepping its ~10 contacts in a row is what bounds a
+#: step (docs/performance.md). Chosen by ``CALIB_GPU_CONTACTS``; the persistent and block kernels are ``grain``.
+CONTACTS = ("grain", "pair")
+DEFAULT_CONTACTS = "grain"
+
+
+def contact_layout(layout: str | None = None) -> str:
+    """The contact layout asked for (``layout``, else ``CALIB_GPU_CONTACTS``, else :data:`DEFAULT_CONTACTS`),
+    checked."""
+    layout = layout or os.environ.get("CALIB_GPU_CONTACTS") or DEFAULT_CONTACTS
+    if layout not in CONTACTS:
+        raise CalibError(f"unknown GPU contact layout {layout!r} (CALIB_GPU_CONTACTS): one of {', '.join(CONTACTS)}")
+    return layout
+
+
 def step_mode(mode: str | None = None) -> str:
     """The stepping mode asked for (``mode``, else ``CALIB_GPU_STEP``, else :data:`DEFAULT_MODE`), checked."""
     mode = mode or os.environ.get("CALIB_GPU_STEP") or DEFAULT_MODE
@@ -719,18 +820,20 @@ class Batch:
 
     Starts from each system's own state, neighbour list and contact history, so that a batch and the
     CPU kernel step from the same point. The device arrays keep their addresses between chunks (a captured
-    graph holds them) except where :meth:`_grow` makes room, which drops the graphs."""
+    graph holds them) except where :meth:`_grow` makes room, which drops the graphs. ``contacts``: a thread a
+    grain or a neighbour slot for the pairs (:data:`CONTACTS`), in the kernel-a-phase modes."""
 
     def __init__(self, systems: list, width: int = 16, cell_cap: int = 48, block: int = 128,
-                 mode: str | None = None):
+                 mode: str | None = None, contacts: str | None = None):
         specs = {s.model.spec for s in systems}
         if len(specs) != 1:
             raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
         self.systems, self.spec, self.mode = list(systems), specs.pop(), step_mode(mode)
+        self.contacts = contact_layout(contacts)
         # the simulator starts a Python thread per GPU thread: few of them
         self.block = min(block, 32) if SIMULATOR else block
         self.cuda = cuda_module()
-        self.k = kernels(self.spec)
+        self.k = kernels(self.spec, register_cap())
         self.width, self.cell_cap = width, cell_cap
         self.host = pack(self.systems, width, cell_cap)
         self.first = self.host["first"]
@@ -794,8 +897,15 @@ class Batch:
             # on an H200, docs/performance.md), and reading one flag costs less than two launches
             if self.d["anyreb"].copy_to_host()[0]:
                 self._rebuild(n)
-            self._launch("forces", n)
+            self._forces(n)
             self._launch("kick", n)
+
+    def _forces(self, n: int, stream=None) -> None:
+        if self.contacts == "pair":
+            self._launch("pair_forces", n * self.width, stream)
+            self._launch("wall_forces", n, stream)
+        else:
+            self._launch("forces", n, stream)
 
     def _rebuild(self, n: int, stream=None) -> None:
         self._launch("bin_grains", n, stream)
@@ -806,7 +916,7 @@ class Batch:
         for _ in range(nsteps):
             self._launch("kick_drift", n, stream)
             self._rebuild(n, stream)
-            self._launch("forces", n, stream)
+            self._forces(n, stream)
             self._launch("kick", n, stream)
 
     def _steps_graph(self, nsteps: int) -> None:
