@@ -476,16 +476,8 @@ def _block_kernel(forces_one, jit=cuda.jit):
     return blocks
 
 
-def _pairs_of(contact):
-    """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
-    largest relative overlap and its contacts counted (:func:`_settle` adds them); and the same for one slot
-    (``pair_of``: the ``pair`` layout's thread, ``pair_forces`` in :func:`_force_kernels`).
-
-    Two passes over each window of :data:`WINDOW` slots: the first marks the pairs within reach (a bit each)
-    and clears the others' history, the second runs the contact law on the marked ones in slot order. So
-    the threads of a warp each compute their k-th contact together, where one pass ran the law for slot s
-    whenever any thread's slot s touched, the others waiting (7.7 of 32 threads active on an H200 at 64
-    heaps, docs/performance.md). The sums' order within a grain is the one pass's."""
+def _law_of(contact):
+    """One slot's contact around the composed ``contact``, shared by both layouts (:func:`_pairs_of`)."""
 
     @cuda.jit(device=True)
     def law_on(i, s, h, Ri, pos, vel, omg, rad, mass, inv_inertia, nbr, ht, p, dt, force, torque, ncont, cnew):
@@ -514,6 +506,21 @@ def _pairs_of(contact):
             hit = 1.0
             cuda.atomic.add(cnew, j, 1.0)
         return ov / min(Ri, Rj), hit
+
+    return law_on
+
+
+def _pairs_of(contact):
+    """Grain i's pairs (its slots, j > i): their contacts, added to both grains atomically. Returns grain i's
+    largest relative overlap and its contacts counted (:func:`_settle` adds them); and the same for one slot
+    (``pair_of``: the ``pair`` layout's thread, ``pair_forces`` in :func:`_force_kernels`).
+
+    Two passes over each window of :data:`WINDOW` slots: the first marks the pairs within reach (a bit each)
+    and clears the others' history, the second runs the contact law on the marked ones in slot order. So
+    the threads of a warp each compute their k-th contact together, where one pass ran the law for slot s
+    whenever any thread's slot s touched, the others waiting (7.7 of 32 threads active on an H200 at 64
+    heaps, docs/performance.md). The sums' order within a grain is the one pass's."""
+    law_on = _law_of(contact)
 
     @cuda.jit(device=True)
     def pairs_of(i, h, pos, vel, omg, rad, mass, inv_inertia, nnb, nbr, hist, p, gap, dt, force, torque, ncont,
