@@ -55,8 +55,8 @@ case "$P" in *@*) export CALIB_GPU_MAXREG=${P##*@};; esac
 LEFT=$((LIMIT - SECONDS - 100))   # keep 100 s for the engine's tests
 timeout $((LEFT > 60 ? LEFT : 60)) python3 -W ignore benchmarks/gpu_paper_heap.py --every 10 --mode "${P%%[:+@]*}" \
   2>&1 | tee "$OUT/paper.log"
-unset CALIB_GPU_CONTACTS CALIB_GPU_MAXREG
 log "paper heap done (rc $?)"
+unset CALIB_GPU_CONTACTS CALIB_GPU_MAXREG
 timeout $((LIMIT - SECONDS - 5)) python3 -m pytest -q -p no:cacheprovider -W ignore -m "not slow" -k "not compile" \
   tests/test_gpu.py > "$OUT/tests.log" 2>&1
 log "tests done (rc $?)"
