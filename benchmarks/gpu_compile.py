@@ -4,9 +4,9 @@ the CPU kernel runs. Needs the [gpu] extra (numba-cuda and CUDA's NVVM).
 
 Where CUDA's assembler (``ptxas``) is on PATH it also assembles each kernel for sm_90 and prints its
 registers a thread, its spills, and the occupancy they allow at the engine's 128 threads a block (the
-share of a multiprocessor's 64 warps that can be resident: what hides a contact's memory latency). These
-are the figures Nsight Compute reads on the GPU (152 registers and 18.75 % for the forces kernel on an H200,
-docs/performance.md), found here without one.
+share of a multiprocessor's 64 warps that can be resident: what hides a contact's memory latency): the
+forces kernel's 152 registers are what the H200 reported for it (docs/performance.md), found here without
+a GPU.
 
     NUMBA_ENABLE_CUDASIM=0 python benchmarks/gpu_compile.py [--registers [--max-registers=128,96,64]]
 
