@@ -127,6 +127,33 @@ def test_residuals_and_summary():
     assert tr.iloc[0]["slope"] < 0
 
 
+@pytest.mark.parametrize("n_params,sim_n", [(4, 4), (3, 4), (4, 40), (8, 4)])
+def test_chi2_per_dof_is_one_on_average_where_the_fitted_model_is_right(n_params, sim_n):
+    """A model that fits: p parameters fitted (least squares) to 6 measured means of 10 piles each, then
+    compare's fresh heaps at the fit (``sim_n`` a condition). chi2/dof averages 1 over many labs: the fit
+    shrinks only the measured part of the residuals. Dividing by C - p read 2.7 at p = 4 with four heaps a
+    condition (1.6 with forty; 4.9 with more parameters than conditions, where the fit is exact). The
+    variances are estimated from the piles (18 degrees of freedom for four heaps at six conditions), which
+    lifts the mean of z^2 by up to ~12 % (E[1/s^2] = 1 / sigma^2 * nu / (nu - 2))."""
+    rng = np.random.default_rng(7)
+    C, sm, ss = 6, 3.0, 3.5
+    X = np.column_stack([np.ones(C), rng.normal(size=(C, n_params - 1))])
+    truth = X @ rng.normal(size=n_params)
+    new, old = [], []
+    for _ in range(3000):
+        piles = truth[:, None] + rng.normal(0, sm, (C, 10))
+        m = piles.mean(axis=1)
+        fit = X @ np.linalg.lstsq(X, m, rcond=None)[0]
+        heaps = fit[:, None] + rng.normal(0, ss, (C, sim_n))
+        t = residual_table(m, piles.std(axis=1, ddof=1), np.full(C, 10), heaps.mean(axis=1),
+                           heaps.std(axis=1, ddof=1), np.full(C, sim_n))
+        new.append(summary(t, n_params)["chi2_dof"])
+        old.append(np.sum(t["z"] ** 2) / max(C - n_params, 1))
+    assert 0.95 < np.mean(new) < 1.13
+    if (n_params, sim_n) == (4, 4):
+        assert np.mean(old) > 1.8
+
+
 def test_model_revisions_and_pinning(tmp_path):
     m = load_model(tmp_path)
     assert m.revision == 0 and "cohesion" not in m.effects
