@@ -199,7 +199,7 @@ def _validate(run: Path, cfg: dict, prob: Problem, start: np.ndarray, validate: 
             mm, ms, mn = m["mean"], m["sd"], m["n"]
         else:  # a bare target angle: no measured scatter to add
             mm, ms, mn = np.full(len(ids), float(np.mean(targets))), np.full(len(ids), np.nan), np.zeros(len(ids))
-        rt = residual_table(mm, ms, mn, sim["mean"], sim["sd"], sim["n"])
+        rt = residual_table(mm, ms, mn, sim["mean"], sim["sd"], sim["n"])[["residual", "uncertainty", "z", "fails"]]
         return pd.concat([pd.DataFrame({"condition_id": ids}), sim.reset_index(drop=True), rt], axis=1)
 
     def reinvert(bias, x):
