@@ -39,8 +39,8 @@ def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, in
     mode, _, cap = mode.partition("@")
     mode, _, layout = mode.partition("+")
     name, _, threads = mode.partition(":")
-    os.environ["CALIB_GPU_MAXREG"] = cap or "0"  # read when the batch compiles its kernels
-    batch = gpu.Batch(fills, mode=name, contacts=layout or None, **({"block": int(threads)} if threads else {}))
+    batch = gpu.Batch(fills, mode=name, contacts=layout or None, max_registers=int(cap or 0),
+                      **({"block": int(threads)} if threads else {}))
     if name == "blocks" and threads and batch.heap_threads != int(threads):  # the kernel's registers allow fewer
         print(f"blocks:{threads} runs {batch.heap_threads} threads a heap, as many as the kernel's registers allow")
     batch.advance(warmup)

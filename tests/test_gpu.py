@@ -238,6 +238,8 @@ def test_a_known_contact_layout_and_register_cap(monkeypatch):
     assert gpu.register_cap() == (0 if gpu.SIMULATOR else 96)  # the simulator has no registers to cap
     monkeypatch.setenv("CALIB_GPU_MAXREG", "0")
     assert gpu.register_cap() == 0
+    with pytest.raises(CalibError, match="from 32 to 255"):  # a batch's own cap, checked alike
+        gpu.Batch([column(0, 0.3)], max_registers=16)
 
 
 def test_one_composition_a_batch_and_a_known_stepping_mode(monkeypatch):

@@ -828,10 +828,11 @@ class Batch:
     Starts from each system's own state, neighbour list and contact history, so that a batch and the
     CPU kernel step from the same point. The device arrays keep their addresses between chunks (a captured
     graph holds them) except where :meth:`_grow` makes room, which drops the graphs. ``contacts``: a thread a
-    grain or a neighbour slot for the pairs (:data:`CONTACTS`), in the kernel-a-phase modes."""
+    grain or a neighbour slot for the pairs (:data:`CONTACTS`), in the kernel-a-phase modes; ``max_registers``:
+    the contact kernels' registers a thread (:func:`register_cap`)."""
 
     def __init__(self, systems: list, width: int = 16, cell_cap: int = 48, block: int = 128,
-                 mode: str | None = None, contacts: str | None = None):
+                 mode: str | None = None, contacts: str | None = None, max_registers: int | None = None):
         specs = {s.model.spec for s in systems}
         if len(specs) != 1:
             raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
@@ -840,7 +841,7 @@ class Batch:
         # the simulator starts a Python thread per GPU thread: few of them
         self.block = min(block, 32) if SIMULATOR else block
         self.cuda = cuda_module()
-        self.k = kernels(self.spec, register_cap())
+        self.k = kernels(self.spec, register_cap(max_registers))
         self.width, self.cell_cap = width, cell_cap
         self.host = pack(self.systems, width, cell_cap)
         self.first = self.host["first"]

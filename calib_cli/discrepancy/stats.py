@@ -114,8 +114,7 @@ def summary(res: pd.DataFrame, n_params: int) -> dict:
     r, z = res["residual"].to_numpy(float), res["z"].to_numpy(float)
     ok = np.isfinite(z)
     n = int(ok.sum())
-    share = res["measured_share"].to_numpy(float)[ok] if "measured_share" in res else np.ones(n)
-    dof = n - min(n, n_params) * float(np.mean(share)) if n else 0.0
+    dof = n - min(n, n_params) * float(np.mean(res["measured_share"].to_numpy(float)[ok])) if n else 0.0
     return {"rmse": float(np.sqrt(np.mean(r**2))),
             "chi2_dof": float(np.sum(z[ok] ** 2) / dof) if dof > 1e-9 else float("nan"),
             "n_conditions": len(r), "n_fail": int(res["fails"].sum())}
