@@ -31,7 +31,7 @@ def test_the_ahead_compile_has_the_types_a_system_calls_with():
                walls=Walls(True, 0.02, 0.01, 0.0))
     assert s.model.spec == spec
     s.advance(20)
-    assert before == (1, 1)
+    assert min(before) >= 1  # one machine code a precision another test of this process asked for
     assert (len(stepper(spec).signatures), len(forces_of(spec).signatures)) == before
 
 
@@ -91,18 +91,21 @@ def test_a_holder_that_never_lets_go_delays_the_others_only_so_long(tmp_path):
 
 def test_a_compiled_kernel_is_loaded_without_waiting_for_the_lock():
     """Once a kernel is marked compiled, a process loads it without the lock: a holder stuck on it (here:
-    one that holds it until told) delays nobody after the first compile."""
+    one that holds it until told) delays nobody after the first compile. The loading process is told to
+    fail if it reaches for the lock at all, so the check does not depend on how long a load takes (a load
+    next to two busy test workers on a fresh machine took over 120 s)."""
     from calib_cli.dem.compile import _files
 
     spec = ContactModel().spec
     compiled(spec, "forces")
     assert _files(spec, "forces")[1].is_file()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    load = ("import time\nimport calib_cli.dem.compile as c\nc.LOCK_WAIT_S = 100.0\nt = time.perf_counter()\n"
-            f"c.compiled({spec!r}, 'forces')\nprint(time.perf_counter() - t, flush=True)\n")
+    load = ("import calib_cli.dem.compile as c\n"
+            "def refuse(*a, **k):\n    raise SystemExit('reached for the lock')\n"
+            f"c._machine_lock = refuse\nc.compiled({spec!r}, 'forces')\nprint('loaded', flush=True)\n")
     with holding(spec, env, "forces"):
-        # did not wait out LOCK_WAIT_S on the held lock; a load alone took 39 s once, beside two busy test workers
-        assert seconds(load, env) < 90
+        run = subprocess.run([sys.executable, "-c", load], env=env, capture_output=True, text=True, timeout=900)
+    assert (run.returncode, run.stdout.strip()) == (0, "loaded"), run.stderr[-300:]
 
 
 def test_a_filesystem_that_does_not_lock_compiles_without_the_lock():
