@@ -10,6 +10,11 @@ status, steps, wall time), so that the two engines can run on different machines
                                                                        # batch, the batches in parallel
     python benchmarks/gpu_agree.py --engine cpu --csv agree.csv --workers 2
     python benchmarks/gpu_agree.py --pool agree.csv                    # the table: means, 2 SE, agree?
+    python benchmarks/gpu_agree.py --engine cpu --precision mixed --csv agree.csv --workers 2
+
+``--precision mixed`` stores velocities, spins, forces, torques and contact histories as float32
+(calib_cli.dem.system.PRECISIONS); its heaps are labelled ``cpu-mixed`` / ``gpu-mixed``. The table sets
+every engine and precision beside the CPU kernel in double precision, the reference.
 
 The CPU engine's heaps are bitwise the same on any machine and thread count, so they may come from
 another machine than the GPU's. A GPU heap's wall time is its batch's, shared by its heaps.
@@ -50,71 +55,82 @@ def _row(preset: str, case: str, engine: str, r, wall: float) -> dict:
             "status": r.status, "steps": r.n_steps, "wall_s": round(wall, 1)}
 
 
-def _numerics(pre, time_max: float | None):
+def _numerics(pre, time_max: float | None, precision: str = "double"):
     from dataclasses import replace
 
-    return pre.numerics if time_max is None else replace(pre.numerics, time_max=time_max,
-                                                         settle_time_max=min(pre.numerics.settle_time_max, time_max / 3))
+    num = replace(pre.numerics, precision=precision)
+    return num if time_max is None else replace(num, time_max=time_max,
+                                                settle_time_max=min(num.settle_time_max, time_max / 3))
 
 
-def gpu_case(preset: str, case: str, seeds: list[int], time_max: float | None = None) -> list[dict]:
+def _label(engine: str, precision: str) -> str:
+    return engine if precision == "double" else f"{engine}-{precision}"
+
+
+def gpu_case(preset: str, case: str, seeds: list[int], time_max: float | None = None,
+             precision: str = "double") -> list[dict]:
     """One case's heaps in one GPU batch."""
     from calib_cli.dem import gpu
     from calib_cli.dem.heap import HeapTest, get_preset
 
     pre = get_preset(preset)
     t = time.perf_counter()
-    tests = [HeapTest(CASES[case], pre.condition, _numerics(pre, time_max), s) for s in seeds]
+    tests = [HeapTest(CASES[case], pre.condition, _numerics(pre, time_max, precision), s) for s in seeds]
     results = gpu.run_heaps(tests)
     wall = time.perf_counter() - t
-    return [_row(preset, case, "gpu", r, wall) for r in results]
+    return [_row(preset, case, _label("gpu", precision), r, wall) for r in results]
 
 
-def cpu_heap(preset: str, case: str, seed: int, time_max: float | None = None) -> list[dict]:
+def cpu_heap(preset: str, case: str, seed: int, time_max: float | None = None,
+             precision: str = "double") -> list[dict]:
     os.environ["NUMBA_NUM_THREADS"] = "1"
     from calib_cli.dem.heap import get_preset, run_heap
 
     pre = get_preset(preset)
     t = time.perf_counter()
-    r = run_heap(CASES[case], pre.condition, _numerics(pre, time_max), seed=seed)
-    return [_row(preset, case, "cpu", r, time.perf_counter() - t)]
+    r = run_heap(CASES[case], pre.condition, _numerics(pre, time_max, precision), seed=seed)
+    return [_row(preset, case, _label("cpu", precision), r, time.perf_counter() - t)]
 
 
 def run(engine: str, preset: str, cases: list[str], seeds: list[int], path: str, workers: int,
-        time_max: float | None = None) -> None:
+        time_max: float | None = None, precision: str = "double") -> None:
     if engine == "gpu":  # a batch per case, in parallel: a step is launch-bound, each process launches its own
-        jobs = [(gpu_case, preset, c, seeds, time_max) for c in cases]
+        jobs = [(gpu_case, preset, c, seeds, time_max, precision) for c in cases]
         workers = len(jobs)
     else:
-        jobs = [(cpu_heap, preset, c, s, time_max) for c in cases for s in seeds]
+        jobs = [(cpu_heap, preset, c, s, time_max, precision) for c in cases for s in seeds]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
         futs = [ex.submit(*j) for j in jobs]
         for f in as_completed(futs):
             rows = f.result()
             _record(path, rows)
-            print(f"{rows[0]['case']}: {len(rows)} {engine} heap(s), {rows[0]['wall_s']} s, angles "
+            print(f"{rows[0]['case']}: {len(rows)} {rows[0]['engine']} heap(s), {rows[0]['wall_s']} s, angles "
                   + " ".join(f"{r['angle']:.2f}" for r in rows), flush=True)
 
 
 def pool(path: str) -> None:
-    """The table: per case, each engine's mean and sd over seeds, their difference and 2 standard errors."""
+    """The table: per case, the CPU kernel's mean and sd over seeds (double precision, the reference) beside
+    each other engine's or precision's, their difference and 2 standard errors."""
     import pandas as pd
 
     df = pd.read_csv(path).drop_duplicates(["preset", "case", "engine", "seed"], keep="last")
-    print(f"{'preset / case':<28}{'CPU [deg]':>16}{'GPU [deg]':>16}{'diff':>8}{'2 SE':>7}  agree  heaps cpu/gpu  "
-          "wall a heap cpu / gpu batch [s]")
+    print(f"{'preset / case':<28}{'engine':>10}{'CPU [deg]':>16}{'it [deg]':>16}{'diff':>8}{'2 SE':>7}  agree  "
+          "heaps cpu/it  wall a heap cpu / its [s]")
     for (preset, case), d in df.groupby(["preset", "case"], sort=False):
-        a, b = (d[d.engine == e] for e in ("cpu", "gpu"))
-        x, y = a.angle.to_numpy(float), b.angle.to_numpy(float)
-        x, y = x[np.isfinite(x)], y[np.isfinite(y)]
-        if len(x) < 2 or len(y) < 2:
-            print(f"{preset + ' / ' + case:<28} too few heaps: {len(x)} cpu, {len(y)} gpu")
-            continue
-        diff = y.mean() - x.mean()
-        se2 = 2 * np.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
-        print(f"{preset + ' / ' + case:<28}{x.mean():>9.2f} +-{x.std(ddof=1):4.1f}{y.mean():>9.2f} +-{y.std(ddof=1):4.1f}"
-              f"{diff:>8.2f}{se2:>7.2f}  {'yes' if abs(diff) <= se2 else 'NO '}    {len(x):>3} / {len(y):<3}    "
-              f"{a.wall_s.mean():.0f} / {b.wall_s.max():.0f}")
+        a = d[d.engine == "cpu"]
+        for engine in [e for e in d.engine.unique() if e != "cpu"]:
+            b = d[d.engine == engine]
+            x, y = a.angle.to_numpy(float), b.angle.to_numpy(float)
+            x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+            if len(x) < 2 or len(y) < 2:
+                print(f"{preset + ' / ' + case:<28}{engine:>10} too few heaps: {len(x)} cpu, {len(y)} {engine}")
+                continue
+            diff = y.mean() - x.mean()
+            se2 = 2 * np.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
+            wall = b.wall_s.max() if engine.startswith("gpu") else b.wall_s.mean()  # a GPU batch's is shared
+            print(f"{preset + ' / ' + case:<28}{engine:>10}{x.mean():>9.2f} +-{x.std(ddof=1):4.1f}"
+                  f"{y.mean():>9.2f} +-{y.std(ddof=1):4.1f}{diff:>8.2f}{se2:>7.2f}  {'yes' if abs(diff) <= se2 else 'NO '}"
+                  f"    {len(x):>3} / {len(y):<3}    {a.wall_s.mean():.0f} / {wall:.0f}")
 
 
 def main() -> None:
@@ -128,6 +144,8 @@ def main() -> None:
     ap.add_argument("--csv", default="gpu_agree.csv")
     ap.add_argument("--time-max", type=float, help="cut every heap short at this simulated time [s] (a check of "
                     "the script, not of the physics)")
+    ap.add_argument("--precision", default="double", choices=["double", "mixed"], help="what the state arrays "
+                    "store: mixed keeps velocities, spins, forces, torques and contact histories as float32")
     ap.add_argument("--pool", metavar="CSV", help="print the table from this CSV, run nothing")
     a = ap.parse_args()
     if a.pool:
@@ -135,7 +153,7 @@ def main() -> None:
     if not a.engine:
         ap.error("--engine cpu or gpu (or --pool CSV)")
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
-    run(a.engine, a.preset, a.cases.split(","), seeds, a.csv, a.workers, a.time_max)
+    run(a.engine, a.preset, a.cases.split(","), seeds, a.csv, a.workers, a.time_max, a.precision)
     pool(a.csv)
 
 

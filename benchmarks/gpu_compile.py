@@ -8,9 +8,12 @@ share of a multiprocessor's 64 warps that can be resident: what hides a contact'
 forces kernel's 152 registers are what the H200 reported for it (docs/performance.md), found here without
 a GPU.
 
-    NUMBA_ENABLE_CUDASIM=0 python benchmarks/gpu_compile.py [--registers [--max-registers=128,96,64]]
+    NUMBA_ENABLE_CUDASIM=0 python benchmarks/gpu_compile.py [--registers [--max-registers=128,96,64]] \
+        [--precision=mixed]
 
 ``--max-registers``: the force kernels assembled again under each cap, to see what it spills.
+``--precision=mixed``: the kernels of heaps whose velocities, spins, forces, torques and contact histories
+are float32 (calib_cli.dem.system.PRECISIONS).
 """
 import os
 import re
@@ -39,13 +42,13 @@ SM90 = {"regs": 65536, "warps": 64, "blocks": 32, "granule": 256}
 BLOCK = 128
 
 
-def system(grains: dict, walls: dict) -> System:
+def system(grains: dict, walls: dict, precision: str = "double") -> System:
     rng = np.random.default_rng(0)
     pos = np.column_stack([rng.uniform(-3e-3, 3e-3, (8, 2)), 1.5e-3 + 3.1e-3 * np.arange(8)])
     it = Interaction(static_friction=0.5, rolling_friction=0.2, **grains)
     w = Interaction(static_friction=0.3, **walls)
     return System(Particles(pos, np.full(8, 1.5e-3)), material=Material(5e6, 0.25, 2600), pp=it, floor=w, cylinder=w,
-                  walls=Walls(True, 6e-3, 0.05, 0.0))
+                  walls=Walls(True, 6e-3, 0.05, 0.0), precision=precision)
 
 
 def occupancy(regs: int, block: int = BLOCK) -> float:
@@ -91,9 +94,10 @@ def main() -> int:
         print("--registers needs CUDA's ptxas on PATH")
         return 2
     caps = [int(v) for a in sys.argv if a.startswith("--max-registers=") for v in a.split("=", 1)[1].split(",")]
+    precision = next((a.split("=", 1)[1] for a in sys.argv if a.startswith("--precision=")), "double")
     failed = 0
     for grains, walls in COMPOSITIONS:
-        s = system(grains, walls)
+        s = system(grains, walls, precision)
         t = time.perf_counter()
         try:
             ptx = gpu.compile_ptx(s.model.spec, [s], cc=(9, 0))

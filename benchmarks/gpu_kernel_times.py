@@ -12,12 +12,13 @@ Each batch is settled for --warmup steps first; each kernel's replays start from
 on the device), no heap rebuilding. The replays leave the heaps in no physical state (the same step's forces
 added --reps times): the batch is thrown away after.
 
-    python benchmarks/gpu_kernel_times.py --batches 1,64,256
+    python benchmarks/gpu_kernel_times.py --batches 1,64,256 [--precisions double,mixed]
     NUMBA_ENABLE_CUDASIM=1 python benchmarks/gpu_kernel_times.py --preset smoke --batches 1 --warmup 2 \
         --probe 2 --reps 2     # the simulator (no graphs: launched one by one): checks the script, not a time
 """
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -73,9 +74,10 @@ def rebuild_share(batch: gpu.Batch, steps: int) -> tuple[float, float]:
     return anyh / steps, heaps / (steps * len(batch.systems))
 
 
-def profile(preset: str, count: int, warmup: int, probe: int, reps: int) -> None:
+def profile(preset: str, count: int, warmup: int, probe: int, reps: int, precision: str = "double") -> None:
     pre = PRESETS[preset]
-    fills = [heap_system(PARAMS, pre.condition, pre.numerics, seed) for seed in range(count)]
+    num = replace(pre.numerics, precision=precision)
+    fills = [heap_system(PARAMS, pre.condition, num, seed) for seed in range(count)]
     batch = gpu.Batch(fills, mode="graph")
     batch.advance(warmup)
     n = len(batch.host["heap"])
@@ -83,8 +85,8 @@ def profile(preset: str, count: int, warmup: int, probe: int, reps: int) -> None
     batch.advance(gpu.GRAPH_STEPS * 20)
     step = (time.perf_counter() - t) / (gpu.GRAPH_STEPS * 20)
     share, heap_share = rebuild_share(batch, probe)
-    print(f"{count} heaps, {n} grains: a whole step {step * 1e6:.1f} us (graph); a rebuild on {share:.1%} of "
-          f"steps ({heap_share:.1%} of heap-steps)")
+    print(f"{count} heaps, {n} grains, {precision} precision: a whole step {step * 1e6:.1f} us (graph); a rebuild "
+          f"on {share:.1%} of steps ({heap_share:.1%} of heap-steps)")
     batch._keep()  # every replay starts from this state, no heap rebuilding, the cells empty
 
     def fresh():
@@ -128,6 +130,8 @@ def main():
     ap.add_argument("--warmup", type=int, default=300)
     ap.add_argument("--probe", type=int, default=200, help="steps the host reads the rebuild flag on")
     ap.add_argument("--reps", type=int, default=50, help="launches of a kernel a replay")
+    ap.add_argument("--precisions", default="double", help="comma separated, of double and mixed (float32 "
+                    "velocities, spins, forces, torques and contact histories)")
     a = ap.parse_args()
     if gpu.SIMULATOR:
         print("numba's CUDA simulator: the script checked, its times are not a GPU's")
@@ -135,7 +139,8 @@ def main():
         d = gpu.cuda_module().get_current_device()
         print(f"GPU: {d.name.decode() if isinstance(d.name, bytes) else d.name}")
     for b in a.batches.split(","):
-        profile(a.preset, int(b), a.warmup, a.probe, a.reps)
+        for precision in a.precisions.split(","):
+            profile(a.preset, int(b), a.warmup, a.probe, a.reps, precision)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ ratios.
 """
 import argparse
 import os
+from dataclasses import replace
 import platform
 import time
 
@@ -28,14 +29,17 @@ from calib_cli.dem.heap import PRESETS, heap_system
 PARAMS = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6}
 
 
-def systems(preset: str, count: int):
+def systems(preset: str, count: int, precision: str = "double"):
     pre = PRESETS[preset]
-    return [heap_system(PARAMS, pre.condition, pre.numerics, seed) for seed in range(count)]
+    num = replace(pre.numerics, precision=precision)
+    return [heap_system(PARAMS, pre.condition, num, seed) for seed in range(count)]
 
 
 def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, int]:
-    """``mode``: ``NAME[:T][+LAYOUT][@CAP]``: a stepping mode, T threads a block (a heap for ``blocks``), the
-    contact layout (``+pair``: a thread a neighbour slot) and the force kernels' register cap (``@96``)."""
+    """``mode``: ``NAME[:T][+LAYOUT][@CAP][/mixed]``: a stepping mode, T threads a block (a heap for ``blocks``),
+    the contact layout (``+pair``: a thread a neighbour slot), the force kernels' register cap (``@96``) and
+    the precision (``fills`` are made in it: see :func:`precision_of`)."""
+    mode = mode.partition("/")[0]
     mode, _, cap = mode.partition("@")
     mode, _, layout = mode.partition("+")
     name, _, threads = mode.partition(":")
@@ -50,6 +54,11 @@ def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, in
     n = len(batch.host["heap"])
     assert (status == gpu.OK).all(), status
     return n * steps / dt, n
+
+
+def precision_of(mode: str) -> str:
+    """``/mixed`` at a mode's end: velocities, spins, forces, torques and contact histories as float32."""
+    return mode.partition("/")[2] or "double"
 
 
 def _timed(s, steps: int, warmup: int) -> float:
@@ -100,8 +109,9 @@ def main():
     ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
     ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated, each NAME[:T]"
-                    "[+pair][@CAP]: T threads a block (a heap for blocks; default 128), +pair a thread a neighbour "
-                    "slot for the contacts, @CAP the force kernels' registers a thread")
+                    "[+pair][@CAP][/mixed]: T threads a block (a heap for blocks; default 128), +pair a thread a "
+                    "neighbour slot for the contacts, @CAP the force kernels' registers a thread, /mixed float32 "
+                    "velocities, forces and contact histories")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
@@ -119,10 +129,12 @@ def main():
     runs = [(a.preset, int(b)) for b in a.batches.split(",") if b] + \
            [("paper", int(b)) for b in a.paper_batches.split(",") if b]
     for preset, count in runs:
-        fills = systems(preset, count)  # each mode steps copies of the same fills (a batch packs their state)
+        fills = {}  # each mode steps copies of the same fills (a batch packs their state), one set a precision
         for mode in a.modes.split(","):
             try:
-                rate, n = gpu_rate(fills, a.steps, a.warmup, mode)
+                prec = precision_of(mode)
+                fills.setdefault(prec, systems(preset, count, prec))
+                rate, n = gpu_rate(fills[prec], a.steps, a.warmup, mode)
             except Exception as e:  # noqa: BLE001 - a mode that fails on this machine is reported, the rest go on
                 print(f"{preset:8} {count:5d} {'':9} {mode:>16} FAILED {type(e).__name__}: {str(e)[:300]}", flush=True)
                 continue

@@ -33,10 +33,11 @@ KERNELS = ("forces", "steps")
 _BUSY = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
 
 
-def _files(spec: str, kernel: str) -> tuple[Path, Path]:
-    """The lock file and the compiled marker of ``spec``'s ``kernel``, beside numba's cache."""
+def _files(spec: str, kernel: str, precision: str = "double") -> tuple[Path, Path]:
+    """The lock file and the compiled marker of ``spec``'s ``kernel`` in ``precision``, beside numba's cache."""
     folder = Path(numba.config.CACHE_DIR or tempfile.gettempdir())
-    stem = f"compile-{hashlib.sha256(f'{spec}|{kernel}'.encode()).hexdigest()[:16]}"
+    name = f"{spec}|{kernel}" + ("" if precision == "double" else f"|{precision}")
+    stem = f"compile-{hashlib.sha256(name.encode()).hexdigest()[:16]}"
     return folder / f"{stem}.lock", folder / f"{stem}.done"
 
 
@@ -55,14 +56,14 @@ def _acquire(fcntl, handle) -> bool:
 
 
 @contextlib.contextmanager
-def _machine_lock(spec: str, kernel: str = "steps"):
+def _machine_lock(spec: str, kernel: str = "steps", precision: str = "double"):
     """Held while this process compiles ``spec``'s ``kernel``: another process of this machine that asks
     for it waits here (at most LOCK_WAIT_S). Best effort: without fcntl (not POSIX), a writable cache
     folder or a filesystem that locks, no lock."""
     try:
         import fcntl
 
-        lock, _ = _files(spec, kernel)
+        lock, _ = _files(spec, kernel, precision)
         lock.parent.mkdir(parents=True, exist_ok=True)
         handle = open(lock, "a")
     except (ImportError, OSError):
@@ -77,14 +78,16 @@ def _machine_lock(spec: str, kernel: str = "steps"):
                 fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def _compile(spec: str, kernel: str) -> None:
-    """Call ``spec``'s ``kernel`` once with the argument types :class:`.system.System` gives it, running no
-    step: numba compiles it, or loads it from its disk cache."""
+def _compile(spec: str, kernel: str, precision: str = "double") -> None:
+    """Call ``spec``'s ``kernel`` once with the argument types :class:`.system.System` gives it in
+    ``precision``, running no step: numba compiles it, or loads it from its disk cache."""
     n, cap, hist = 1, 4, columns.HIST
-    pos, vel, omg, force, torque, ref = (np.zeros((n, 3)) for _ in range(6))
+    f = np.float32 if precision == "mixed" else np.float64  # System.state_dtype
+    pos, ref = np.zeros((n, 3)), np.zeros((n, 3))
+    vel, omg, force, torque = (np.zeros((n, 3), f) for _ in range(4))
     rad, mass, inv, ncont, cnew = np.ones(n), np.ones(n), np.ones(n), np.zeros(n), np.zeros(n)
     pi, pj, si, sj = (np.zeros(cap, np.int64) for _ in range(4))
-    ht, sh, hf, hc = np.zeros((cap, hist)), np.zeros((cap, hist)), np.zeros((n, hist)), np.zeros((n, hist))
+    ht, sh, hf, hc = np.zeros((cap, hist), f), np.zeros((cap, hist), f), np.zeros((n, hist), f), np.zeros((n, hist), f)
     prm, gap, geo, grav = np.zeros((3, columns.NCOL)), np.zeros(3), np.zeros(6), np.zeros(3)
     npairs, pf = np.zeros(1, np.int64), np.zeros((cap, 11))
     if kernel == "forces":
@@ -96,18 +99,19 @@ def _compile(spec: str, kernel: str) -> None:
 
 
 @functools.cache
-def compiled(spec: str, kernel: str) -> str:
+def compiled(spec: str, kernel: str, precision: str = "double") -> str:
     """Compile (or load from numba's disk cache) ``spec``'s ``kernel`` (:data:`KERNELS`: ``forces``,
-    :func:`.forces.forces_of`; ``steps``, :func:`.integrate.stepper`) under the machine's lock for it, then
-    mark it compiled. Once per process, kernel and composition."""
+    :func:`.forces.forces_of`; ``steps``, :func:`.integrate.stepper`) for ``precision``'s arrays
+    (:data:`.system.PRECISIONS`) under the machine's lock for it, then mark it compiled. Once per process,
+    kernel, composition and precision."""
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
-    done = _files(spec, kernel)[1]
+    done = _files(spec, kernel, precision)[1]
     if done.is_file():  # compiled by another process: a cache load, no lock to wait for
-        _compile(spec, kernel)
+        _compile(spec, kernel, precision)
         return spec
-    with _machine_lock(spec, kernel):
-        _compile(spec, kernel)
+    with _machine_lock(spec, kernel, precision):
+        _compile(spec, kernel, precision)
         with contextlib.suppress(OSError):
             done.touch()
     return spec

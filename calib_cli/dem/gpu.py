@@ -712,7 +712,7 @@ def _slots(systems: list, first: np.ndarray, width: int) -> dict:
     width = max(width, int(nnb.max(initial=0)))
     slot = np.arange(len(pi)) - np.concatenate([[0], np.cumsum(nnb)])[pi]  # pairs come sorted by i
     nbr = np.zeros((n, width), np.int64)
-    hist = np.zeros((n, width, HIST))
+    hist = np.zeros((n, width, HIST), systems[0].ht.dtype)  # a batch's systems share one precision
     nbr[pi, slot], hist[pi, slot] = pj, ht
     return {"nnb": nnb, "nbr": nbr, "hist": hist, "new_nbr": np.zeros_like(nbr), "new_hist": np.zeros_like(hist)}
 
@@ -836,6 +836,8 @@ class Batch:
         specs = {s.model.spec for s in systems}
         if len(specs) != 1:
             raise CalibError(f"a GPU batch runs one composition of contact laws; these heaps have {len(specs)}")
+        if len({s.precision for s in systems}) != 1:
+            raise CalibError("a GPU batch runs one precision; these heaps mix them")
         self.systems, self.spec, self.mode = list(systems), specs.pop(), step_mode(mode)
         self.contacts = contact_layout(contacts)
         # the simulator starts a Python thread per GPU thread: few of them
@@ -1018,8 +1020,9 @@ class Batch:
         state = {k: self.d[k].copy_to_host() for k in STATE}
         n = len(self.host["heap"])
         old_nbr, old_hist, old_nnb = state.pop("nbr"), state.pop("hist"), state.pop("nnb")
-        slots = {"nnb": old_nnb, "nbr": np.zeros((n, self.width), np.int64), "hist": np.zeros((n, self.width, HIST)),
-                 "new_nbr": np.zeros((n, self.width), np.int64), "new_hist": np.zeros((n, self.width, HIST))}
+        f = old_hist.dtype
+        slots = {"nnb": old_nnb, "nbr": np.zeros((n, self.width), np.int64), "hist": np.zeros((n, self.width, HIST), f),
+                 "new_nbr": np.zeros((n, self.width), np.int64), "new_hist": np.zeros((n, self.width, HIST), f)}
         w = old_nbr.shape[1]
         slots["nbr"][:, :w], slots["hist"][:, :w] = old_nbr, old_hist
         grids = _grids(self.systems, self.cell_cap)
@@ -1075,8 +1078,8 @@ def run_heaps(tests: list, progress=None, checkpoints: list | None = None, every
     files = list(checkpoints) if checkpoints is not None else [None] * len(tests)
     groups: dict = {}
     for i, t in enumerate(tests):
-        groups.setdefault((t.system.model.spec, t.numerics.chunk), []).append(i)
-    for (_, chunk), members in groups.items():
+        groups.setdefault((t.system.model.spec, t.numerics.chunk, t.system.precision), []).append(i)
+    for (_, chunk, _), members in groups.items():
         done = _run_batch([tests[i] for i in members], chunk, [files[i] for i in members],
                           CHECKPOINT_EVERY if every is None else every, mode)
         for i, r in zip(members, done):

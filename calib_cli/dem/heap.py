@@ -109,6 +109,7 @@ class Numerics:
     rest_time_min: float = 1.0  # s after the lift: the same creep time for every heap (docs/physics.md)
     time_max: float = 6.0  # s, total
     chunk: int = 400  # steps between checks
+    precision: str = "double"  # what the state arrays store (calib_cli.dem.system.PRECISIONS)
 
 
 @dataclass(frozen=True)
@@ -318,7 +319,7 @@ def heap_system(params: Mapping[str, float], cond: HeapCondition, num: Numerics,
     return System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
                   wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pf,
                   cylinder=pc, walls=Walls(True, cond.cylinder_diameter_mm * 0.5e-3, cond.lift_speed_mm_s * 1e-3,
-                                            np.inf), safety=num.safety)
+                                            np.inf), safety=num.safety, precision=num.precision)
 
 
 class HeapTest:
@@ -494,4 +495,13 @@ def condition_dict(c: HeapCondition) -> dict:
 def run_key(params: Mapping, condition: HeapCondition, numerics: Numerics, seed: int, model: str = "") -> dict:
     """Everything that determines a run's result (its cache key)."""
     return {"params": {k: float(v) for k, v in sorted(params.items())}, "condition": condition_dict(condition),
-            "numerics": asdict(numerics), "seed": int(seed), "model": model, "kernel": KERNEL_VERSION}
+            "numerics": _numerics_key(numerics), "seed": int(seed), "model": model, "kernel": KERNEL_VERSION}
+
+
+def _numerics_key(numerics: Numerics) -> dict:
+    """The numerics a heap's key names; "double" precision, the default, is left out, so the keys of
+    heaps computed before there was a choice stay theirs."""
+    d = asdict(numerics)
+    if d["precision"] == "double":
+        del d["precision"]
+    return d

@@ -16,6 +16,13 @@ from .neighbours import build_pairs, transfer_history
 from .timestep import jkr_time_step, rayleigh_time_step
 
 
+#: "double": every state array float64. "mixed": velocities, spins, forces, torques and contact histories
+#: stored as float32 (the arithmetic stays float64: numba promotes a float32 against a float64 constant,
+#: then stores the result rounded), positions float64, as a creeping grain's step v dt (2e-9 m at 0.1 mm/s)
+#: is below float32's resolution of a position (4e-9 m at 50 mm). Half the bytes a contact moves, for the GPU
+PRECISIONS = ("double", "mixed")
+
+
 class UnstableError(CalibError):
     """The integration went unstable: never return an angle from such a run."""
 
@@ -71,8 +78,11 @@ class System:
     n_steps: int = 0
     n_rebuilds: int = 0
     max_overlap: float = 0.0
+    precision: str = "double"  # PRECISIONS: what the state arrays store
 
     def __post_init__(self):
+        if self.precision not in PRECISIONS:
+            raise CalibError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         for m, w in ((self.material, "particle material"), (self.wall_material, "wall material")):
             m.validate(w)
         for it, w in ((self.pp, "particle-particle"), (self.floor, "particle-floor"),
@@ -112,26 +122,30 @@ class System:
         self.geo = np.array([w.cylinder_radius, 0.0, w.lift_speed, 1.0 if w.cylinder_radius > 0 else 0.0,
                              1.0 if w.floor else 0.0, 0.0])
         self.grav = np.asarray(self.gravity, dtype=np.float64)
-        self.force = np.zeros((n, 3))
-        self.torque = np.zeros((n, 3))
-        self.hf = np.zeros((n, HIST))
-        self.hc = np.zeros((n, HIST))
+        f = self.state_dtype
+        p.vel, p.omg = p.vel.astype(f, copy=False), p.omg.astype(f, copy=False)
+        self.force = np.zeros((n, 3), f)
+        self.torque = np.zeros((n, 3), f)
+        self.hf = np.zeros((n, HIST), f)
+        self.hc = np.zeros((n, HIST), f)
         self.ncont = np.zeros(n)
         self.cnew = np.zeros(n)
         self._alloc(16 * n + 64)
         self._rebuild()
-        compiled(self.model.spec, "forces")  # once per machine: other processes wait, then load it
+        compiled(self.model.spec, "forces", self.precision)  # once per machine: other processes wait, then load it
         forces_of(self.model.spec)(p.pos, p.vel, p.omg, p.rad, self.mass, self.inv_inertia, self.pi, self.pj,
                        self.npairs[0], self.ht, self.hf, self.hc, self.prm, self.gap, self.geo, self.grav, self.dt,
                        self.force, self.torque, self.ncont, self.cnew, self.pf)
 
     def _alloc(self, cap: int, keep: int = 0):
         old = getattr(self, "pi", None)
-        pi, pj, ht = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, HIST))
+        f = self.state_dtype
+        pi, pj, ht = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, HIST), f)
         if old is not None and keep:
             pi[:keep], pj[:keep], ht[:keep] = self.pi[:keep], self.pj[:keep], self.ht[:keep]
         self.pi, self.pj, self.ht = pi, pj, ht
-        self.spare_i, self.spare_j, self.spare_h = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros((cap, HIST))
+        self.spare_i, self.spare_j = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+        self.spare_h = np.zeros((cap, HIST), f)
         self.pf = np.zeros((cap, 11))
         if not hasattr(self, "npairs"):
             self.npairs = np.zeros(1, np.int64)
@@ -147,6 +161,12 @@ class System:
         self.pi[:cnt], self.pj[:cnt], self.ht[:cnt] = self.spare_i[:cnt], self.spare_j[:cnt], self.spare_h[:cnt]
         self.npairs[0] = cnt
         self.ref_pos = p.pos.copy()
+
+    @property
+    def state_dtype(self) -> type:
+        """The dtype of the velocities, spins, forces, torques and contact histories (positions and the
+        grains' constants are float64 in every precision)."""
+        return np.float32 if self.precision == "mixed" else np.float64
 
     @property
     def n(self) -> int:
@@ -167,7 +187,7 @@ class System:
     def advance(self, nsteps: int) -> None:
         """Integrate ``nsteps`` steps; raises :class:`UnstableError` on blow-up."""
         p = self.particles
-        compiled(self.model.spec, "steps")  # here, not at set-up: the GPU engine sets systems up, never steps them
+        compiled(self.model.spec, "steps", self.precision)  # here, not at set-up: the GPU engine sets systems up, never steps them
         done = 0
         while done < nsteps:
             status, k, worst, reb = stepper(self.model.spec)(

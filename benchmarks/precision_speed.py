@@ -1,0 +1,52 @@
+"""The CPU kernel's throughput in double and in mixed precision side by side (calib_cli.dem.system.PRECISIONS:
+mixed stores velocities, spins, forces, torques and contact histories as float32): a `default` cohesive fill
+(JKR, constant torque) settled for 200 steps, then 3,000 steps timed on one numba thread, each precision in
+its own process, alternating, median of the repeats. Compilation happens before the timed steps.
+
+    python benchmarks/precision_speed.py --repeats 3
+"""
+import argparse
+import os
+import statistics as st
+import subprocess
+import sys
+
+CODE = r'''
+import sys, time, numpy as np
+from calib_cli.dem.heap import PRESETS, fill_cylinder, interactions
+from calib_cli.dem.system import System, Walls
+from calib_cli.dem.materials import Material
+pre = PRESETS["default"]; cond, num = pre.condition, pre.numerics
+pp, pf, pc = interactions({"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3,
+                           "surface_energy": 0.6}, cond)
+parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(3))
+s = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
+           wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pf, cylinder=pc,
+           walls=Walls(True, 0.025, 0.05, np.inf), safety=num.safety, precision=sys.argv[1])
+s.drag = 10.0
+s.advance(200)
+t = time.perf_counter(); s.advance(3000); dt = time.perf_counter() - t
+print(s.n * 3000 / dt)
+'''
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    a = ap.parse_args()
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", PYTHONPATH=root)
+    res: dict[str, list[float]] = {"double": [], "mixed": []}
+    for _ in range(a.repeats):
+        for precision in res:
+            out = subprocess.run([sys.executable, "-c", CODE, precision], cwd=root, env=env, capture_output=True,
+                                 text=True, check=True).stdout.split()[-1]
+            res[precision].append(float(out))
+            print(f"{precision:7} {float(out):.3g} particle-steps/s", flush=True)
+    med = {k: st.median(v) for k, v in res.items()}
+    print(f"median: double {med['double']:.3g}, mixed {med['mixed']:.3g} particle-steps/s; "
+          f"mixed/double {med['mixed'] / med['double']:.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""Mixed precision (calib_cli.dem.system.PRECISIONS): velocities, spins, forces, torques and contact
+histories stored as float32, positions float64. The kernel in mixed precision against the same analytic
+results as in double (tests/test_dem_physics.py), the heap keys it leaves alone, and the GPU engine's
+batch in mixed precision against the CPU kernel's."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from calib_cli.dem import gpu
+from calib_cli.dem.heap import Numerics, get_preset, run_key
+from calib_cli.dem.materials import Interaction, Material, effective_moduli
+from calib_cli.dem.system import Particles, System, Walls
+from calib_cli.errors import CalibError
+
+R = 2e-3
+MAT = Material(5e6, 0.25, 2600.0)
+ES, _ = effective_moduli(MAT, MAT)
+
+
+def pair(precision, e=0.5, mu=0.0, gamma=0.0, v=0.5, safety=0.01):
+    p = Particles([[0, 0, 0.1], [2 * R + 1e-6, 0, 0.1]], [R, R], vel=[[v, 0, 0], [-v, 0, 0]])
+    return System(p, material=MAT, pp=Interaction(mu, 0.0, e, gamma), gravity=(0, 0, 0), walls=Walls(floor=False),
+                  safety=safety, precision=precision)
+
+
+def test_mixed_precision_stores_the_state_as_float32_and_the_positions_as_float64():
+    s = pair("mixed")
+    for a in (s.particles.vel, s.particles.omg, s.force, s.torque, s.ht, s.spare_h, s.hf, s.hc):
+        assert a.dtype == np.float32
+    assert s.particles.pos.dtype == s.mass.dtype == s.prm.dtype == np.float64
+    s._alloc(2 * len(s.pi), keep=int(s.npairs[0]))  # grown lists keep the precision
+    assert s.ht.dtype == s.spare_h.dtype == np.float32
+    assert pair("double").ht.dtype == np.float64
+    with pytest.raises(CalibError, match="precision must be one of double, mixed"):
+        pair("single")
+
+
+@pytest.mark.parametrize("e", [0.3, 0.7])
+def test_head_on_restitution_in_mixed_precision(e):
+    s = pair("mixed", e=e)
+    s.advance(int(2e-3 / s.dt))
+    v = s.particles.vel
+    assert v[1, 0] - v[0, 0] == pytest.approx(e * 1.0, abs=0.005)
+
+
+def test_a_jkr_pair_settles_at_the_zero_load_overlap_in_mixed_precision():
+    """The contact radius a JKR contact keeps as its solver's warm start is float32: the root is not."""
+    gamma = 1.0
+    s = pair("mixed", e=0.3, gamma=gamma, v=0.001, safety=0.1)
+    s.advance(int(0.05 / s.dt))
+    d = 2 * R - np.linalg.norm(s.particles.pos[0] - s.particles.pos[1])
+    u = 3 ** (2 / 3)
+    scale = (math.pi * gamma / ES) ** (2 / 3) * (R / 2) ** (1 / 3)
+    assert d == pytest.approx(scale * (u * u - 2 * math.sqrt(u)), rel=1e-3)
+
+
+@pytest.mark.parametrize("tan_theta,holds", [(0.25, True), (0.35, False)])
+def test_a_sphere_on_an_incline_holds_or_rolls_in_mixed_precision(tan_theta, holds):
+    """The rolling spring's history (float32 here) holds a static torque below mu_r = 0.3 and lets go above."""
+    th = math.atan(tan_theta)
+    g = (9.81 * math.sin(th), 0.0, -9.81 * math.cos(th))
+    it = Interaction(0.9, 0.3, 0.5, 0.0, 0.0, 0.0, 1.0)
+    s = System(Particles([[0, 0, R * 0.9995]], [R]), material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it,
+               gravity=g, safety=0.1, precision="mixed")
+    s.advance(int(0.05 / s.dt))
+    x0 = s.particles.pos[0, 0]
+    s.advance(int(0.1 / s.dt))
+    moved = s.particles.pos[0, 0] - x0
+    assert (abs(moved) < 1e-5) == holds, moved
+
+
+def test_a_collision_keeps_its_momentum_to_float32s_resolution():
+    """A pair's forces are equal and opposite in float64; each grain's sum is stored rounded to float32."""
+    s = pair("mixed", e=0.5, mu=0.5, v=0.3)
+    P0 = (s.mass[:, None] * s.particles.vel).sum(0)
+    s.advance(int(1.5e-3 / s.dt))
+    P = (s.mass[:, None] * s.particles.vel).sum(0)
+    scale = s.mass[0] * 0.3
+    assert np.abs(P - P0).max() <= 1e-6 * scale
+
+
+def test_the_heap_keys_of_double_precision_are_those_made_before_the_choice():
+    pre = get_preset("smoke")
+    key = run_key({"static_friction": 0.5}, pre.condition, pre.numerics, 0)
+    assert "precision" not in key["numerics"]
+    mixed = run_key({"static_friction": 0.5}, pre.condition, dataclasses.replace(pre.numerics, precision="mixed"), 0)
+    assert mixed["numerics"]["precision"] == "mixed"
+    assert {k: v for k, v in mixed["numerics"].items() if k != "precision"} == key["numerics"]
+    assert Numerics().precision == "double"
+
+
+def column(seed: int, precision: str) -> System:
+    """18 grains stacked in a cylinder on the floor, cohesive, the cylinder lifted from t = 4 ms."""
+    rng = np.random.default_rng(seed)
+    r = 1.5e-3
+    pts = [[2.2e-3 * np.cos(2 * np.pi * q / 3 + layer), 2.2e-3 * np.sin(2 * np.pi * q / 3 + layer), r + layer * 2.9e-3]
+           for layer in range(6) for q in range(3)]
+    pos = np.array(pts) + rng.uniform(-2e-4, 2e-4, (len(pts), 3))
+    p = Particles(pos, rng.uniform(0.9 * r, r, len(pts)), vel=rng.normal(0, 0.05, pos.shape))
+    grains = Interaction(static_friction=0.4, rolling_friction=0.2, surface_energy=0.5, restitution=0.5)
+    return System(p, material=MAT, pp=grains, floor=grains, cylinder=grains, walls=Walls(True, 5.5e-3, 0.05, 0.004),
+                  precision=precision)
+
+
+def test_a_gpu_batch_in_mixed_precision_steps_as_the_cpu_kernel_in_mixed_precision():
+    """The same arrays and laws: under the simulator a float32 times a constant is float32 arithmetic (numpy's
+    rule), where compiled code computes it in float64 and rounds the store, so the two agree to float32's
+    resolution, not bit for bit: over 300 steps (lift, rebuilds) within 1e-7 of the positions' scale (1.5e-9
+    measured), where double against mixed precision differ by 3e-7. On a GPU (fused multiply-adds, atomic
+    sums in varying order) within 1e-5."""
+    tol = 1e-7 if gpu.SIMULATOR else 1e-5
+    cpu, on_gpu, double = column(0, "mixed"), column(0, "mixed"), column(0, "double")
+    b = gpu.Batch([on_gpu], mode="persistent" if gpu.SIMULATOR else None)
+    assert b.d["hist"].dtype == b.d["vel"].dtype == np.float32 and b.d["pos"].dtype == np.float64
+    for _ in range(3):
+        cpu.advance(100)
+        assert list(b.advance(100)) == [gpu.OK]
+    b.pull()
+    double.advance(300)
+    assert cpu.n_rebuilds >= 2 and cpu.rim_height > 0
+    scale = np.abs(cpu.particles.pos).max()
+    assert np.abs(cpu.particles.pos - on_gpu.particles.pos).max() <= tol * scale
+    if gpu.SIMULATOR:  # the check tells the precisions apart
+        assert np.abs(cpu.particles.pos - double.particles.pos).max() > tol * scale
+    assert on_gpu.particles.vel.dtype == np.float32
+
+
+def test_a_batch_of_one_precision():
+    with pytest.raises(CalibError, match="one precision"):
+        gpu.Batch([column(0, "mixed"), column(1, "double")])
+
+
+def test_each_precision_compiles_under_its_own_marker():
+    """A process that finds double's kernel compiled must not take it for mixed's (it would compile that
+    outside the machine's lock); double's marker is the one made before precisions."""
+    import hashlib
+
+    from calib_cli.dem.compile import _files
+    from calib_cli.dem.laws import ContactModel
+
+    spec = ContactModel().spec
+    assert _files(spec, "steps", "mixed") != _files(spec, "steps", "double")
+    old = f"compile-{hashlib.sha256(f'{spec}|steps'.encode()).hexdigest()[:16]}.done"
+    assert _files(spec, "steps")[1].name == old
