@@ -129,8 +129,9 @@ def pool(path: str) -> None:
             se2 = 2 * np.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
             wall = b.wall_s.max() if engine.startswith("gpu") else b.wall_s.mean()  # a GPU batch's is shared
             print(f"{preset + ' / ' + case:<28}{engine:>10}{x.mean():>9.2f} +-{x.std(ddof=1):4.1f}"
-                  f"{y.mean():>9.2f} +-{y.std(ddof=1):4.1f}{diff:>8.2f}{se2:>7.2f}  {'yes' if abs(diff) <= se2 else 'NO '}"
-                  f"    {len(x):>3} / {len(y):<3}    {a.wall_s.mean():.0f} / {wall:.0f}")
+                  f"{y.mean():>9.2f} +-{y.std(ddof=1):4.1f}{diff:>8.2f}{se2:>7.2f}  "
+                  f"{'yes' if abs(diff) <= se2 else 'NO '}    {len(x):>3} / {len(y):<3}    "
+                  f"{a.wall_s.mean():.0f} / {wall:.0f}")
 
 
 def main() -> None:

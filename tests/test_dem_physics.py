@@ -24,25 +24,28 @@ ES, GS = effective_moduli(MAT, MAT)
 
 
 def pair(e=0.5, mu=0.0, mur=0.0, gamma=0.0, v=0.5, offset=(0.0, 0.0), w=((0, 0, 0), (0, 0, 0)), safety=0.01,
-         radii=(R, R), spring=0.0):
+         radii=(R, R), spring=0.0, precision="double"):
     p = Particles([[0, 0, 0.1], [radii[0] + radii[1] + 1e-6, offset[0], 0.1 + offset[1]]], list(radii),
                   vel=[[v, 0, 0], [-v, 0, 0]], omg=list(w))
     return System(p, material=MAT, pp=Interaction(mu, mur, e, gamma, 0.0, 0.0, spring), gravity=(0, 0, 0),
-                  walls=Walls(floor=False), safety=safety)
+                  walls=Walls(floor=False), safety=safety, precision=precision)
 
 
-def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1, own_spin=0.0, spring=0.0):
+def on_floor(mu=0.5, mur=0.0, e=0.5, grav=(0, 0, -G), safety=0.1, own_spin=0.0, spring=0.0, precision="double"):
     p = Particles([[0, 0, R * 0.9995]], [R])
     it = Interaction(mu, mur, e, 0.0, own_spin, 0.0, spring)
-    s = System(p, material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it, gravity=grav, safety=safety)
+    s = System(p, material=MAT, wall_material=MAT, pp=it, floor=it, cylinder=it, gravity=grav, safety=safety,
+               precision=precision)
     s.advance(int(0.02 / s.dt))  # come to rest on the floor
     return s
 
 
 # ---------------------------------------------------------------- normal contact
+# "mixed": velocities, forces and contact histories stored as float32 (calib_cli.dem.system.PRECISIONS)
+@pytest.mark.parametrize("precision", ["double", "mixed"])
 @pytest.mark.parametrize("e", [0.2, 0.3, 0.5, 0.7, 0.9])
-def test_head_on_restitution(e):
-    s = pair(e=e)
+def test_head_on_restitution(e, precision):
+    s = pair(e=e, precision=precision)
     s.advance(int(2e-3 / s.dt))
     v = s.particles.vel
     assert v[1, 0] - v[0, 0] == pytest.approx(e * 1.0, abs=0.005)
@@ -147,9 +150,11 @@ def test_jkr_warm_start_finds_the_stable_root(u, u_prev, gamma, Rs):
     assert f == pytest.approx(jkr_force_of_radius(u * s, Rs, ES, gamma), rel=1e-10, abs=1e-12 * gamma * Rs)
 
 
-def test_jkr_pair_settles_at_zero_load_overlap():
+@pytest.mark.parametrize("precision", ["double", "mixed"])
+def test_jkr_pair_settles_at_zero_load_overlap(precision):
+    """In mixed precision the contact radius the JKR solver warm-starts from is float32: the root is not."""
     gamma = 1.0
-    s = pair(e=0.3, gamma=gamma, v=0.001, safety=0.1)
+    s = pair(e=0.3, gamma=gamma, v=0.001, safety=0.1, precision=precision)
     s.advance(int(0.05 / s.dt))
     d = 2 * R - np.linalg.norm(s.particles.pos[0] - s.particles.pos[1])
     # F = 0 where u^(3/2) = 3: delta0 = scale (u^2 - 2 sqrt u)
@@ -235,12 +240,13 @@ def test_rolling_friction_decelerates_at_five_sevenths_mu_r_g(own_spin, spring):
     assert a == pytest.approx(-5 / 7 * mur * G, rel=0.01)
 
 
+@pytest.mark.parametrize("precision", ["double", "mixed"])
 @pytest.mark.parametrize("spring", [0.0, 1.0])
 @pytest.mark.parametrize("mur,tan_theta,holds", [(0.3, 0.25, True), (0.3, 0.35, False), (0.0, 0.2, False)])
-def test_sphere_on_incline(mur, tan_theta, holds, spring):
+def test_sphere_on_incline(mur, tan_theta, holds, spring, precision):
     th = math.atan(tan_theta)
     grav = (G * math.sin(th), 0.0, -G * math.cos(th))  # floor tilted by theta
-    s = on_floor(mu=0.9, mur=mur, grav=(0, 0, -G), spring=spring)
+    s = on_floor(mu=0.9, mur=mur, grav=(0, 0, -G), spring=spring, precision=precision)
     s.grav[:] = grav
     s.particles.vel[0] = 0
     ts, vs = [], []

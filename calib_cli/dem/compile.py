@@ -31,6 +31,9 @@ LOCK_WAIT_S = 600.0
 #: the kernels of a composition: the force evaluation (every System) and the step loop (a System that steps)
 KERNELS = ("forces", "steps")
 _BUSY = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
+#: the dtype of the state arrays (velocities, spins, forces, torques, contact histories) in each precision
+#: (calib_cli.dem.system.PRECISIONS), as System allocates them and the kernels are compiled for
+STATE_DTYPES = {"double": np.float64, "mixed": np.float32}
 
 
 def _files(spec: str, kernel: str, precision: str = "double") -> tuple[Path, Path]:
@@ -82,7 +85,7 @@ def _compile(spec: str, kernel: str, precision: str = "double") -> None:
     """Call ``spec``'s ``kernel`` once with the argument types :class:`.system.System` gives it in
     ``precision``, running no step: numba compiles it, or loads it from its disk cache."""
     n, cap, hist = 1, 4, columns.HIST
-    f = np.float32 if precision == "mixed" else np.float64  # System.state_dtype
+    f = STATE_DTYPES[precision]
     pos, ref = np.zeros((n, 3)), np.zeros((n, 3))
     vel, omg, force, torque = (np.zeros((n, 3), f) for _ in range(4))
     rad, mass, inv, ncont, cnew = np.ones(n), np.ones(n), np.ones(n), np.zeros(n), np.zeros(n)

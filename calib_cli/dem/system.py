@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibError
-from .compile import compiled
+from .compile import STATE_DTYPES, compiled
 from .forces import forces_of
 from .integrate import NEED_CAPACITY, stepper
 from .laws.columns import CYL, E_S, FLOOR, G_S, GAMMA, HIST, PP
@@ -20,7 +20,7 @@ from .timestep import jkr_time_step, rayleigh_time_step
 #: stored as float32 (the arithmetic stays float64: numba promotes a float32 against a float64 constant,
 #: then stores the result rounded), positions float64, as a creeping grain's step v dt (2e-9 m at 0.1 mm/s)
 #: is below float32's resolution of a position (4e-9 m at 50 mm). Half the bytes a contact moves, for the GPU
-PRECISIONS = ("double", "mixed")
+PRECISIONS = tuple(STATE_DTYPES)
 
 
 class UnstableError(CalibError):
@@ -166,7 +166,7 @@ class System:
     def state_dtype(self) -> type:
         """The dtype of the velocities, spins, forces, torques and contact histories (positions and the
         grains' constants are float64 in every precision)."""
-        return np.float32 if self.precision == "mixed" else np.float64
+        return STATE_DTYPES[self.precision]
 
     @property
     def n(self) -> int:
@@ -187,7 +187,8 @@ class System:
     def advance(self, nsteps: int) -> None:
         """Integrate ``nsteps`` steps; raises :class:`UnstableError` on blow-up."""
         p = self.particles
-        compiled(self.model.spec, "steps", self.precision)  # here, not at set-up: the GPU engine sets systems up, never steps them
+        # here, not at set-up: the GPU engine sets systems up, never steps them
+        compiled(self.model.spec, "steps", self.precision)
         done = 0
         while done < nsteps:
             status, k, worst, reb = stepper(self.model.spec)(
