@@ -26,8 +26,8 @@
 #   2026-11-28 on an H200 (LIMIT=555): 540 s; throughput 117 s, the paper heap 117 s, the calibration ran out in
 #   round 5 after 306 s (it needs ~8 min alone: ~3 min of heaps, the rest fits and sampling on the CPU).
 #   2026-11-28 (second call that day, H200): kernel times first and no calibration: 325 s.
-#   This version: the persistent and blocks modes (slower than graph at every size on 2026-11-28) give their
-#   place to the pair layout, the register caps and mixed precision; not run on a GPU yet.
+#   2026-11-28 (fifth session, H200, LIMIT=540): this version, 485 s (kernel times 113 s, throughput 136 s,
+#   mixed agreement 34 s, tests 97 s, the paper heap 105 s); then benchmarks/gpu_device_layout.sh (163 s).
 set -o pipefail
 export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"

@@ -45,8 +45,8 @@ def main():
     test = HeapTest(PARAMS, pre.condition, num, seed=0, progress=progress)
     built = time.perf_counter() - t0
     print(f"{a.preset} heap: {test.system.n} grains, dt {test.system.dt:.3g} s, fill built in {built:.1f} s; "
-          f"stepping mode {mode}, contacts a thread a {gpu.contact_layout()}, force kernels' registers "
-          f"{gpu.register_cap() or 'uncapped'} (CALIB_GPU_CONTACTS, CALIB_GPU_MAXREG)", flush=True)
+          f"stepping mode {mode}, contacts a thread a {gpu.contact_layout(None, test.system.n)}, force kernels' "
+          f"registers {gpu.register_cap() or 'uncapped'} (CALIB_GPU_CONTACTS, CALIB_GPU_MAXREG)", flush=True)
     r = gpu.run_heaps([test], mode=mode)[0]
     wall = time.perf_counter() - t0
     s = r.system
@@ -59,7 +59,7 @@ def main():
     if a.csv:
         import pandas as pd
 
-        row = dict(preset=a.preset, mode=mode, contacts=gpu.contact_layout(), register_cap=gpu.register_cap(),
+        row = dict(preset=a.preset, mode=mode, contacts=gpu.contact_layout(None, s.n), register_cap=gpu.register_cap(),
                    grains=s.n, steps=s.n_steps, t_end=s.t, status=r.status, angle=r.angle.angle,
                    t_settled=r.t_settled, t_lift_end=r.t_lift_end, wall_s=wall, fill_s=built, cpu_rate=cpu)
         pd.DataFrame([row]).to_csv(a.csv, index=False)

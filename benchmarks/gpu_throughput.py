@@ -37,13 +37,14 @@ def systems(preset: str, count: int, precision: str = "double"):
 
 def gpu_rate(fills: list, steps: int, warmup: int, mode: str) -> tuple[float, int]:
     """``mode``: ``NAME[:T][+LAYOUT][@CAP][/mixed]``: a stepping mode, T threads a block (a heap for ``blocks``),
-    the contact layout (``+pair``: a thread a neighbour slot), the force kernels' register cap (``@96``) and
+    the contact layout (``+pair``: a thread a neighbour slot; ``+auto``: the engine's choice by the batch's grains;
+    none: a thread a grain), the force kernels' register cap (``@96``) and
     the precision (``fills`` are made in it: see :func:`precision_of`)."""
     mode = mode.partition("/")[0]
     mode, _, cap = mode.partition("@")
     mode, _, layout = mode.partition("+")
     name, _, threads = mode.partition(":")
-    batch = gpu.Batch(fills, mode=name, contacts=layout or None, max_registers=int(cap or 0),
+    batch = gpu.Batch(fills, mode=name, contacts=layout or "grain", max_registers=int(cap or 0),
                       **({"block": int(threads)} if threads else {}))
     if name == "blocks" and threads and batch.heap_threads != int(threads):  # the kernel's registers allow fewer
         print(f"blocks:{threads} runs {batch.heap_threads} threads a heap, as many as the kernel's registers allow")
@@ -109,8 +110,8 @@ def main():
     ap.add_argument("--batches", default="1,4,16,64,256")
     ap.add_argument("--paper-batches", default="1,4")
     ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated, each NAME[:T]"
-                    "[+pair][@CAP][/mixed]: T threads a block (a heap for blocks; default 128), +pair a thread a "
-                    "neighbour slot for the contacts, @CAP the force kernels' registers a thread, /mixed float32 "
+                    "[+LAYOUT][@CAP][/mixed]: T threads a block (a heap for blocks; default 128), +pair a thread a "
+                    "neighbour slot for the contacts (+auto: the engine's choice; none: a thread a grain), @CAP the force kernels' registers a thread, /mixed float32 "
                     "velocities, forces and contact histories")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)

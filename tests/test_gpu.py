@@ -32,6 +32,14 @@ MODES = ["persistent"] if gpu.SIMULATOR else list(gpu.MODES)
 MANY = ["persistent", "blocks"] if gpu.SIMULATOR else list(gpu.MODES)
 
 
+@pytest.fixture(autouse=True)
+def _a_thread_a_grain(monkeypatch):
+    """The tests' tiny batches would get a thread a neighbour slot by the engine's own rule (``auto``): each
+    test here runs a thread a grain unless it names the layout, which
+    :func:`test_the_layout_is_chosen_by_the_batchs_grains` and the slot layout's own test cover."""
+    monkeypatch.setenv("CALIB_GPU_CONTACTS", "grain")
+
+
 def pair():
     p = Particles([[0, 0, 0.1], [2 * R - 1e-5, 1e-4, 0.1]], [R, R], vel=[[0.3, 0, 0], [-0.3, 0, 0.01]],
                   omg=[[0, 5, 0], [1, 0, 0]])
@@ -227,8 +235,23 @@ def test_a_thread_a_neighbour_slot_steps_as_the_cpu_kernel(case):
         assert g.max_overlap == pytest.approx(a.max_overlap, rel=1e-12 * LOOSE)
 
 
+def test_the_layout_is_chosen_by_the_batchs_grains(monkeypatch):
+    """``auto``: a thread a slot below :data:`gpu.PAIR_BELOW_GRAINS` grains a batch (where it measured faster on
+    an H200), a thread a grain from there; a named layout is kept whatever the batch."""
+    monkeypatch.delenv("CALIB_GPU_CONTACTS")
+    assert gpu.DEFAULT_CONTACTS == "auto"
+    few, many = gpu.PAIR_BELOW_GRAINS - 1, gpu.PAIR_BELOW_GRAINS
+    assert (gpu.contact_layout(None, few), gpu.contact_layout(None, many)) == ("pair", "grain")
+    assert gpu.contact_layout("grain", few) == "grain" and gpu.contact_layout("pair", many) == "pair"
+    assert gpu.Batch([column(0, 0.3)]).contacts == "pair"  # 18 grains
+    monkeypatch.setattr(gpu, "PAIR_BELOW_GRAINS", 36)
+    assert gpu.Batch([column(0, 0.3), column(1, 0.3)]).contacts == "grain"  # 36 grains
+    monkeypatch.setenv("CALIB_GPU_CONTACTS", "pair")
+    assert gpu.Batch([column(0, 0.3), column(1, 0.3)]).contacts == "pair"
+
+
 def test_a_known_contact_layout_and_register_cap(monkeypatch):
-    with pytest.raises(CalibError, match="unknown GPU contact layout 'pairs'.*grain, pair"):
+    with pytest.raises(CalibError, match="unknown GPU contact layout 'pairs'.*auto, grain, pair"):
         gpu.Batch([column(0, 0.3)], contacts="pairs")
     for bad in ("abc", "16", "300", "-1"):
         monkeypatch.setenv("CALIB_GPU_MAXREG", bad)

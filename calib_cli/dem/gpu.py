@@ -795,18 +795,26 @@ SIM_BLOCK_THREADS = 1
 #: how a step's contacts are shared among threads in the kernel-a-phase modes (``launch``, ``device``, ``graph``):
 #: ``grain``: a thread a grain, its pairs one after another, then its walls (:func:`_pairs_of`); ``pair``: a thread
 #: a neighbour slot (grains x slots threads, most of them idle where no pair is within reach), then a thread a
-#: grain for the walls: for few heaps, where a grain's thread stepping its ~10 contacts in a row is what bounds a
-#: step (docs/performance.md). Chosen by ``CALIB_GPU_CONTACTS``; the persistent and block kernels are ``grain``.
-CONTACTS = ("grain", "pair")
-DEFAULT_CONTACTS = "grain"
+#: grain for the walls; ``auto``: ``pair`` for a batch of fewer than :data:`PAIR_BELOW_GRAINS` grains, where a
+#: grain's thread stepping its ~10 contacts in a row is what bounds a step, else ``grain``. Chosen by
+#: ``CALIB_GPU_CONTACTS``; the persistent and block kernels are ``grain``.
+CONTACTS = ("auto", "grain", "pair")
+DEFAULT_CONTACTS = "auto"
+#: measured on an H200 (docs/performance.md, ``benchmarks/gpu_device_layout.sh``): a thread a slot took 25.3, 29.8
+#: and 36.8 us a step for 1, 2 and 4 ``default`` heaps (3,971-15,884 grains) against 35.8, 39.4 and 42.8 a thread
+#: a grain; 49.8 against 49.1 at 31,768 grains, and it loses from there (54.4 against 49.3 for a 44,669-grain
+#: ``paper`` heap, 80.8 against 70.1 at 63,536)
+PAIR_BELOW_GRAINS = 24_000
 
 
-def contact_layout(layout: str | None = None) -> str:
+def contact_layout(layout: str | None = None, grains: int | None = None) -> str:
     """The contact layout asked for (``layout``, else ``CALIB_GPU_CONTACTS``, else :data:`DEFAULT_CONTACTS`),
-    checked."""
+    checked; ``auto`` resolved for a batch of ``grains`` where given."""
     layout = layout or os.environ.get("CALIB_GPU_CONTACTS") or DEFAULT_CONTACTS
     if layout not in CONTACTS:
         raise CalibError(f"unknown GPU contact layout {layout!r} (CALIB_GPU_CONTACTS): one of {', '.join(CONTACTS)}")
+    if layout == "auto" and grains is not None:
+        return "pair" if grains < PAIR_BELOW_GRAINS else "grain"
     return layout
 
 
@@ -839,7 +847,7 @@ class Batch:
         if len({s.precision for s in systems}) != 1:
             raise CalibError("a GPU batch runs one precision; these heaps mix them")
         self.systems, self.spec, self.mode = list(systems), specs.pop(), step_mode(mode)
-        self.contacts = contact_layout(contacts)
+        self.contacts = contact_layout(contacts, sum(s.n for s in systems))
         # the simulator starts a Python thread per GPU thread: few of them
         self.block = min(block, 32) if SIMULATOR else block
         self.cuda = cuda_module()

@@ -1,0 +1,36 @@
+#!/bin/bash
+# A short second call on a lent GPU machine (the device tool's `run`, carry [".whl"], timeout_s 260), after
+# gpu_device.sh: what the engine's defaults are chosen by.
+#  1. the contact layout's crossover: one thread a grain (`graph`) against a thread a neighbour slot
+#     (`graph+pair`) at 1, 2, 4 and 8 `default` heaps (4k-32k grains), in both precisions: gpu_device.sh
+#     found the slot layout 1.5x faster for one heap (4k grains) and 1.1x slower for one `paper` heap (45k);
+#  2. the cohesive case's 8 heaps in double precision on the GPU, beside the mixed ones gpu_device.sh ran
+#     on it (same seeds), so that the precision's effect is read apart from the engine's;
+#  3. with the time left, where a step's time goes at 64 heaps in both precisions.
+# Wheels and the tree as for gpu_device.sh (see its header). Everything goes under $OUT.
+set -o pipefail
+export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
+OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
+LIMIT=${LIMIT:-230}
+SITE=$PWD
+if ls .whl/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
+  SITE=$SITE:/tmp/site
+fi
+export PYTHONPATH=$SITE
+log() { echo "$* at ${SECONDS} s" | tee -a "$OUT/gpu.txt"; }
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv 2>&1 | tee "$OUT/gpu.txt"
+timeout 100 python3 -W ignore benchmarks/gpu_throughput.py --batches 1,2,4,8 --paper-batches "" --steps 1000 \
+  --warmup 100 --cpu-heaps 1 --cpu-workers 0 --modes graph,graph+pair,graph/mixed,graph+pair/mixed 2>&1 |
+  tee "$OUT/layout.log"
+log "layout crossover done (rc $?)"
+cp benchmarks/gpu_logs/2026-11-28c/agree.csv "$OUT/agree.csv"
+timeout 70 python3 -W ignore benchmarks/gpu_agree.py --engine gpu --precision double --cases cohesive \
+  --csv "$OUT/agree.csv" 2>&1 | tee "$OUT/agree.log"
+log "double-precision GPU heaps done (rc $?)"
+LEFT=$((LIMIT - SECONDS - 5))
+if [ $LEFT -gt 30 ]; then
+  timeout $LEFT python3 -W ignore benchmarks/gpu_kernel_times.py --batches 64 --precisions double,mixed 2>&1 |
+    tee "$OUT/kernel_times64.log"
+  log "kernel times at 64 heaps done (rc $?)"
+fi
