@@ -28,20 +28,8 @@
 #   2026-11-28 (second call that day, H200): kernel times first and no calibration: 325 s.
 #   2026-11-28 (fifth session, H200, LIMIT=540): this version, 485 s (kernel times 113 s, throughput 136 s,
 #   mixed agreement 34 s, tests 97 s, the paper heap 105 s); then benchmarks/gpu_device_layout.sh (163 s).
-set -o pipefail
-export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
-OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 LIMIT=${LIMIT:-560}   # seconds for the whole script
-SITE=$PWD
-if ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  SITE=$SITE:/tmp/site
-fi
-export PYTHONPATH=$SITE
-log() { echo "$* at ${SECONDS} s" | tee -a "$OUT/gpu.txt"; }
-{ nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv; nproc
-  python3 -c "import numba, numpy, numba_cuda, numba.cuda as c; print('numba', numba.__version__, 'numba-cuda', numba_cuda.__version__, 'numpy', numpy.__version__, 'gpu', c.is_available())"
-} 2>&1 | tee "$OUT/gpu.txt"
+source benchmarks/gpu_env.sh
 
 timeout 110 python3 -W ignore benchmarks/gpu_kernel_times.py --batches 1,256 --precisions double,mixed 2>&1 |
   tee "$OUT/kernel_times.log"

@@ -8,18 +8,8 @@
 #     on it (same seeds), so that the precision's effect is read apart from the engine's;
 #  3. with the time left, where a step's time goes at 64 heaps in both precisions.
 # Wheels and the tree as for gpu_device.sh (see its header). Everything goes under $OUT.
-set -o pipefail
-export PYTHONUNBUFFERED=1 NUMBA_ENABLE_CUDASIM=0
-OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
-LIMIT=${LIMIT:-230}
-SITE=$PWD
-if ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  SITE=$SITE:/tmp/site
-fi
-export PYTHONPATH=$SITE
-log() { echo "$* at ${SECONDS} s" | tee -a "$OUT/gpu.txt"; }
-nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv 2>&1 | tee "$OUT/gpu.txt"
+LIMIT=${LIMIT:-230}   # seconds for the whole script
+source benchmarks/gpu_env.sh
 timeout 100 python3 -W ignore benchmarks/gpu_throughput.py --batches 1,2,4,8 --paper-batches "" --steps 1000 \
   --warmup 100 --cpu-heaps 1 --cpu-workers 0 --modes graph,graph+pair,graph/mixed,graph+pair/mixed 2>&1 |
   tee "$OUT/layout.log"

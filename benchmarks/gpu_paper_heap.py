@@ -59,7 +59,8 @@ def main():
     if a.csv:
         import pandas as pd
 
-        row = dict(preset=a.preset, mode=mode, contacts=gpu.contact_layout(None, s.n), register_cap=gpu.register_cap(),
+        row = dict(preset=a.preset, mode=mode, contacts=gpu.contact_layout(None, s.n),
+                   register_cap=gpu.register_cap(),
                    grains=s.n, steps=s.n_steps, t_end=s.t, status=r.status, angle=r.angle.angle,
                    t_settled=r.t_settled, t_lift_end=r.t_lift_end, wall_s=wall, fill_s=built, cpu_rate=cpu)
         pd.DataFrame([row]).to_csv(a.csv, index=False)

@@ -111,8 +111,8 @@ def main():
     ap.add_argument("--paper-batches", default="1,4")
     ap.add_argument("--modes", default=",".join(gpu.MODES), help="stepping modes, comma-separated, each NAME[:T]"
                     "[+LAYOUT][@CAP][/mixed]: T threads a block (a heap for blocks; default 128), +pair a thread a "
-                    "neighbour slot for the contacts (+auto: the engine's choice; none: a thread a grain), @CAP the force kernels' registers a thread, /mixed float32 "
-                    "velocities, forces and contact histories")
+                    "neighbour slot for the contacts (+auto: the engine's choice; none: a thread a grain), @CAP "
+                    "the force kernels' registers a thread, /mixed float32 velocities, forces and contact histories")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--cpu-heaps", type=int, default=2, help="heaps the CPU kernel steps for its rate")
