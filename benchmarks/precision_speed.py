@@ -12,17 +12,12 @@ import subprocess
 import sys
 
 CODE = r'''
-import sys, time, numpy as np
-from calib_cli.dem.heap import PRESETS, fill_cylinder, interactions
-from calib_cli.dem.system import System, Walls
-from calib_cli.dem.materials import Material
-pre = PRESETS["default"]; cond, num = pre.condition, pre.numerics
-pp, pf, pc = interactions({"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3,
-                           "surface_energy": 0.6}, cond)
-parts = fill_cylinder(cond, num.packing_fraction, np.random.default_rng(3))
-s = System(parts, material=Material(num.shear_modulus, num.poisson, num.density),
-           wall_material=Material(num.wall_shear_modulus, num.poisson, num.density), pp=pp, floor=pf, cylinder=pc,
-           walls=Walls(True, 0.025, 0.05, np.inf), safety=num.safety, precision=sys.argv[1])
+import sys, time
+from dataclasses import replace
+from calib_cli.dem.heap import PRESETS, heap_system
+pre = PRESETS["default"]
+s = heap_system({"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6},
+                pre.condition, replace(pre.numerics, precision=sys.argv[1]), seed=3)
 s.drag = 10.0
 s.advance(200)
 t = time.perf_counter(); s.advance(3000); dt = time.perf_counter() - t

@@ -47,7 +47,7 @@ def pair():
                   pp=Interaction(static_friction=0.5, rolling_friction=0.1))
 
 
-def column(seed: int, mu: float, gamma: float = 0.0, kick: float = 0.05) -> System:
+def column(seed: int, mu: float, gamma: float = 0.0, kick: float = 0.05, precision: str = "double") -> System:
     """18 grains stacked in a 11 mm cylinder on the floor, the cylinder lifted from t = 4 ms."""
     rng = np.random.default_rng(seed)
     pts = [[2.2e-3 * np.cos(2 * np.pi * q / 3 + layer), 2.2e-3 * np.sin(2 * np.pi * q / 3 + layer), R + layer * 2.9e-3]
@@ -56,7 +56,8 @@ def column(seed: int, mu: float, gamma: float = 0.0, kick: float = 0.05) -> Syst
     p = Particles(pos, rng.uniform(0.9 * R, R, len(pts)), vel=rng.normal(0, kick, pos.shape))
     grains = Interaction(static_friction=mu, rolling_friction=0.2, surface_energy=gamma, restitution=0.5)
     cylinder = Interaction(static_friction=0.3, surface_energy=gamma, restitution=0.5)
-    return System(p, material=MAT, pp=grains, floor=grains, cylinder=cylinder, walls=Walls(True, 5.5e-3, 0.05, 0.004))
+    return System(p, material=MAT, pp=grains, floor=grains, cylinder=cylinder, walls=Walls(True, 5.5e-3, 0.05, 0.004),
+                  precision=precision)
 
 
 def same_state(a: System, b: System, tol: float) -> None:

@@ -11,35 +11,31 @@ import pytest
 
 from calib_cli.dem import gpu
 from calib_cli.dem.heap import Numerics, get_preset, run_key
-from calib_cli.dem.materials import Interaction, Material
-from calib_cli.dem.system import Particles, System, Walls
 from calib_cli.errors import CalibError
+from test_dem_physics import pair
+from test_gpu import column
 
-R = 2e-3
-MAT = Material(5e6, 0.25, 2600.0)
 
-
-def pair(precision, e=0.5, mu=0.0, gamma=0.0, v=0.5, safety=0.01):
-    p = Particles([[0, 0, 0.1], [2 * R + 1e-6, 0, 0.1]], [R, R], vel=[[v, 0, 0], [-v, 0, 0]])
-    return System(p, material=MAT, pp=Interaction(mu, 0.0, e, gamma), gravity=(0, 0, 0), walls=Walls(floor=False),
-                  safety=safety, precision=precision)
+def cohesive(seed: int, precision: str):
+    """test_gpu's column of 18 grains, cohesive (0.5 J/m2), friction 0.4, in ``precision``."""
+    return column(seed, 0.4, 0.5, precision=precision)
 
 
 def test_mixed_precision_stores_the_state_as_float32_and_the_positions_as_float64():
-    s = pair("mixed")
+    s = pair(precision="mixed")
     for a in (s.particles.vel, s.particles.omg, s.force, s.torque, s.ht, s.spare_h, s.hf, s.hc):
         assert a.dtype == np.float32
     assert s.particles.pos.dtype == s.mass.dtype == s.prm.dtype == np.float64
     s._alloc(2 * len(s.pi), keep=int(s.npairs[0]))  # grown lists keep the precision
     assert s.ht.dtype == s.spare_h.dtype == np.float32
-    assert pair("double").ht.dtype == np.float64
+    assert pair(precision="double").ht.dtype == np.float64
     with pytest.raises(CalibError, match="precision must be one of double, mixed"):
-        pair("single")
+        pair(precision="single")
 
 
 def test_a_collision_keeps_its_momentum_to_float32s_resolution():
     """A pair's forces are equal and opposite in float64; each grain's sum is stored rounded to float32."""
-    s = pair("mixed", e=0.5, mu=0.5, v=0.3)
+    s = pair(e=0.5, mu=0.5, v=0.3, precision="mixed")
     P0 = (s.mass[:, None] * s.particles.vel).sum(0)
     s.advance(int(1.5e-3 / s.dt))
     P = (s.mass[:, None] * s.particles.vel).sum(0)
@@ -57,19 +53,6 @@ def test_the_heap_keys_of_double_precision_are_those_made_before_the_choice():
     assert Numerics().precision == "double"
 
 
-def column(seed: int, precision: str) -> System:
-    """18 grains stacked in a cylinder on the floor, cohesive, the cylinder lifted from t = 4 ms."""
-    rng = np.random.default_rng(seed)
-    r = 1.5e-3
-    pts = [[2.2e-3 * np.cos(2 * np.pi * q / 3 + layer), 2.2e-3 * np.sin(2 * np.pi * q / 3 + layer), r + layer * 2.9e-3]
-           for layer in range(6) for q in range(3)]
-    pos = np.array(pts) + rng.uniform(-2e-4, 2e-4, (len(pts), 3))
-    p = Particles(pos, rng.uniform(0.9 * r, r, len(pts)), vel=rng.normal(0, 0.05, pos.shape))
-    grains = Interaction(static_friction=0.4, rolling_friction=0.2, surface_energy=0.5, restitution=0.5)
-    return System(p, material=MAT, pp=grains, floor=grains, cylinder=grains, walls=Walls(True, 5.5e-3, 0.05, 0.004),
-                  precision=precision)
-
-
 def test_a_gpu_batch_in_mixed_precision_steps_as_the_cpu_kernel_in_mixed_precision():
     """The same arrays and laws: under the simulator a float32 times a constant is float32 arithmetic (numpy's
     rule), where compiled code computes it in float64 and rounds the store, so the two agree to float32's
@@ -77,7 +60,7 @@ def test_a_gpu_batch_in_mixed_precision_steps_as_the_cpu_kernel_in_mixed_precisi
     measured), where double against mixed precision differ by 3e-7. On a GPU (fused multiply-adds, atomic
     sums in varying order) within 1e-5."""
     tol = 1e-7 if gpu.SIMULATOR else 1e-5
-    cpu, on_gpu, double = column(0, "mixed"), column(0, "mixed"), column(0, "double")
+    cpu, on_gpu, double = cohesive(0, "mixed"), cohesive(0, "mixed"), cohesive(0, "double")
     b = gpu.Batch([on_gpu], mode="persistent" if gpu.SIMULATOR else None)
     assert b.d["hist"].dtype == b.d["vel"].dtype == np.float32 and b.d["pos"].dtype == np.float64
     for _ in range(3):
@@ -95,7 +78,7 @@ def test_a_gpu_batch_in_mixed_precision_steps_as_the_cpu_kernel_in_mixed_precisi
 
 def test_a_batch_of_one_precision():
     with pytest.raises(CalibError, match="one precision"):
-        gpu.Batch([column(0, "mixed"), column(1, "double")])
+        gpu.Batch([cohesive(0, "mixed"), cohesive(1, "double")])
 
 
 def test_each_precision_compiles_under_its_own_marker():
