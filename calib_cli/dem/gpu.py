@@ -790,6 +790,12 @@ DEFAULT_MODE = "graph"
 GRAPH_STEPS = 50
 #: the blocks mode's threads a heap under the simulator: one keeps its arithmetic in the CPU kernel's order
 SIM_BLOCK_THREADS = 1
+#: the launch mode's kernels whose threads' order sets a grain's bits (atomic sums into other threads' grains; the
+#: order of grains in a cell, which orders the neighbour lists): under the simulator a block of one thread each,
+#: one after another. The simulator runs a block's threads as Python threads that the interpreter switches
+#: between every 5 ms, so on a loaded machine their sums came in another order (a lattice's velocities 3.5e-18
+#: off the CPU kernel's under pytest-xdist); the other kernels keep blocks of up to 32, no idle threads
+SIM_IN_ORDER = ("forces", "pair_forces", "bin_grains")
 
 
 #: how a step's contacts are shared among threads in the kernel-a-phase modes (``launch``, ``device``, ``graph``):
@@ -871,7 +877,7 @@ class Batch:
     def _launch(self, name: str, threads: int, stream=None) -> None:
         """Kernel ``name`` on ``threads`` threads (into ``stream``: a graph being built)."""
         kernel = self.k[name]
-        b = min(self.block, max(threads, 1)) if SIMULATOR else self.block  # no idle simulated threads
+        b = (1 if name in SIM_IN_ORDER else min(self.block, max(threads, 1))) if SIMULATOR else self.block
         grid = (threads + b - 1) // b
         (kernel[grid, b] if stream is None else kernel[grid, b, stream])(*self._args(kernel))
 
