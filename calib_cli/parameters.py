@@ -21,6 +21,8 @@ from .errors import CalibError
 
 #: the heap presets' names (calib_cli.dem.heap.PRESETS holds them; here for checks that import nothing heavy)
 PRESET_NAMES = ("smoke", "default", "paper")
+#: what a heap's state arrays store (calib_cli.dem.system.PRECISIONS holds them; here for the same reason)
+PRECISION_NAMES = ("double", "mixed")
 #: set to 1 to accept a value outside the plausible range (inside the accepted one)
 ALLOW_EXTREME = "CALIB_ALLOW_EXTREME"
 

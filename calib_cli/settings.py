@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from .errors import CalibError
-from .parameters import PRESET_NAMES, QUANTITIES, check
+from .parameters import PRECISION_NAMES, PRESET_NAMES, QUANTITIES, check
 from .space import Factor, ParameterSpace
 
 DEFAULTS: dict[str, Any] = {
@@ -91,6 +91,9 @@ DEFAULTS: dict[str, Any] = {
         "shear_modulus": None,
         # builtin (the CPU kernel) or gpu (every heap of a command together on an NVIDIA GPU)
         "engine": "builtin",
+        # double, or mixed: velocities, spins, forces and contact histories in float32, positions in
+        # float64 (docs/artefacts.md, the [heap] table); the built-in and GPU engines
+        "precision": "double",
     },
 }
 
@@ -149,6 +152,7 @@ RULES: dict[str, Rule] = {
     "invert.tolerance": Rule("number", 0, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
     "invert.refine": Rule("integer", 0), "invert.refine_z": Rule("number", 0, open=True),
     "heap.shear_modulus": Rule("number", empty=True), "heap.engine": Rule("text"),
+    "heap.precision": Rule("text"),
     "factors.*.low": Rule("number"), "factors.*.high": Rule("number"), "factors.*.unit": Rule("text"),
     "factors.*.label": Rule("text"), "factors.*.symbol": Rule("text"),
     "ascent.fixed.*": Rule("number"), "bbd.fixed.*": Rule("number"), "bbd.ranges.*": Rule("pair"),
@@ -196,6 +200,8 @@ def _check_declared(key: str, v: Any, where: str) -> None:
                                  else None)
     if name in QUANTITIES and _is_number(v):
         check(name, v, f"setting {key}{where}")
+    if key == "heap.precision" and v not in PRECISION_NAMES:
+        raise CalibError(f"setting heap.precision = {v!r}{where} must be one of {', '.join(PRECISION_NAMES)}")
     if key == "heap.preset" and v not in PRESET_NAMES:
         close = [p for p in PRESET_NAMES if p.casefold() == str(v).casefold()]
         hint = f" (did you mean {close[0]!r}?)" if close else ""

@@ -254,7 +254,7 @@ def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     text = target.read_text()
     assert text.endswith((SETTINGS_DIR / "paper.toml").read_text())
     s = load_settings([target])
-    assert s["heap"] == {"preset": "smoke", "shear_modulus": 1.5e8, "engine": "builtin"}
+    assert s["heap"] == {"preset": "smoke", "shear_modulus": 1.5e8, "engine": "builtin", "precision": "double"}
     assert s["ascent"]["method"] == "diagonal"  # the copied file's own settings still hold
     r = calib("init", "--run", run, "--settings", SETTINGS_DIR / "paper.toml", "-s", "heap.shear_modulus=1.5e8",
               "-s", "heap.preset=smoke")

@@ -383,7 +383,7 @@ def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_pa
     from typer.testing import CliRunner
 
     from calib_cli.cli import app
-    from calib_cli.heaps.inputs import engine_settings, heap_engine
+    from calib_cli.heaps.inputs import run_heap_settings, heap_engine
     from calib_cli.stages.simulate import plan_simulation
 
     runner = CliRunner()
@@ -392,8 +392,8 @@ def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_pa
     assert {r.engine for r in plan_simulation(run, ["static_friction=0.4"], preset="smoke", repeats=2).requests} == {"gpu"}
     assert {r.engine for r in plan_simulation(run, ["static_friction=0.4"], preset="smoke", engine="builtin").requests} \
         == {"builtin"}
-    assert engine_settings({"heap": {"engine": "gpu"}}) == {"engine": "gpu"}
-    assert engine_settings({"heap": {"engine": "builtin"}}) == {}  # the locks made before keep their hashes
+    assert run_heap_settings({"heap": {"engine": "gpu"}}) == {"engine": "gpu"}
+    assert run_heap_settings({"heap": {"engine": "builtin"}}) == {}  # the locks made before keep their hashes
     with pytest.raises(CalibError, match="engine must be one of builtin, gpu"):
         heap_engine({"heap": {"engine": "cuda"}})
     r = runner.invoke(app, ["synth-lab", "--out", str(tmp_path / "lab"), "--engine", "cuda"])

@@ -66,6 +66,8 @@ def test_the_code_defaults_follow_the_declarations():
         if f.name in P.CONDITION_VARIABLES and not f.name.startswith("floor_"):
             assert f.default == P.CONDITION_VARIABLES[f.name].default, f.name
     assert tuple(PRESETS) == P.PRESET_NAMES
+    from calib_cli.dem.system import PRECISIONS
+    assert PRECISIONS == P.PRECISION_NAMES
     for pre in PRESETS.values():  # every preset's rig is plausible
         for k in P.CONDITION_VARIABLES:
             v = getattr(pre.condition, k)

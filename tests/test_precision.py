@@ -93,3 +93,38 @@ def test_each_precision_compiles_under_its_own_marker():
     assert _files(spec, "steps", "mixed") != _files(spec, "steps", "double")
     old = f"compile-{hashlib.sha256(f'{spec}|steps'.encode()).hexdigest()[:16]}.done"
     assert _files(spec, "steps")[1].name == old
+
+
+def test_a_run_set_to_mixed_precision_simulates_every_heap_there_in_it(tmp_path):
+    """``[heap] precision = "mixed"`` in a run's settings: simulate-heap (and calibrate, compare, diagnose,
+    invert --validate, which take their presets from heap_preset the same way) steps every heap in mixed
+    precision under its own keys, the rows say so, a row rebuilds its request; a bad value and LAMMPS are
+    refused in one line."""
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+    from calib_cli.heaps.inputs import heap_precision, request_from_row, run_heap_settings
+    from calib_cli.stages.simulate import plan_simulation, run_simulation
+
+    runner = CliRunner()
+    run, plain = tmp_path / "mixed", tmp_path / "double"
+    assert runner.invoke(app, ["init", "--run", str(run), "-s", "heap.precision=mixed"]).exit_code == 0
+    short = Numerics(time_max=0.004, settle_time_max=0.0015, rest_time_min=0.001, chunk=30)
+    tiny = ["particle_d_min_mm=6", "particle_d_max_mm=8", "cylinder_diameter_mm=32", "fill_height_mm=16",
+            "lift_speed_mm_s=1000"]
+    said = []
+    plan = plan_simulation(run, ["static_friction=0.4"], preset="smoke", condition=tiny, say=said.append)
+    assert {r.numerics.precision for r in plan.requests} == {"mixed"} and "mixed precision" in said[0]
+    other = plan_simulation(plain, ["static_friction=0.4"], preset="smoke", condition=tiny)
+    assert {r.hash for r in plan.requests}.isdisjoint(r.hash for r in other.requests)  # heaps of their own
+    plan.requests = [dataclasses.replace(r, numerics=dataclasses.replace(short, precision="mixed"))
+                     for r in plan.requests]
+    rows = run_simulation(plan).rows
+    assert list(rows["precision"]) == ["mixed"]
+    assert request_from_row(rows.iloc[0]).numerics.precision == "mixed"
+    assert run_heap_settings({"heap": {"engine": "builtin", "precision": "mixed"}}) == {"precision": "mixed"}
+    assert run_heap_settings({"heap": {"engine": "builtin", "precision": "double"}}) == {}  # locks keep their hashes
+    with pytest.raises(CalibError, match="LAMMPS computes in double precision"):
+        heap_precision({"heap": {"precision": "mixed"}}, "lammps")
+    r = runner.invoke(app, ["init", "--run", str(tmp_path / "bad"), "-s", "heap.precision=single"])
+    assert r.exit_code == 2 and "heap.precision = 'single'" in r.output and "double, mixed" in r.output, r.output

@@ -30,6 +30,7 @@ def test_overrides_parse_types():
 @pytest.mark.parametrize("bad", ["pb.alfa=0.1", "nonsense=1", "pb.alpha=2", "ascent.method=zigzag",
                                  "ascent.steps=2", "factors.restitution.low=0.9", "noequals", "heap.modulus=1e8",
                                  "heap.shear_modulus='stiff'", "heap.shear_modulus=true", "heap.preset=3", "heap=5",
+                                 "heap.precision='single'", "heap.precision=32",
                                  "pb=1"])
 def test_bad_settings_are_one_line_errors(bad):
     with pytest.raises(CalibError) as e:
@@ -42,7 +43,8 @@ def test_heap_setup_of_a_run_is_a_setting_the_options_override():
     no modulus (the heaps' cache keys and the stages' hashes stay those of a run that named none)."""
     from calib_cli.heaps.inputs import heap_setup
 
-    assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None, "engine": "builtin"}
+    assert load_settings()["heap"] == {"preset": "default", "shear_modulus": None, "engine": "builtin",
+                                       "precision": "double"}
     stiff = load_settings(overrides=["heap.shear_modulus=1.5e8", "heap.preset='smoke'"])
     assert heap_setup(load_settings(), None, None) == ("default", None)
     assert heap_setup(stiff, None, None) == ("smoke", 1.5e8)

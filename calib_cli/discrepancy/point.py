@@ -12,7 +12,7 @@ from ..heaps.runner import run_campaign
 from ..dem.heap import LAWS
 from ..errors import CalibError
 from ..model import EFFECTS, Model, load_model
-from ..heaps.inputs import Pairs, build_requests, given_pairs, heap_engine, heap_preset, parse_params, table_conditions
+from ..heaps.inputs import Pairs, build_requests, given_pairs, heap_engine, heap_precision, heap_preset, parse_params, table_conditions
 from ..stages.common import bbd_fixed, resolve_settings
 from .stats import per_condition
 
@@ -79,9 +79,11 @@ def _check_given(model: Model, given: dict[str, float]) -> None:
 
 def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
     """Mean, sd, n of the simulated angle per condition at parameters theta, on the run's engine."""
-    pre = heap_preset(preset, shear_modulus)
+    cfg = resolve_settings(run, None, None)
+    engine = heap_engine(cfg)
+    pre = heap_preset(preset, shear_modulus, heap_precision(cfg, engine))
     reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
                           repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True,
-                          engine=heap_engine(resolve_settings(run, None, None)))
+                          engine=engine)
     rows = run_campaign(reqs, run, workers, rows_suffice=True)
     return per_condition(rows, conds["condition_id"]), rows

@@ -1,4 +1,4 @@
-"""Heap inputs: a command's parameters, conditions and heap setup (preset, shear modulus, engine),
+"""Heap inputs: a command's parameters, conditions and heap setup (preset, shear modulus, engine, precision),
 checked, and turned into :class:`~calib_cli.heaps.keys.Request` objects with the one seed scheme
 every command uses.
 
@@ -24,7 +24,7 @@ from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics,
 from ..engines.clumps import SPHERES
 from ..errors import CalibError
 from ..parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
-from ..parameters import QUANTITIES, check
+from ..parameters import PRECISION_NAMES, QUANTITIES, check
 from ..settings import _parse_value
 from .keys import Request, derive_seed
 
@@ -36,9 +36,14 @@ SHEAR_MODULUS_RANGE = (1e5, 1e11)
 
 
 # ------------------------------------------------------------------ heap setup
-def heap_preset(name: str, shear_modulus: Optional[float] = None) -> Preset:
-    """The named preset, with the grains' and walls' shear modulus replaced when one is given."""
+def heap_preset(name: str, shear_modulus: Optional[float] = None, precision: str = "double") -> Preset:
+    """The named preset, with the grains' and walls' shear modulus replaced when one is given, in
+    ``precision`` (``heap.precision``: what the heaps' state arrays store)."""
     pre = get_preset(name)
+    if precision != pre.numerics.precision:
+        if precision not in PRECISION_NAMES:
+            raise CalibError(f"precision must be one of {', '.join(PRECISION_NAMES)}, got {precision!r}")
+        pre = dataclasses.replace(pre, numerics=dataclasses.replace(pre.numerics, precision=precision))
     if shear_modulus is None:
         return pre
     lo, hi = SHEAR_MODULUS_RANGE
@@ -61,11 +66,28 @@ def heap_engine(cfg: dict, engine: Optional[str] = None) -> str:
     return name
 
 
-def engine_settings(cfg: dict) -> dict:
-    """The run's engine in a stage's settings where it is not the built-in one (so the locks made
-    before engines were a setting stay valid)."""
-    engine = heap_engine(cfg)
-    return {} if engine == "builtin" else {"engine": engine}
+def heap_precision(cfg: dict, engine: str = "builtin") -> str:
+    """The run's ``[heap] precision`` for heaps on ``engine``; LAMMPS computes in its own double precision."""
+    precision = cfg["heap"].get("precision", "double")
+    if precision not in PRECISION_NAMES:
+        raise CalibError(f"the run's heap settings: precision must be one of {', '.join(PRECISION_NAMES)}, "
+                         f"got {precision!r}")
+    if precision != "double" and engine == "lammps":
+        raise CalibError(f"heap.precision = {precision!r} applies to the built-in and GPU engines; LAMMPS computes "
+                         "in double precision: set heap.precision = \"double\" for its heaps")
+    return precision
+
+
+def run_heap_settings(cfg: dict) -> dict:
+    """The run's engine and precision in a stage's settings where they are not the defaults (built-in,
+    double), so the locks made before either was a setting stay valid."""
+    engine, precision = heap_engine(cfg), heap_precision(cfg)
+    return {**({} if engine == "builtin" else {"engine": engine}),
+            **({} if precision == "double" else {"precision": precision})}
+
+
+def precision_note(precision: str) -> str:
+    return "" if precision == "double" else f", {precision} precision"
 
 
 def check_engine(engine: str, mpi: int = 1, shape: str = "sphere") -> tuple[str, ...]:
@@ -248,8 +270,9 @@ def request_from_row(row) -> Request:
     with the row's shear modulus, seed, model), to simulate it again; its hash is the row's
     run_hash unless the row lacks something that went into it."""
     params = {k: float(row[k]) for k in PARAMETERS if k in row.index and pd.notna(row[k])}
-    g = row.get("shear_modulus")
-    pre = heap_preset(row["preset"], float(g) if g is not None and pd.notna(g) else None)
+    g, precision = row.get("shear_modulus"), row.get("precision")
+    pre = heap_preset(row["preset"], float(g) if g is not None and pd.notna(g) else None,
+                      precision if isinstance(precision, str) else "double")
     return Request(params, condition_from_row(pre.condition, row), pre.numerics, int(row["seed"]),
                    model=row["model"])
 

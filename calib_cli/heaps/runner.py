@@ -51,6 +51,7 @@ def _row(req: Request, res, img) -> dict:
         # only where the modulus is not the presets' reduced one (--shear-modulus), for the same reason
         **({"shear_modulus": req.numerics.shear_modulus}
            if req.numerics.shear_modulus != Numerics.shear_modulus else {}),
+        **({"precision": req.numerics.precision} if req.numerics.precision != Numerics.precision else {}),
         **{k: float(v) for k, v in req.params.items()},
         **condition_dict(req.condition),  # the floor values only where given
         "status": res.status, "message": res.message,

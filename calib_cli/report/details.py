@@ -65,8 +65,10 @@ def heap_setups(f: RunFiles) -> list[str]:
     items = []
     for name, grp in rows.groupby(label, sort=False):
         engines = sorted(set(grp["engine"].dropna()) - {"builtin"}) if "engine" in grp.columns else []
+        mixed = int((grp["precision"] == "mixed").sum()) if "precision" in grp.columns else 0
+        also = [f"engine {', '.join(engines)}"] * bool(engines) + [f"{mixed} in mixed precision"] * bool(mixed)
         items.append(f"<li>{html.escape(str(name))}: {len(grp)} heap(s), {html.escape('; '.join(setups(grp)))}"
-                     + (f" (engine {html.escape(', '.join(engines))})" if engines else "") + "</li>")
+                     + (f" ({html.escape('; '.join(also))})" if also else "") + "</li>")
     return ["<p>Heaps in this run directory, by what they were simulated for: a calibration holds at the "
             "preset and shear modulus its heaps had (docs/physics.md, 'Which modulus').</p><ul>", *items, "</ul>"]
 

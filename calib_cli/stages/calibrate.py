@@ -33,8 +33,8 @@ from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdi
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
-from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, engine_settings, heap_engine,
-                            heap_preset, heap_setup, modulus_settings)
+from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, heap_engine, heap_precision,
+                            heap_preset, heap_setup, modulus_settings, run_heap_settings)
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
 #: the results rows' design label of every heap a calibration's rounds simulate
@@ -386,9 +386,12 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
                                elsewhere=True)
     cfg = resolve_settings(run, None, None)
     preset, g = heap_setup(cfg, preset, shear_modulus)
-    setup = {"pre": heap_preset(preset, g), "preset": preset, "modulus": g, "engine": heap_engine(cfg, engine),
-             "engine_settings": engine_settings(cfg) if engine is None else ({} if engine == "builtin"
-                                                                              else {"engine": engine})}
+    name = heap_engine(cfg, engine)
+    precision = heap_precision(cfg, name)
+    setup = {"pre": heap_preset(preset, g, precision), "preset": preset, "modulus": g, "engine": name,
+             "engine_settings": run_heap_settings(cfg) if engine is None else
+             {**({} if engine == "builtin" else {"engine": engine}),
+              **({} if precision == "double" else {"precision": precision})}}
     check_engine(setup["engine"])
     conds = measured_conditions(run)
     if conds.empty:

@@ -17,7 +17,7 @@ from ..discrepancy.stats import residual_table, summary
 from ..measurements import measured_conditions
 from ..model import Model
 from ..plots import plt  # the Agg backend, set in one place
-from ..heaps.inputs import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
                      writes_run)
 
@@ -95,7 +95,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
                    inputs={"conditions": run / "measure" / "conditions.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
-                             **engine_settings(resolve_settings(run, None, None))})
+                             **run_heap_settings(resolve_settings(run, None, None))})
     hist_path = run / "compare" / "history.parquet"
     hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
     if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():

@@ -19,7 +19,7 @@ from ..discrepancy.stats import at_bounds, confound, confounded, score_effects, 
 from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
-from ..heaps.inputs import COND_VARS, Pairs, engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
                      warn_other_modulus, writes_run)
 
@@ -205,7 +205,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
-                             **engine_settings(resolve_settings(run, None, None)),
+                             **run_heap_settings(resolve_settings(run, None, None)),
                              **({"ranges": prior} if prior else {})})
     if st.up_to_date() and not force:
         return DiagnoseResult(st, True)

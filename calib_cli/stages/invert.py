@@ -18,8 +18,8 @@ from ..discrepancy.stats import at_bounds, per_condition, residual_table
 from ..errors import CalibError
 from ..parameters import check
 from ..plots import plt  # the Agg backend, set in one place
-from ..heaps.inputs import (COND_VARS, Pairs, build_requests, checked_condition, engine_settings, heap_engine,
-                            heap_preset, heap_setup, make_condition, modulus_settings, table_conditions)
+from ..heaps.inputs import (COND_VARS, Pairs, build_requests, checked_condition, heap_engine,
+                            heap_precision, heap_preset, heap_setup, run_heap_settings, make_condition, modulus_settings, table_conditions)
 from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters
 from ..surrogate.inversion import invert as invert_surrogate
 from ..surrogate.inversion import nearest, refine as refine_by_simulation
@@ -173,7 +173,7 @@ def _validate(run: Path, cfg: dict, prob: Problem, start: np.ndarray, validate: 
     """Simulate ``validate`` heaps a condition at the solution; with ``n_refine``, correct the surrogate by
     their misses and invert again, at most that many times (surrogate.inversion.refine)."""
     iv, targets = cfg["invert"], prob.targets
-    pre = heap_preset(preset, shear_modulus)
+    pre = heap_preset(preset, shear_modulus, heap_precision(cfg, heap_engine(cfg)))
     warn_other_modulus(run, shear_modulus, "the validation's", say)
     vconds, vtargets, vtab = _validation_rig(run, pre, condition, target)
     if n_refine and len(vconds) != len(targets):
@@ -248,7 +248,7 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     st = stage(run, "invert", "solve", inputs=inputs,
                    settings={"invert": {**iv, "refine": n_refine}, "targets": targets, "model": name, "validate": validate,
                              "preset": preset,
-                             **modulus_settings(shear_modulus), **(engine_settings(cfg) if validate else {}),
+                             **modulus_settings(shear_modulus), **(run_heap_settings(cfg) if validate else {}),
                              "condition": condition_items})
     if st.up_to_date() and not force:
         return InvertResult(st, True)

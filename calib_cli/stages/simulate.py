@@ -19,7 +19,8 @@ from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
 from ..measurements import CONDITIONS
 from ..heaps.inputs import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine,
-                            heap_preset, heap_setup, make_condition, modulus_note, parse_params, table_conditions)
+                            heap_precision, heap_preset, heap_setup, make_condition, modulus_note, parse_params,
+                            precision_note, table_conditions)
 from .common import Say, check_run_dir, plain, resolve_settings, writes_run
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
@@ -200,7 +201,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     engine = heap_engine(cfg, engine)
     shapes = check_engine(engine, mpi, shape)
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
-    pre = heap_preset(preset, shear_modulus)
+    precision = heap_precision(cfg, engine)
+    pre = heap_preset(preset, shear_modulus, precision)
     cond = make_condition(pre.condition, checked_condition(condition))
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
@@ -224,7 +226,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     also = f", {copied} to copy from ${REUSE_ENV}" if copied else ""
     cached = (f"{sum(have)} cached, recomputed with --force (each kept until its new result is complete)"
               if force else f"{sum(have)} cached{also}")
-    say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus))
+    say(f"{len(requests)} run(s), {cached}; preset [bold]{preset}[/] ({where})" + modulus_note(shear_modulus)
+        + precision_note(precision))
     if conditions is None:
         _note_measured_rigs(run, cond, measured, say)
     if floor_follows_grains(walls):

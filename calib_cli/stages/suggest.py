@@ -20,7 +20,7 @@ from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_rig, rank_conditions
-from ..heaps.inputs import engine_settings, heap_setup, modulus_settings
+from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
@@ -349,7 +349,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                          **({"profiles_at_hand": profiles_at_hand(run, rows)} if profile else {}),
                          **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
                          "preset": preset, **modulus_settings(shear_modulus),
-                         **engine_settings(resolve_settings(run, None, None))} if simulate else {})})
+                         **run_heap_settings(resolve_settings(run, None, None))} if simulate else {})})
     if st.up_to_date() and not force:
         return SuggestResult(st, True, top=top)
     ev, notes = _evidence(run, model, measured, samples)
