@@ -1,10 +1,11 @@
 #!/bin/bash
 # One prepared call on a lent GPU machine (the device tool's `run`, carry [".whl"], timeout_s 590),
 # for the GPU engine's figures in docs/performance.md, in the order of what matters most:
-#  1. throughput against batch size for the default stepping mode with each contact layout, register cap and
-#     precision (benchmarks/gpu_throughput.py: graph, graph+pair a thread a neighbour slot, @N the force kernels'
-#     registers capped at N, /mixed float32 velocities, forces and contact histories), beside the CPU kernel on
-#     the machine's cores;
+#  1. throughput against batch size for the default stepping mode with each contact layout and precision
+#     (benchmarks/gpu_throughput.py: graph a thread a grain, graph+pair a thread a neighbour slot, graph+auto the
+#     engine's default choice by the batch's grains, /mixed float32 velocities, forces and contact histories, as
+#     a run's heap.precision = "mixed" steps them), beside the CPU kernel on the machine's cores (the register
+#     cap, @N, lost at every size on 2026-11-28 and is no longer timed);
 #  2. the cohesive case's 8 heaps in mixed precision (benchmarks/gpu_agree.py), to pool with the CPU kernel's
 #     heaps in double and mixed precision (benchmarks/gpu_logs/precision-agree-cpu.csv);
 #  3. the engine's tests on the hardware (tests/test_gpu.py, tests/test_precision.py);
@@ -36,7 +37,7 @@ timeout 110 python3 -W ignore benchmarks/gpu_kernel_times.py --batches 1,256 --p
 log "kernel times done (rc $?)"
 # launch and device were 5-50 times slower than graph at every size on 2026-11-28: not measured again
 timeout 200 python3 -W ignore benchmarks/gpu_throughput.py --batches 1,16,64,256 --paper-batches 1 --steps 1000 \
-  --warmup 100 --cpu-heaps 1 --modes graph,graph+pair,graph@96,graph+pair@96,graph/mixed,graph+pair/mixed 2>&1 |
+  --warmup 100 --cpu-heaps 1 --modes graph,graph+pair,graph+auto,graph/mixed,graph+pair/mixed,graph+auto/mixed 2>&1 |
   tee "$OUT/throughput.log"
 log "throughput done (rc $?)"
 if [ $((LIMIT - SECONDS)) -gt 190 ]; then   # 110 s for these heaps, 80 for the tests

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 
-def floor(run: Path, draws: int = 256) -> pd.DataFrame:
+def floor(run: Path, draws: int = 256) -> tuple[pd.DataFrame, int]:
     from calib_cli.measurements import measured_conditions
     from calib_cli.model import load_model
     from calib_cli.posterior.calibrate import _inputs, mean_variance

@@ -124,7 +124,11 @@ def test_a_run_set_to_mixed_precision_simulates_every_heap_there_in_it(tmp_path)
     assert request_from_row(rows.iloc[0]).numerics.precision == "mixed"
     assert run_heap_settings({"heap": {"engine": "builtin", "precision": "mixed"}}) == {"precision": "mixed"}
     assert run_heap_settings({"heap": {"engine": "builtin", "precision": "double"}}) == {}  # locks keep their hashes
-    with pytest.raises(CalibError, match="LAMMPS computes in double precision"):
-        heap_precision({"heap": {"precision": "mixed"}}, "lammps")
+    mixed = {"heap": {"engine": "builtin", "precision": "mixed"}}
+    assert run_heap_settings(mixed, "gpu") == {"engine": "gpu", "precision": "mixed"}  # calibrate --engine gpu
+    for refused in (lambda: heap_precision({"heap": {"precision": "mixed"}}, "lammps"),
+                    lambda: run_heap_settings(mixed, "lammps")):  # calibrate --engine lammps on a mixed run
+        with pytest.raises(CalibError, match="LAMMPS computes in double precision"):
+            refused()
     r = runner.invoke(app, ["init", "--run", str(tmp_path / "bad"), "-s", "heap.precision=single"])
     assert r.exit_code == 2 and "heap.precision = 'single'" in r.output and "double, mixed" in r.output, r.output

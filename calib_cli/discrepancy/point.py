@@ -12,7 +12,8 @@ from ..heaps.runner import run_campaign
 from ..dem.heap import LAWS
 from ..errors import CalibError
 from ..model import EFFECTS, Model, load_model
-from ..heaps.inputs import Pairs, build_requests, given_pairs, heap_engine, heap_precision, heap_preset, parse_params, table_conditions
+from ..heaps.inputs import (Pairs, build_requests, given_pairs, heap_engine, heap_precision, heap_preset, parse_params,
+                            table_conditions)
 from ..stages.common import bbd_fixed, resolve_settings
 from .stats import per_condition
 

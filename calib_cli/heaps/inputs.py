@@ -78,15 +78,18 @@ def heap_precision(cfg: dict, engine: str = "builtin") -> str:
     return precision
 
 
-def run_heap_settings(cfg: dict) -> dict:
-    """The run's engine and precision in a stage's settings where they are not the defaults (built-in,
-    double), so the locks made before either was a setting stay valid."""
-    engine, precision = heap_engine(cfg), heap_precision(cfg)
+def run_heap_settings(cfg: dict, engine: Optional[str] = None) -> dict:
+    """The heaps' engine (the option ``engine`` where given, else the run's) and the run's precision in a stage's
+    settings where they are not the defaults (built-in, double), so the locks made before either was a setting
+    stay valid."""
+    engine = heap_engine(cfg, engine)
+    precision = heap_precision(cfg, engine)
     return {**({} if engine == "builtin" else {"engine": engine}),
             **({} if precision == "double" else {"precision": precision})}
 
 
 def precision_note(precision: str) -> str:
+    """What a command says of its heaps' precision: nothing for double."""
     return "" if precision == "double" else f", {precision} precision"
 
 

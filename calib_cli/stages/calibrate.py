@@ -34,7 +34,7 @@ from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdi
                                   profile_rows, second_response, settings_ranges, write_posterior)
 from ..posterior.gp import informative_conditions
 from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, heap_engine, heap_precision,
-                            heap_preset, heap_setup, modulus_settings, run_heap_settings)
+                            heap_preset, heap_setup, modulus_settings, precision_note, run_heap_settings)
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
 #: the results rows' design label of every heap a calibration's rounds simulate
@@ -389,9 +389,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     name = heap_engine(cfg, engine)
     precision = heap_precision(cfg, name)
     setup = {"pre": heap_preset(preset, g, precision), "preset": preset, "modulus": g, "engine": name,
-             "engine_settings": run_heap_settings(cfg) if engine is None else
-             {**({} if engine == "builtin" else {"engine": engine}),
-              **({} if precision == "double" else {"precision": precision})}}
+             "engine_settings": run_heap_settings(cfg, engine)}
     check_engine(setup["engine"])
     conds = measured_conditions(run)
     if conds.empty:
@@ -404,7 +402,8 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
         return CalibrateResult(final, True)
     say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
         f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
-        f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}")
+        f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}"
+        + precision_note(precision))
     if force:  # begin again from every heap at hand now: compare's and diagnose's join
         (_dir(run, model, 0) / "reused.parquet").unlink(missing_ok=True)
     rounds, spent, stop = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)

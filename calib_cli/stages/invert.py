@@ -18,8 +18,9 @@ from ..discrepancy.stats import at_bounds, per_condition, residual_table
 from ..errors import CalibError
 from ..parameters import check
 from ..plots import plt  # the Agg backend, set in one place
-from ..heaps.inputs import (COND_VARS, Pairs, build_requests, checked_condition, heap_engine,
-                            heap_precision, heap_preset, heap_setup, run_heap_settings, make_condition, modulus_settings, table_conditions)
+from ..heaps.inputs import (COND_VARS, Pairs, build_requests, checked_condition, heap_engine, heap_precision,
+                            heap_preset, heap_setup, make_condition, modulus_settings, run_heap_settings,
+                            table_conditions)
 from ..surrogate.inversion import IDENTIFIABLE_FRACTION, solution_parameters
 from ..surrogate.inversion import invert as invert_surrogate
 from ..surrogate.inversion import nearest, refine as refine_by_simulation

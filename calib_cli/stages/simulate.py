@@ -199,9 +199,9 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     run = check_run_dir(run)
     cfg = resolve_settings(run, None, None)
     engine = heap_engine(cfg, engine)
+    precision = heap_precision(cfg, engine)  # before the engine's check: a mixed run refuses LAMMPS installed or not
     shapes = check_engine(engine, mpi, shape)
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
-    precision = heap_precision(cfg, engine)
     pre = heap_preset(preset, shear_modulus, precision)
     cond = make_condition(pre.condition, checked_condition(condition))
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
