@@ -383,7 +383,7 @@ def test_a_run_directory_set_to_the_gpu_engine_simulates_every_heap_there(tmp_pa
     from typer.testing import CliRunner
 
     from calib_cli.cli import app
-    from calib_cli.heaps.inputs import run_heap_settings, heap_engine
+    from calib_cli.heaps.inputs import heap_engine, run_heap_settings
     from calib_cli.stages.simulate import plan_simulation
 
     runner = CliRunner()

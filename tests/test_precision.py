@@ -122,9 +122,9 @@ def test_a_run_set_to_mixed_precision_simulates_every_heap_there_in_it(tmp_path)
     rows = run_simulation(plan).rows
     assert list(rows["precision"]) == ["mixed"]
     assert request_from_row(rows.iloc[0]).numerics.precision == "mixed"
-    assert run_heap_settings({"heap": {"engine": "builtin", "precision": "mixed"}}) == {"precision": "mixed"}
-    assert run_heap_settings({"heap": {"engine": "builtin", "precision": "double"}}) == {}  # locks keep their hashes
     mixed = {"heap": {"engine": "builtin", "precision": "mixed"}}
+    assert run_heap_settings(mixed) == {"precision": "mixed"}
+    assert run_heap_settings({"heap": {"engine": "builtin", "precision": "double"}}) == {}  # locks keep their hashes
     assert run_heap_settings(mixed, "gpu") == {"engine": "gpu", "precision": "mixed"}  # calibrate --engine gpu
     for refused in (lambda: heap_precision({"heap": {"precision": "mixed"}}, "lammps"),
                     lambda: run_heap_settings(mixed, "lammps")):  # calibrate --engine lammps on a mixed run
