@@ -221,7 +221,8 @@ def test_a_thread_a_neighbour_slot_steps_as_the_cpu_kernel(case):
     else:
         cpu = [column(0, 0.3, 0.5), column(1, 0.7, 0.5)][:2 if case == "two heaps" else 1]
         on_gpu = [column(0, 0.3, 0.5), column(1, 0.7, 0.5)][:len(cpu)]
-        batch, steps = ({"width": 1, "cell_cap": 1} if case == "overflow" else {}), 200
+        # 8 slots hold a column grain's pairs: the simulator's threads a launch are grains x slots
+        batch, steps = ({"width": 1, "cell_cap": 1} if case == "overflow" else {"width": 8}), 200
     b = gpu.Batch(on_gpu, mode="launch" if gpu.SIMULATOR else "graph", contacts="pair", **batch)
     for _ in range(2):
         for s in cpu:
