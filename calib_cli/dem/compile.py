@@ -38,8 +38,8 @@ STATE_DTYPES = {"double": np.float64, "mixed": np.float32}
 
 #: what a marker holds for besides its kernel: numba caches machine code per source tree (its __pycache__,
 #: or a folder per source path under NUMBA_CACHE_DIR) and per numba version, while the markers of every
-#: checkout on a machine share one folder. Markers another checkout left there sent a fresh clone's test
-#: workers past the lock onto a cold cache, both compiling the same compositions (16 min 15 s, not 15 min)
+#: checkout on a machine share one folder: another checkout's markers sent a fresh clone's test workers
+#: past the lock onto a cold cache, where both compiled the same compositions
 TREE = f"{Path(__file__).resolve().parent}|{numba.__version__}"
 
 
