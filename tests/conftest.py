@@ -9,6 +9,9 @@ if os.environ["NUMBA_ENABLE_CUDASIM"] == "1":
     # there launches all five kernels every step) runs a heap test 5x slower than "launch" (9 s against 55 s
     # for the checkpoint test); tests/test_gpu.py checks every mode's states against the CPU kernel itself
     os.environ.setdefault("CALIB_GPU_STEP", "launch")
+    from simulator_blocks import run_single_thread_blocks_inline
+
+    run_single_thread_blocks_inline()
 # the CLI's tables are 120 columns wide unless $COLUMNS says otherwise (xdist's workers may inherit one)
 os.environ.pop("COLUMNS", None)
 if os.environ.get("PYTEST_XDIST_WORKER"):

@@ -790,12 +790,14 @@ DEFAULT_MODE = "graph"
 GRAPH_STEPS = 50
 #: the blocks mode's threads a heap under the simulator: one keeps its arithmetic in the CPU kernel's order
 SIM_BLOCK_THREADS = 1
-#: the launch mode's kernels whose threads' order sets a grain's bits (atomic sums into other threads' grains; the
-#: order of grains in a cell, which orders the neighbour lists): under the simulator a block of one thread each,
-#: one after another. The simulator runs a block's threads as Python threads that the interpreter switches
-#: between every 5 ms, so on a loaded machine their sums came in another order (a lattice's velocities 3.5e-18
-#: off the CPU kernel's under pytest-xdist); the other kernels keep blocks of up to 32, no idle threads
-SIM_IN_ORDER = ("forces", "pair_forces", "bin_grains")
+#: the threads a block of the launch modes' kernels under the simulator: one, the blocks one after another. The
+#: order of a kernel's threads sets a grain's bits (atomic sums into other threads' grains; the order of grains
+#: in a cell, which orders the neighbour lists), and the simulator runs a block's threads as Python threads that
+#: the interpreter switches between every 5 ms: on a loaded machine their sums came in another order (a
+#: lattice's velocities 3.5e-18 off the CPU kernel's under pytest-xdist). A thread is a Python thread either
+#: way, so blocks of one cost no more than blocks of 32, and a runner that takes them in turn on one thread
+#: (tests/conftest.py) needs no thread at all
+SIM_THREADS = 1
 
 
 #: how a step's contacts are shared among threads in the kernel-a-phase modes (``launch``, ``device``, ``graph``):
@@ -854,8 +856,7 @@ class Batch:
             raise CalibError("a GPU batch runs one precision; these heaps mix them")
         self.systems, self.spec, self.mode = list(systems), specs.pop(), step_mode(mode)
         self.contacts = contact_layout(contacts, sum(s.n for s in systems))
-        # the simulator starts a Python thread per GPU thread: few of them
-        self.block = min(block, 32) if SIMULATOR else block
+        self.block = block
         self.cuda = cuda_module()
         self.k = kernels(self.spec, register_cap(max_registers))
         self.width, self.cell_cap = width, cell_cap
@@ -877,7 +878,7 @@ class Batch:
     def _launch(self, name: str, threads: int, stream=None) -> None:
         """Kernel ``name`` on ``threads`` threads (into ``stream``: a graph being built)."""
         kernel = self.k[name]
-        b = (1 if name in SIM_IN_ORDER else min(self.block, max(threads, 1))) if SIMULATOR else self.block
+        b = SIM_THREADS if SIMULATOR else self.block
         grid = (threads + b - 1) // b
         (kernel[grid, b] if stream is None else kernel[grid, b, stream])(*self._args(kernel))
 
