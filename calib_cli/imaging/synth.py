@@ -22,7 +22,7 @@ class SynthOptions:
     height: int = 480
     heap_height_px: float = 160.0
     base_row: float = 400.0
-    grain_px: float = 6.0  # grain diameter in pixels (surface roughness)
+    grain_px: float = 6.0  # grain diameter in pixels (surface roughness; 0: a smooth surface)
     dark_heap: bool = True
     floor_strip: bool = True  # a floor in the heap's class below the base
     gradient: float = 0.0  # relative illumination change across the image (0.4 = +-20 %)
@@ -76,7 +76,7 @@ def synth_heap(angle: float, options: SynthOptions | None = None, seed: int = 0)
     # granular surface: grains half embedded along the flanks
     g = o.grain_px * k
     t = math.tan(math.radians(angle))
-    n_grains = int(2 * o.heap_height_px * k / t / g * 1.5)
+    n_grains = int(2 * o.heap_height_px * k / t / g * 1.5) if g > 0 else 0
     for _ in range(n_grains):
         xs = xc + rng.uniform(-1, 1) * kk.heap_height_px / t
         hs = np.interp(xs, x, h)
