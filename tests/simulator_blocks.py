@@ -17,27 +17,29 @@ _KEYS = ("blockIdx", "threadIdx", "thread_id", "syncthreads")
 
 
 def run_single_thread_blocks_inline() -> bool:
-    """Install the runner on the simulator's block manager; False (and nothing changed) where this numba's
-    simulator is not laid out as the runner expects."""
+    """Install the runner on the simulator's block manager; False (and nothing changed) where it is installed
+    already or this numba has no simulator block manager. A manager without the attributes it reads keeps the
+    simulator's threads."""
     try:
         from numba.cuda.simulator import kernel
         from numba.cuda.simulator.kernelapi import Dim3
     except ImportError:
         return False
     manager = getattr(kernel, "BlockManager", None)
-    if manager is None or getattr(manager.run, "_inline", False) or not hasattr(manager, "__init__"):
+    if manager is None or getattr(manager.run, "_inline", False):
         return False
     threaded = manager.run
 
     def run(self, grid_point, *args):
-        if tuple(self._block_dim) != (1, 1, 1) or self._debug:
-            return threaded(self, grid_point, *args)
+        f, dims = getattr(self, "_f", None), getattr(self, "_block_dim", None)
+        if f is None or dims is None or tuple(dims) != (1, 1, 1) or getattr(self, "_debug", True):
+            return threaded(self, grid_point, *args)  # not laid out as expected, or debugging: the simulator's
         here = threading.current_thread()
         saved = {k: here.__dict__[k] for k in _KEYS if k in here.__dict__}
         here.blockIdx, here.threadIdx, here.thread_id = Dim3(*grid_point), Dim3(0, 0, 0), 0
         here.syncthreads = _passed
         try:
-            self._f(*args)
+            f(*args)
         finally:
             for k in _KEYS:
                 here.__dict__.pop(k, None)
