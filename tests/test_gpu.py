@@ -1,8 +1,9 @@
 """The GPU engine's kernels (calib_cli.dem.gpu) against the CPU kernel: the same steps on the same
 heaps give the same state. In make test they run under numba's CUDA simulator (tests/conftest.py), in
 blocks of one thread run one after another (gpu.SIM_THREADS; tests/simulator_blocks.py runs them on the
-launching thread), so its atomic sums come in a fixed order and the states agree bit for bit; on a GPU (NUMBA_ENABLE_CUDASIM=0) the order varies
-and the compiler fuses multiply-adds, so only the tolerances below hold."""
+launching thread), so its atomic sums come in a fixed order and the states agree bit for bit; on a GPU
+(NUMBA_ENABLE_CUDASIM=0) the order varies and the compiler fuses multiply-adds, so only the tolerances
+below hold."""
 
 from __future__ import annotations
 

@@ -86,7 +86,8 @@ def contact(spec, nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
 @nb.njit(cache=True)
 def wall_contact(spec, nx, ny, nz, delta, Ri, Rj, Rs, ms, Ii_inv, Ij_inv, ci, cj,
                  vx, vy, vz, wix, wiy, wiz, wjx, wjy, wjz, ht, k, prm, row, dt):
-    """:func:`contact` for a grain against the floor or the cylinder, compiled apart (once a wall) and called, not inlined.
+    """:func:`contact` for a grain against the floor or the cylinder: compiled apart (once a wall) and called,
+    not inlined.
 
     Why: numba types an inlined law chain again at every site it is inlined into (most of a composition's
     compile); the pair loop, which holds most contacts, keeps its inlined copy. Measured on a JKR

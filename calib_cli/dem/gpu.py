@@ -795,8 +795,8 @@ SIM_BLOCK_THREADS = 1
 #: in a cell, which orders the neighbour lists), and the simulator runs a block's threads as Python threads that
 #: the interpreter switches between every 5 ms: on a loaded machine their sums came in another order (a
 #: lattice's velocities 3.5e-18 off the CPU kernel's under pytest-xdist). A thread is a Python thread either
-#: way, so blocks of one cost no more than blocks of 32, and a runner that takes them in turn on one thread
-#: (tests/conftest.py) needs no thread at all
+#: way, so blocks of one cost no more than blocks of 32, and the test suite's runner (tests/simulator_blocks.py)
+#: takes such blocks in turn on the launching thread, with no thread started at all
 SIM_THREADS = 1
 
 
