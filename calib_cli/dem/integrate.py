@@ -63,11 +63,17 @@ def run_steps(spec, nsteps, t0, dt, pos, vel, omg, force, torque, rad, mass, inv
                 npairs_arr[0] = npairs
                 return NEED_CAPACITY, s, worst_all, rebuilds
             transfer_history(pi, pj, ht, npairs, spare_i, spare_j, spare_h, cnt)
-            pi[:cnt] = spare_i[:cnt]
-            pj[:cnt] = spare_j[:cnt]
-            ht[:cnt] = spare_h[:cnt]
+            # loops, not slice assignments: numba's array-expression code for those took half of this
+            # loop's compile (19 s -> 9 s a composition, docs/performance.md), and rebuilds are rare
+            for k in range(cnt):
+                pi[k] = spare_i[k]
+                pj[k] = spare_j[k]
+                for c in range(ht.shape[1]):
+                    ht[k, c] = spare_h[k, c]
             npairs = cnt
-            ref_pos[:, :] = pos
+            for i in range(n):
+                for d in range(3):
+                    ref_pos[i, d] = pos[i, d]
             rebuilds += 1
         if geo[2] != 0.0:
             geo[1] = geo[2] * max(0.0, t + dt - lift_start)
