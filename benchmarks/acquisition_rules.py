@@ -8,10 +8,11 @@ heaps' angles, rolling friction every angle, so from the mean angles the two tra
 by 2 deg, plus up to 3 deg more with cohesion (so the scatter is evidence too). Each calibration runs the
 real stage (calib_cli.stages.calibrate) with a stand-in campaign, which makes every heap instantly.
 Prints, per rule, over the seeds: heaps simulated until the stop rule (or the budget), the mean 90 %
-interval width over the prior range, the share of intervals holding the truth, and how often
-cohesion's verdict came out right (called for: Bayes factor of off < 0.1).
+interval width over the prior range, the share of intervals holding the truth, how often
+cohesion's verdict came out right (called for: Bayes factor of off < 0.1), and the answer's surrogate
+ratio and Bayes factor of off. ``--repeats 2,1`` sets each rule beside itself with one pile a point.
 
-    python benchmarks/acquisition_rules.py --seeds 8 --budget 250
+    python benchmarks/acquisition_rules.py --seeds 4 --budget 250 --rules variance,max-sd,draws --repeats 2,1
 """
 from __future__ import annotations
 
@@ -76,17 +77,20 @@ def lab(run: Path, seed: int) -> None:
     (run / "settings.toml").write_text(PRIOR)  # the hidden-effect lab's factor table
 
 
-def one(rule: str, seed: int, budget: int, root: Path) -> dict:
-    run = root / f"{rule}-{seed}"
+def one(rule: str, seed: int, budget: int, root: Path, repeats: int = 2) -> dict:
+    run = root / f"{rule}-{repeats}-{seed}"
     lab(run, 1000 + seed)
     t0 = time.perf_counter()
-    r = cal.calibrate(run, budget=budget, rule=rule, walkers=24, steps=1000, seed=seed, say=lambda *a, **k: None)
+    r = cal.calibrate(run, budget=budget, rule=rule, repeats=repeats, walkers=24, steps=1000, seed=seed,
+                      say=lambda *a, **k: None)
     t = r.table.set_index("parameter")
     se = t.loc["surface_energy"]
-    return {"rule": rule, "seed": seed, "heaps": int(r.rounds["calibration_heaps"].max()),
+    return {"rule": rule if repeats == 2 else f"{rule} x{repeats}", "seed": seed,
+            "heaps": int(r.rounds["calibration_heaps"].max()),
             "stopped": r.stop.split(":")[0], "width": float(t["rel_width"].mean()),
             "held": float(np.mean([t.loc[p, "q05"] <= v <= t.loc[p, "q95"] for p, v in TRUTH.items()])),
-            "called_for": bool(se["decided"] and se["bf_off"] < 0.1), "s": time.perf_counter() - t0}
+            "called_for": bool(se["decided"] and se["bf_off"] < 0.1), "ratio": float(se["surrogate_ratio"]),
+            "bf_off": float(se["bf_off"]), "s": time.perf_counter() - t0}
 
 
 def main() -> None:
@@ -94,20 +98,24 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--budget", type=int, default=250)
     ap.add_argument("--rules", default="variance,max-sd,draws")
+    ap.add_argument("--repeats", default="2", help="piles a design point, comma-separated to compare (e.g. 2,1)")
     a = ap.parse_args()
     cal.run_campaign = campaign
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(a.seeds):
             for rule in a.rules.split(","):
-                out.append(one(rule, seed, a.budget, Path(tmp)))
-                print(out[-1], flush=True)
+                for reps in (int(r) for r in a.repeats.split(",")):
+                    out.append(one(rule, seed, a.budget, Path(tmp), reps))
+                    print(out[-1], flush=True)
     df = pd.DataFrame(out)
     summary = df.groupby("rule", sort=False).agg(
         heaps=("heaps", "mean"), stopped_by_rule=("stopped", lambda s: float(np.mean(s == "stable"))),
-        width=("width", "mean"), held=("held", "mean"), called_for=("called_for", "mean"), s=("s", "mean"))
+        width=("width", "mean"), held=("held", "mean"), called_for=("called_for", "mean"),
+        ratio=("ratio", "median"), bf_off=("bf_off", "median"), s=("s", "mean"))
     print(f"\n{a.seeds} seeds, budget {a.budget}: mean over seeds (width: 90 % interval over the prior range; "
-          "held: intervals holding the truth; called_for: cohesion's Bayes factor of off < 0.1, decided)")
+          "held: intervals holding the truth; called_for: cohesion's Bayes factor of off < 0.1, decided; "
+          "ratio, bf_off: the answer's surrogate ratio and cohesion's Bayes factor of off, medians)")
     print(summary.to_string(float_format=lambda v: f"{v:.3g}"))
     base = summary.loc["variance", "heaps"] if "variance" in summary.index else None
     if base:
