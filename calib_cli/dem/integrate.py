@@ -63,8 +63,8 @@ def run_steps(spec, nsteps, t0, dt, pos, vel, omg, force, torque, rad, mass, inv
                 npairs_arr[0] = npairs
                 return NEED_CAPACITY, s, worst_all, rebuilds
             transfer_history(pi, pj, ht, npairs, spare_i, spare_j, spare_h, cnt)
-            # loops, not slice assignments: numba's array-expression code for those took half of this
-            # loop's compile (19 s -> 9 s a composition, docs/performance.md), and rebuilds are rare
+            # loops, not slice assignments: numba's code for those took half of this loop's compile
+            # (a process's first composition 16-19 s -> 9-10 s, docs/performance.md); rebuilds are rare
             for k in range(cnt):
                 pi[k] = spare_i[k]
                 pj[k] = spare_j[k]
