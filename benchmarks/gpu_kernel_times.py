@@ -8,7 +8,9 @@ steps on which a heap asked for a neighbour rebuild. One run prints, per batch s
 - the share of steps with a rebuild (from a stretch of --probe steps, the host reading the flag), and
   the step's time these add up to, beside a whole step's time replayed from the engine's graph.
 
-Each batch is settled for --warmup steps first; each kernel's replays start from the same state (restored
+Each batch is B heaps in contact (copies of up to --distinct fills settled and lifted by the heap test's protocol
+on the GPU engine, benchmarks/heap_states.py; --state fresh: the fills as poured, whose grains hardly touch, as
+timed before 2026-11-29), stepped for --warmup steps first; each kernel's replays start from the same state (restored
 on the device), no heap rebuilding. The replays leave the heaps in no physical state (the same step's forces
 added --reps times): the batch is thrown away after.
 
@@ -18,15 +20,13 @@ added --reps times): the batch is thrown away after.
 """
 import argparse
 import time
-from dataclasses import replace
 
 import numpy as np
 
 from calib_cli.dem import gpu
-from calib_cli.dem.heap import PRESETS, heap_system
+from heap_states import STATES, fresh_systems, settled_states, systems_from
 
 GATED = {"bin_grains", "find_neighbours"}
-PARAMS = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6}
 
 
 def replayed(batch: gpu.Batch, launches: list, reps: int) -> float:
@@ -74,16 +74,16 @@ def rebuild_share(batch: gpu.Batch, steps: int) -> tuple[float, float]:
     return anyh / steps, heaps / (steps * len(batch.systems))
 
 
-def profile(preset: str, count: int, warmup: int, probe: int, reps: int, precision: str = "double") -> None:
-    pre = PRESETS[preset]
-    num = replace(pre.numerics, precision=precision)
-    fills = [heap_system(PARAMS, pre.condition, num, seed) for seed in range(count)]
+def profile(preset: str, count: int, warmup: int, probe: int, reps: int, precision: str = "double",
+            states: list | None = None) -> None:
+    fills = fresh_systems(preset, count, precision) if states is None else systems_from(states, preset, count, precision)
     batch = gpu.Batch(fills, mode="graph")
     batch.advance(warmup)
     n = len(batch.host["heap"])
+    whole = 2 if gpu.SIMULATOR else gpu.GRAPH_STEPS * 20  # the simulator's steps take seconds
     t = time.perf_counter()
-    batch.advance(gpu.GRAPH_STEPS * 20)
-    step = (time.perf_counter() - t) / (gpu.GRAPH_STEPS * 20)
+    batch.advance(whole)
+    step = (time.perf_counter() - t) / whole
     share, heap_share = rebuild_share(batch, probe)
     print(f"{count} heaps, {n} grains, {precision} precision: a whole step {step * 1e6:.1f} us (graph); a rebuild "
           f"on {share:.1%} of steps ({heap_share:.1%} of heap-steps)")
@@ -130,6 +130,9 @@ def main():
     ap.add_argument("--warmup", type=int, default=300)
     ap.add_argument("--probe", type=int, default=200, help="steps the host reads the rebuild flag on")
     ap.add_argument("--reps", type=int, default=50, help="launches of a kernel a replay")
+    ap.add_argument("--state", choices=STATES, default="settled")
+    ap.add_argument("--distinct", type=int, default=16, help="fills settled; a larger batch repeats them")
+    ap.add_argument("--settle-on", choices=("gpu", "cpu"), default="gpu", help="the engine that settles them")
     ap.add_argument("--precisions", default="double", help="comma separated, of double and mixed (float32 "
                     "velocities, spins, forces, torques and contact histories)")
     a = ap.parse_args()
@@ -138,9 +141,15 @@ def main():
     else:
         d = gpu.cuda_module().get_current_device()
         print(f"GPU: {d.name.decode() if isinstance(d.name, bytes) else d.name}")
+    states = {}
+    for precision in a.precisions.split(","):
+        if a.state == "settled":
+            t = time.perf_counter()
+            states[precision] = settled_states(a.preset, range(a.distinct), precision, engine=a.settle_on)
+            print(f"{a.distinct} fills settled and lifted ({a.settle_on}, {precision}) in {time.perf_counter() - t:.0f} s")
     for b in a.batches.split(","):
         for precision in a.precisions.split(","):
-            profile(a.preset, int(b), a.warmup, a.probe, a.reps, precision)
+            profile(a.preset, int(b), a.warmup, a.probe, a.reps, precision, states.get(precision))
 
 
 if __name__ == "__main__":
