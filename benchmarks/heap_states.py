@@ -1,12 +1,13 @@
 """Heaps in contact, the state the throughput benchmarks time (imported by them; not a script).
 
-A fresh fill is a loose lattice whose grains fall for the first ~2,000 of a `default` heap test's ~110,000
-steps: after 200 steps it lists 0.55 pairs a grain and touches none, where the rest of the test (settled,
-lifting, at rest) lists 2.6-3.0 and touches 1.8-1.9. The CPU kernel steps that fresh fill 4.6-5.0 times faster
-a particle-step than any later state (benchmarks/heap_phases.py, 2026-11-29, one thread: 1.79e7 against
-3.56-3.88e6), so a rate timed on it is not a heap's. Here each fill goes through the heap test's own protocol (:class:`calib_cli.dem.heap.HeapTest`:
-settle with the drag until the grains rest, then lift) for ``lift`` seconds of the lift, on the CPU kernel or
-the GPU engine; a batch larger than the fills settled is made of copies of them.
+A fresh fill is a loose lattice whose grains fall for the first few thousand of a `default` heap test's
+~110,000 steps: after 200 steps it lists 0.55 pairs a grain and touches none, where the rest of the test
+(settled, lifting, at rest) lists 2.6-3.0 and touches 1.8-1.9. The CPU kernel steps that fresh fill 4.6-5.0
+times faster a particle-step than any later state (benchmarks/heap_phases.py, 2026-11-29, one thread: 1.79e7
+against 3.56-3.88e6), so a rate timed on it is not a heap's. Here each fill goes through the heap test's own
+protocol (:class:`calib_cli.dem.heap.HeapTest`: settle with the drag until the grains rest, then lift) for
+``lift`` seconds of the lift, on the CPU kernel or the GPU engine; a batch larger than the fills settled is
+made of copies of them.
 
     states = settled_states("default", seeds=range(4), engine="cpu")
     systems = systems_from(states, "default", count=16)     # 16 heaps, each a copy of one of the 4
