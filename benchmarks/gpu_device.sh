@@ -11,8 +11,8 @@
 #  3. the engine's tests on the hardware (tests/test_gpu.py, tests/test_precision.py);
 #  4. with the time left, one `paper` heap end to end (benchmarks/gpu_paper_heap.py), in the double-precision
 #     mode fastest for one.
-# (Where the step's time goes, kernel by kernel, first: benchmarks/gpu_kernel_times.py, the pair layout's two
-# kernels beside the grain layout's one, in both precisions.)
+# (Where the step's time goes, kernel by kernel, after the throughput: benchmarks/gpu_kernel_times.py, the pair
+# layout's two kernels beside the grain layout's one, in both precisions.)
 # `calib calibrate --engine gpu` on the hidden-effect lab (~8 min alone) was measured on 2026-11-28 and is not
 # in this call: run it on its own (`calib calibrate --run gpu_run/he_rev1 --at-revision 1 --budget 250
 # --preset default --engine gpu`, gpu_run/he_rev1 made by benchmarks/gpu_device_prep.py, carried).
@@ -34,9 +34,6 @@
 LIMIT=${LIMIT:-560}   # seconds for the whole script
 source benchmarks/gpu_env.sh
 
-timeout 150 python3 -W ignore benchmarks/gpu_kernel_times.py --batches 1,256 --precisions double,mixed 2>&1 |
-  tee "$OUT/kernel_times.log"
-log "kernel times done (rc $?)"
 # launch and device were 5-50 times slower than graph at every size on 2026-11-28: not measured again.
 # Heaps in contact (settled and lifted on the GPU first, benchmarks/heap_states.py); before 2026-11-29 every
 # figure was of fresh fills, whose grains hardly touch: one batch of those again, to tie the two together
@@ -48,6 +45,10 @@ timeout 40 python3 -W ignore benchmarks/gpu_throughput.py --state fresh --batche
   --steps 1000 --warmup 100 --cpu-heaps 1 --cpu-workers 0 --modes graph+pair,graph/mixed 2>&1 |
   tee "$OUT/throughput-fresh.log"
 log "throughput of fresh fills done (rc $?)"
+# where a step's time goes, kernel by kernel (after the targets' figures: on 2026-11-28 it ran first)
+timeout 150 python3 -W ignore benchmarks/gpu_kernel_times.py --batches 1,256 --precisions double,mixed 2>&1 |
+  tee "$OUT/kernel_times.log"
+log "kernel times done (rc $?)"
 if [ $((LIMIT - SECONDS)) -gt 190 ]; then   # 110 s for these heaps, 80 for the tests
   cp benchmarks/gpu_logs/precision-agree-cpu.csv "$OUT/agree.csv"
   timeout 110 python3 -W ignore benchmarks/gpu_agree.py --engine gpu --precision mixed --cases cohesive \
