@@ -3,7 +3,9 @@
 # gpu_device.sh: what the engine's defaults are chosen by.
 #  1. the contact layout's crossover: one thread a grain (`graph`) against a thread a neighbour slot
 #     (`graph+pair`) at 1, 2, 4 and 8 `default` heaps (4k-32k grains), in both precisions: gpu_device.sh
-#     found the slot layout 1.5x faster for one heap (4k grains) and 1.1x slower for one `paper` heap (45k);
+#     found the slot layout 1.5x faster for one heap (4k grains) and 1.1x slower for one `paper` heap (45k),
+#     both on fresh fills; since 2026-11-29 the heaps are in contact (benchmarks/heap_states.py), where the
+#     crossover (gpu.PAIR_BELOW_GRAINS, 24,000 grains) may lie elsewhere;
 #  2. the cohesive case's 8 heaps in double precision on the GPU, beside the mixed ones gpu_device.sh ran
 #     on it (same seeds), so that the precision's effect is read apart from the engine's;
 #  3. with the time left, where a step's time goes at 64 heaps in both precisions.
