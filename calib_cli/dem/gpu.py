@@ -811,7 +811,8 @@ DEFAULT_CONTACTS = "auto"
 #: measured on an H200 (docs/performance.md, ``benchmarks/gpu_device_layout.sh``): a thread a slot took 25.3, 29.8
 #: and 36.8 us a step for 1, 2 and 4 ``default`` heaps (3,971-15,884 grains) against 35.8, 39.4 and 42.8 a thread
 #: a grain; 49.8 against 49.1 at 31,768 grains, and it loses from there (54.4 against 49.3 for a 44,669-grain
-#: ``paper`` heap, 80.8 against 70.1 at 63,536)
+#: ``paper`` heap, 80.8 against 70.1 at 63,536), all on fresh fills, whose grains hardly touch: not yet timed on
+#: heaps in contact (docs/performance.md, "What the figures below timed")
 PAIR_BELOW_GRAINS = 24_000
 
 
