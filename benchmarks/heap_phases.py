@@ -13,22 +13,18 @@ import argparse
 import time
 
 import numba
-import numpy as np
 
 from calib_cli.dem.heap import PRESETS, HeapTest
-from heap_states import PARAMS
+from heap_states import PARAMS, per_grain
 
 
 def looked(tag: str, s, steps: int, rows: list) -> None:
-    n, npairs = s.n, int(s.npairs[0])
-    i, j = s.pi[:npairs], s.pj[:npairs]
-    p, r = s.particles.pos, s.particles.rad
-    touching = int((np.linalg.norm(p[i] - p[j], axis=1) < r[i] + r[j]).sum())
+    pairs, contacts = per_grain(s)
     t = time.perf_counter()
     s.advance(steps)
-    rate = n * steps / (time.perf_counter() - t)
-    rows.append((tag, s.t, npairs / n, touching / n, rate))
-    print(f"{tag:10} t = {s.t:6.3f} s  pairs {npairs / n:4.2f}  contacts {touching / n:4.2f} a grain  "
+    rate = s.n * steps / (time.perf_counter() - t)
+    rows.append((tag, s.t, pairs, contacts, rate))
+    print(f"{tag:10} t = {s.t:6.3f} s  pairs {pairs:4.2f}  contacts {contacts:4.2f} a grain  "
           f"{rate:9.3g} particle-steps/s  {rate / rows[0][4]:5.2f}x the fresh fill's", flush=True)
 
 

@@ -16,12 +16,22 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from calib_cli.dem.heap import PRESETS, HeapTest
 
 PARAMS = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6}
 #: s of lift after the settle: the grains start to flow out of the cylinder
 LIFT = 0.05
 STATES = ("settled", "fresh")
+
+
+def per_grain(s) -> tuple[float, float]:
+    """System ``s``'s listed pairs and contacts (listed pairs whose spheres overlap), each a grain."""
+    n = int(s.npairs[0])
+    i, j = s.pi[:n], s.pj[:n]
+    p, r = s.particles.pos, s.particles.rad
+    return n / s.n, float((np.linalg.norm(p[i] - p[j], axis=1) < r[i] + r[j]).sum()) / s.n
 
 
 def _tests(preset: str, seeds, precision: str) -> list[HeapTest]:

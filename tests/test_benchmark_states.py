@@ -15,10 +15,7 @@ from calib_cli.dem.heap import PRESETS, HeapTest  # noqa: E402
 
 def _touching(s) -> float:
     """Contacts a grain: listed pairs whose spheres overlap."""
-    n = int(s.npairs[0])
-    i, j = s.pi[:n], s.pj[:n]
-    p, r = s.particles.pos, s.particles.rad
-    return float((np.linalg.norm(p[i] - p[j], axis=1) < r[i] + r[j]).sum()) / s.n
+    return hs.per_grain(s)[1]
 
 
 def test_a_settled_state_is_in_contact_where_a_fresh_fill_is_not():
