@@ -10,9 +10,14 @@ real stage (calib_cli.stages.calibrate) with a stand-in campaign, which makes ev
 Prints, per rule, over the seeds: heaps simulated until the stop rule (or the budget), the mean 90 %
 interval width over the prior range, the share of intervals holding the truth, how often
 cohesion's verdict came out right (called for: Bayes factor of off < 0.1), and the answer's surrogate
-ratio and Bayes factor of off. ``--repeats 2,1`` sets each rule beside itself with one pile a point.
+ratio and Bayes factor of off. ``--repeats 2,1`` sets each rule beside itself with one pile a point;
+``--batches 24,12`` beside itself with other batch sizes (heaps a later round; default the stage's, 4 per
+input). ``decided_at``: the heaps simulated when a round's surrogate ratio first fell to 1 or below (the
+bar under which a verdict is stated), a count the stop rule's 5 % shift does not bend: a smaller batch
+moves the intervals less per round, and so stops sooner by that rule alone.
 
     python benchmarks/acquisition_rules.py --seeds 4 --budget 250 --rules variance,max-sd,draws --repeats 2,1
+    python benchmarks/acquisition_rules.py --seeds 4 --budget 250 --rules variance --batches 24,12
 """
 from __future__ import annotations
 
@@ -77,16 +82,20 @@ def lab(run: Path, seed: int) -> None:
     (run / "settings.toml").write_text(PRIOR)  # the hidden-effect lab's factor table
 
 
-def one(rule: str, seed: int, budget: int, root: Path, repeats: int = 2) -> dict:
-    run = root / f"{rule}-{repeats}-{seed}"
+def one(rule: str, seed: int, budget: int, root: Path, repeats: int = 2, batch: int | None = None) -> dict:
+    run = root / f"{rule}-{repeats}-{batch}-{seed}"
     lab(run, 1000 + seed)
     t0 = time.perf_counter()
-    r = cal.calibrate(run, budget=budget, rule=rule, repeats=repeats, walkers=24, steps=1000, seed=seed,
-                      say=lambda *a, **k: None)
+    r = cal.calibrate(run, budget=budget, rule=rule, repeats=repeats, batch=batch, walkers=24, steps=1000,
+                      seed=seed, say=lambda *a, **k: None)
     t = r.table.set_index("parameter")
     se = t.loc["surface_energy"]
-    return {"rule": rule if repeats == 2 else f"{rule} x{repeats}", "seed": seed,
+    per_round = r.rounds.drop_duplicates("round")
+    sure = per_round[per_round["surrogate_ratio"] <= 1.0]
+    name = rule + ("" if repeats == 2 else f" x{repeats}") + ("" if batch is None else f" batch {batch}")
+    return {"rule": name, "seed": seed,
             "heaps": int(r.rounds["calibration_heaps"].max()),
+            "decided_at": float(sure["calibration_heaps"].min()) if len(sure) else np.nan,
             "stopped": r.stop.split(":")[0], "width": float(t["rel_width"].mean()),
             "held": float(np.mean([t.loc[p, "q05"] <= v <= t.loc[p, "q95"] for p, v in TRUTH.items()])),
             "called_for": bool(se["decided"] and se["bf_off"] < 0.1), "ratio": float(se["surrogate_ratio"]),
@@ -99,6 +108,8 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=250)
     ap.add_argument("--rules", default="variance,max-sd,draws")
     ap.add_argument("--repeats", default="2", help="piles a design point, comma-separated to compare (e.g. 2,1)")
+    ap.add_argument("--batches", default="", help="heaps a later round, comma-separated to compare (e.g. 24,12); "
+                    "default the stage's")
     a = ap.parse_args()
     cal.run_campaign = campaign
     out = []
@@ -106,20 +117,23 @@ def main() -> None:
         for seed in range(a.seeds):
             for rule in a.rules.split(","):
                 for reps in (int(r) for r in a.repeats.split(",")):
-                    out.append(one(rule, seed, a.budget, Path(tmp), reps))
-                    print(out[-1], flush=True)
+                    for batch in [int(b) for b in a.batches.split(",") if b] or [None]:
+                        out.append(one(rule, seed, a.budget, Path(tmp), reps, batch))
+                        print(out[-1], flush=True)
     df = pd.DataFrame(out)
     summary = df.groupby("rule", sort=False).agg(
-        heaps=("heaps", "mean"), stopped_by_rule=("stopped", lambda s: float(np.mean(s == "stable"))),
+        heaps=("heaps", "mean"), decided_at=("decided_at", "mean"),
+        never_decided=("decided_at", lambda s: int(s.isna().sum())), stopped_by_rule=("stopped", lambda s: float(np.mean(s == "stable"))),
         width=("width", "mean"), held=("held", "mean"), called_for=("called_for", "mean"),
         ratio=("ratio", "median"), bf_off=("bf_off", "median"), s=("s", "mean"))
     print(f"\n{a.seeds} seeds, budget {a.budget}: mean over seeds (width: 90 % interval over the prior range; "
           "held: intervals holding the truth; called_for: cohesion's Bayes factor of off < 0.1, decided; "
           "ratio, bf_off: the answer's surrogate ratio and cohesion's Bayes factor of off, medians)")
     print(summary.to_string(float_format=lambda v: f"{v:.3g}"))
-    base = summary.loc["variance", "heaps"] if "variance" in summary.index else None
-    if base:
-        print("heaps relative to the variance rule: " + ", ".join(f"{k} {v / base:.2f}" for k, v in summary["heaps"].items()))
+    first = summary.index[0]
+    for col in ("heaps", "decided_at"):
+        print(f"{col} relative to {first}: "
+              + ", ".join(f"{k} {v / summary.loc[first, col]:.2f}" for k, v in summary[col].items()))
 
 
 if __name__ == "__main__":
