@@ -15,7 +15,7 @@ from calib_cli import artifacts as art
 from calib_cli.dem.heap import condition_dict
 from calib_cli.errors import CalibError
 from calib_cli.heaps.index import append_index
-from calib_cli.posterior.adaptive import acquire, first_design, interval_shift, stop_reason
+from calib_cli.posterior.adaptive import acquire, first_design, interval_shift, reference_round, stop_reason
 from calib_cli.posterior.gp import GPSurrogate
 
 QUIET = {"say": lambda *a, **k: None}
@@ -115,6 +115,30 @@ def test_the_stop_rule_needs_stable_intervals_verdicts_and_a_sure_surrogate():
     assert stop_reason(t0, t1, ["on"], ["on"], False) == ""  # the surrogate is unsure
     assert stop_reason(t0, t0.assign(q95=0.7), [], [], True) == ""  # moved by 10 % of the range
     assert stop_reason(None, t1, [], [], True) == ""
+
+
+def test_the_stop_rule_looks_back_a_default_batch_of_heaps_whatever_the_rounds_size():
+    """Half-size rounds each move the intervals less: compared round by round they would stop sooner."""
+    from calib_cli.stages.calibrate import Plan, Round, _stop
+
+    assert reference_round([72, 96, 120], 144, 24) == 2  # the default batch: the previous round
+    assert reference_round([72, 84, 96, 108], 120, 24) == 2  # rounds of 12: two back
+    assert reference_round([72, 96], 106, 24) == 0  # a round the budget cut short
+    assert reference_round([72], 84, 24) is None
+    table = pd.DataFrame({"parameter": ["a"], "q05": [0.2], "q95": [0.6], "low": [0.0], "high": [1.0],
+                          "decided": [True], "bf_off": [np.nan], "bf_upper": [False]})
+
+    def rnd(k, spent, q95):
+        return Round(k, "variance", None, table.assign(q95=q95), None, None, {}, spent, spent=spent)
+
+    # each round of 12 moves an end by 4 % of the range: stable round by round, not over 24 heaps
+    halves = [rnd(0, 72, 0.60), rnd(1, 84, 0.64), rnd(2, 96, 0.68)]
+    assert _stop(halves, Plan(250, 72, 12, span=24), halves[-1]) == ""
+    assert "stable" in _stop(halves, Plan(250, 72, 12, span=12), halves[-1])
+    still = halves + [rnd(3, 108, 0.69), rnd(4, 120, 0.70)]
+    assert "since round 2, 24 heaps before" in _stop(still, Plan(250, 72, 12, span=24), still[-1])
+    full = [rnd(0, 72, 0.60), rnd(1, 96, 0.64)]
+    assert "since the previous round" in _stop(full, Plan(250, 72, 24, span=24), full[-1])
 
 
 # ------------------------------------------------------------------ the stage

@@ -27,7 +27,7 @@ from ..heaps.runner import run_campaign
 from ..errors import CalibError
 from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
-from ..posterior.adaptive import RULES, acquire, first_design, stop_reason
+from ..posterior.adaptive import RULES, acquire, first_design, reference_round, stop_reason
 from ..posterior.calibrate import response_variances
 from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
@@ -59,6 +59,7 @@ class Plan:
     profile: Optional[bool] = None
     columns: Optional[bool] = None
     bounds: dict = field(default_factory=dict)  # the prior: the run's factor table
+    span: int = 0  # heaps the stop rule looks back over: a default batch's round (0: this plan's batch)
 
     def round_settings(self, model: Model) -> dict:
         """What a round's design and posterior depend on (not the budget: a larger budget goes on from
@@ -322,7 +323,10 @@ def _plan(model: Model, conds: pd.DataFrame, budget: int, first: Optional[int], 
     per input: some fills stand as columns or blow up), a later round to 4 per input."""
     inputs = len(model.parameters) + len(informative_conditions(conds, COND_VARS))
     need = heaps_needed(model, informative_conditions(conds, COND_VARS))
-    plan = Plan(int(budget), int(first or math.ceil(1.2 * need)), int(batch or 4 * inputs), **kw)
+    reps = max(int(kw.get("repeats", 2)), 1)
+    # what a round of the default batch simulates: whole design points of ``repeats`` piles
+    span = max(reps, 4 * inputs // reps * reps)
+    plan = Plan(int(budget), int(first or math.ceil(1.2 * need)), int(batch or 4 * inputs), span=span, **kw)
     if plan.rule not in RULES:
         raise CalibError(f"--rule must be one of {', '.join(RULES)}, got {plan.rule!r}")
     if plan.repeats < 1 or plan.first < 1 or plan.batch < 1:
@@ -450,11 +454,22 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         rnd.spent = spent
         rounds.append(rnd)
         _say_round(rnd, spent, say)
-        stop = stop_reason(prev.table if prev else None, rnd.table, _effect_words(prev.table) if prev else [],
-                           _effect_words(rnd.table), bool(rnd.table["decided"].iloc[0]))
+        stop = _stop(rounds, plan, rnd)
         if stop:
             return rounds, spent, stop
         k += 1
+
+
+def _stop(rounds: list[Round], plan: Plan, rnd: Round) -> str:
+    """The stop rule on the last of ``rounds`` (``rnd``) against the round a default batch before it."""
+    ref = reference_round([r.spent for r in rounds[:-1]], rnd.spent, plan.span or plan.batch)
+    if ref is None:
+        return ""
+    prev = rounds[ref]
+    since = ("the previous round" if ref == len(rounds) - 2
+             else f"round {prev.index}, {rnd.spent - prev.spent} heaps before")
+    return stop_reason(prev.table, rnd.table, _effect_words(prev.table), _effect_words(rnd.table),
+                       bool(rnd.table["decided"].iloc[0]), since)
 
 
 #: the final posterior (the answer) samples FINAL_LONGER times a round's steps, longer still where an effect's
