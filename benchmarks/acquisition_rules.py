@@ -13,8 +13,8 @@ cohesion's verdict came out right (called for: Bayes factor of off < 0.1), and t
 ratio and Bayes factor of off. ``--repeats 2,1`` sets each rule beside itself with one pile a point;
 ``--batches 24,12`` beside itself with other batch sizes (heaps a later round; default the stage's, 4 per
 input). ``decided_at``: the heaps simulated when a round's surrogate ratio first fell to 1 or below (the
-bar under which a verdict is stated), a count the stop rule's 5 % shift does not bend: a smaller batch
-moves the intervals less per round, and so stops sooner by that rule alone.
+bar under which a verdict is stated), a count the stop rule does not bend (a smaller batch moves the
+intervals less per round, which is why the rule looks back a default batch of heaps, not one round).
 
     python benchmarks/acquisition_rules.py --seeds 4 --budget 250 --rules variance,max-sd,draws --repeats 2,1
     python benchmarks/acquisition_rules.py --seeds 4 --budget 250 --rules variance --batches 24,12
@@ -123,7 +123,8 @@ def main() -> None:
     df = pd.DataFrame(out)
     summary = df.groupby("rule", sort=False).agg(
         heaps=("heaps", "mean"), decided_at=("decided_at", "mean"),
-        never_decided=("decided_at", lambda s: int(s.isna().sum())), stopped_by_rule=("stopped", lambda s: float(np.mean(s == "stable"))),
+        never_decided=("decided_at", lambda s: int(s.isna().sum())),
+        stopped_by_rule=("stopped", lambda s: float(np.mean(s == "stable"))),
         width=("width", "mean"), held=("held", "mean"), called_for=("called_for", "mean"),
         ratio=("ratio", "median"), bf_off=("bf_off", "median"), s=("s", "mean"))
     print(f"\n{a.seeds} seeds, budget {a.budget}: mean over seeds (width: 90 % interval over the prior range; "
