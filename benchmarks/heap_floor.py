@@ -10,6 +10,14 @@ conditions or parameter points. The sum over the conditions is the heaps a perfe
 beside it, the model's heaps in the prior's box now (the answer's and any simulated since, e.g. compare's) and
 the surrogate's variance at the draws when it learns from all of them.
 
+``placed``: the same bar with what one condition's heaps teach the others and the neighbouring parameter points
+counted, by the answer's own angle surrogate (its length scales and scatter, as fitted on every heap) and its
+draws, both known before the first heap: pairs of piles are placed one at a time by the variance rule of `calib
+calibrate` (the pair that most lowers the surrogate's variance over the draws and conditions, each over v_c), from
+the heaps at hand when the calibration of the model's revision began (``at hand``) or from none. It prints the
+heaps at which the angle's ratio first reaches 1: what an oracle of the posterior and the length scales would
+spend, so what a real calibration spends beyond it is the price of learning them.
+
     .venv/bin/python benchmarks/heap_floor.py sample_runs/hidden-effect sample_runs/control-lab
 """
 from __future__ import annotations
@@ -48,11 +56,58 @@ def floor(run: Path, draws: int = 256) -> tuple[pd.DataFrame, int]:
                          "n_c": (pile / v[None, :]).mean(0).round(1)}), len(rows)
 
 
+def placed(run: Path, from_hand: bool, repeats: int = 2, draws: int = 170, candidates: int = 85,
+           most: int = 400) -> tuple[int, list[tuple[int, float]]]:
+    """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring): the
+    heaps it starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
+    from calib_cli.measurements import measured_conditions
+    from calib_cli.model import load_model
+    from calib_cli.posterior.adaptive import _greedy, _points
+    from calib_cli.posterior.calibrate import mean_variance
+    from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
+    from calib_cli.stages.common import resolve_settings
+
+    model, conds = load_model(run), measured_conditions(run)
+    rows = model_rows(run, model)
+    bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
+    rows = in_box(rows, bounds)
+    rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))]
+    gp = model_surrogate(rows, model, 0, scale=bounds)
+    hand = set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")["run_hash"])
+    start = gp._scale(rows[rows["run_hash"].isin(hand)]) if from_hand else np.zeros((0, len(gp.inputs_)))
+    s = pd.read_parquet(run / "posterior/samples.parquet")
+    names = [p for p in gp.parameters if p in s.columns]
+    t = s[names].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    C, v = len(conds), mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
+    pts = gp._scale(_points(gp, t, names, conds))
+    Z = np.vstack([pts, pts[:candidates * C]])  # the evaluation points, then the candidates among them
+    P = gp.latent_(Z)  # the latent covariance given the start heaps, in the standardised response's units
+    if len(start):
+        L = np.linalg.cholesky(gp.latent_(start) + np.diag(gp.pile_sd(start, scaled=True) ** 2 / gp.y_sd_ ** 2))
+        A = np.linalg.solve(L, gp.latent_(start, Z))
+        P = P - A.T @ A
+    P, n = [gp.y_sd_ ** 2 * P], len(pts)
+    w = [np.r_[np.tile(1 / v, draws) / n, np.tile(1 / v, candidates)]]
+    tau2 = [gp.pile_sd(Z[n:], scaled=True) ** 2 / repeats]
+    ratio = lambda: float(np.mean(np.diag(P[0])[:n].reshape(draws, C) / v))  # noqa: E731
+    heaps, path = len(start), [(len(start), ratio())]
+    while path[-1][1] > 1.0 and heaps < most:
+        _greedy(P, w, tau2, n, 1, integrated=True)  # one pick, P downdated in place
+        heaps += repeats
+        path.append((heaps, ratio()))
+    return len(start), path
+
+
 def main() -> None:
     for run in map(Path, sys.argv[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
         table, learnt = floor(run)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
         print(table.to_string(index=False))
+        for from_hand in (True, False):
+            start, path = placed(run, from_hand)
+            print(f"placed by an oracle from {'the ' + str(start) + ' heaps at hand' if from_hand else 'no heap'}: "
+                  f"ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps "
+                  f"({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,122 @@
+"""How many heaps would revision 1 of a sample lab's loop need under other round sizes, on a stand-in
+fitted to that lab's own heaps? Side by side in one run, nothing simulated.
+
+The stand-in: the lab's surface as the committed run learnt it from all its heaps (the angle's and the
+fullness's Gaussian processes, fitted as the answer's are), each new pile that surface's mean plus its
+pile scatter there (the angle's sd from the scatter model, the fullness's from its process, the two
+correlated as the lab's photographs are). Revision 1 starts where the committed run's did: a copy of the
+run with the rows at hand then (revision 0's, compare's and diagnose's real heaps; as
+benchmarks/gpu_device_prep.py makes it), and the real stage (calib_cli.stages.calibrate) runs with a
+stand-in campaign. ``--firsts`` sets round 0's heaps (0: the stage's default), ``--batches`` a later round's.
+Prints per setting and seed: the heaps learnt from when a round's surrogate ratio first fell to 1 or below
+(``decided_at``), those at the stop, why it stopped, how many of the 90 % intervals held the truth, and each
+round's heaps and ratio. A surface drawn from the surrogate's own kind of function flatters it: on
+hidden-effect the default decided at 276 here and at 348 for real.
+
+    python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 0,48,24 --seeds 0,1
+    python benchmarks/fitted_standin.py --src sample_runs/control-lab --firsts 0,24 --seeds 0
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from calib_cli.heaps.index import append_index
+from calib_cli.dem.heap import condition_dict
+from calib_cli.measurements import measured_conditions
+from calib_cli.model import load_model
+from calib_cli.posterior import evidence as E
+from calib_cli.posterior.profiles import FULLNESS, measured_fullness
+from calib_cli.stages import calibrate as cal
+from calib_cli.stages.common import resolve_settings
+
+TRUTHS = {"hidden-effect": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6},
+          "control-lab": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.0}}
+
+
+def surfaces(src: Path):
+    """The lab's angle and fullness processes fitted on every heap of its final model, and the lab's rho."""
+    model = load_model(src)
+    rows = E.model_rows(src, model)
+    bounds = E.prior_bounds(model, "settings", rows, E.settings_ranges(resolve_settings(src, None, None)))
+    rows = E.in_box(rows, bounds)
+    angle = E.model_surrogate(rows, model, 0, scale=bounds)
+    full = E.model_surrogate(rows[np.isfinite(rows[FULLNESS].to_numpy(float))], model, 0, FULLNESS, bounds)
+    _, rho = measured_fullness(src, measured_conditions(src))
+    return angle, full, rho, rows.iloc[0].to_dict()
+
+
+def stand_in(angle, full, rho, template):
+    def campaign(requests, run_dir, workers=1, on_done=None, dask=None, **kw):
+        out = []
+        for q in requests:
+            c = condition_dict(q.condition)
+            x = pd.DataFrame([{**q.params, **c}])
+            z = np.random.default_rng(q.seed).normal(size=2)
+            a = float(angle.predict(x[angle.inputs_])[0] + angle.pile_sd(x[angle.inputs_])[0] * z[0])
+            f = float(full.predict(x[full.inputs_])[0]
+                      + full.pile_sd(x[full.inputs_])[0] * (rho * z[0] + np.sqrt(1 - rho ** 2) * z[1]))
+            out.append({**template, "run_hash": q.hash, "design": q.design, "run_id": q.run_id, "repeat": q.repeat,
+                        "seed": q.seed, "preset": q.preset, "condition_id": q.condition_id, "model": q.model,
+                        "engine": q.engine, **q.params, **c, "status": "ok", "source": q.source,
+                        "repose_angle": a, FULLNESS: f})
+        append_index(run_dir, out)
+        return pd.DataFrame(out)
+    return campaign
+
+
+def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict) -> dict:
+    run = root / f"{first}-{batch}-{seed}"
+    subprocess.run([sys.executable, str(Path(__file__).with_name("gpu_device_prep.py")), "--src", str(src),
+                    "--out", str(run)], check=True, capture_output=True)
+    t0 = time.perf_counter()
+    r = cal.calibrate(run, budget=budget, first=first, batch=batch, seed=seed, at_revision=1,
+                      say=lambda *a, **k: None)
+    per = r.rounds[r.rounds["revision"] == 1]
+    rounds = per.drop_duplicates("round")
+    sure = rounds[rounds["surrogate_ratio"] <= 1.0]
+    t = r.table.set_index("parameter")
+    return {"first": first or "default", "batch": batch or "default", "seed": seed,
+            "start": int(rounds["heaps"].iloc[0] - rounds["calibration_heaps"].iloc[0]),
+            "decided_at": int(sure["heaps"].min()) if len(sure) else np.nan,
+            "trajectory": " ".join(f"{h}:{q:.2f}" for h, q in zip(rounds["heaps"], rounds["surrogate_ratio"])),
+            "stop_heaps": int(rounds["heaps"].max()), "stopped": r.stop.split(":")[0],
+            "held": int(sum(t.loc[p, "q05"] <= v <= t.loc[p, "q95"] for p, v in truth.items())),
+            "bf_off": float(t.loc["surface_energy", "bf_off"]), "s": round(time.perf_counter() - t0)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--src", default="sample_runs/hidden-effect")
+    ap.add_argument("--firsts", default="0", help="round 0's heaps, comma-separated (0: the stage's default)")
+    ap.add_argument("--batches", default="0", help="a later round's heaps, comma-separated (0: the default)")
+    ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
+                    "piles' and the sampler's)")
+    ap.add_argument("--budget", type=int, default=250)
+    a = ap.parse_args()
+    warnings.simplefilter("ignore")
+    src = Path(a.src)
+    cal.run_campaign = stand_in(*surfaces(src))
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in (int(x) for x in a.seeds.split(",")):
+            for first in (int(f) or None for f in a.firsts.split(",")):
+                for batch in (int(b) or None for b in a.batches.split(",")):
+                    out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name]))
+                    print(out[-1], flush=True)
+    df = pd.DataFrame(out)
+    print(df.drop(columns="trajectory").to_string())
+    print(df.groupby(["first", "batch"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
+    print("\n".join(f"{r.first} {r.batch} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
+
+
+if __name__ == "__main__":
+    main()
