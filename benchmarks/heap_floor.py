@@ -14,7 +14,8 @@ the surrogate's variance at the draws when it learns from all of them.
 counted, by the answer's own angle surrogate (its length scales and scatter, as fitted on every heap) and its
 draws, both known before the first heap: pairs of piles are placed one at a time by the variance rule of `calib
 calibrate` (the pair that most lowers the surrogate's variance over the draws and conditions, each over v_c), from
-the heaps at hand when the calibration of the model's revision began (``at hand``) or from none. It prints the
+the heaps at hand when the calibration of the model's revision began (``at hand``), from those and its round 0's
+space-filling heaps (``round 0``), or from none. It prints the
 heaps at which the angle's ratio first reaches 1: what an oracle of the posterior and the length scales would
 spend, so what a real calibration spends beyond it is the price of learning them.
 
@@ -56,10 +57,14 @@ def floor(run: Path, draws: int = 256) -> tuple[pd.DataFrame, int]:
                          "n_c": (pile / v[None, :]).mean(0).round(1)}), len(rows)
 
 
-def placed(run: Path, from_hand: bool, repeats: int = 2, draws: int = 170, candidates: int = 85,
+STARTS = ("at hand", "round 0", "none")
+
+
+def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
            most: int = 400) -> tuple[int, list[tuple[int, float]]]:
-    """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring): the
-    heaps it starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
+    """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
+    the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
+    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
     from calib_cli.measurements import measured_conditions
     from calib_cli.model import load_model
     from calib_cli.posterior.adaptive import _greedy, _points
@@ -74,7 +79,10 @@ def placed(run: Path, from_hand: bool, repeats: int = 2, draws: int = 170, candi
     rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))]
     gp = model_surrogate(rows, model, 0, scale=bounds)
     hand = set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")["run_hash"])
-    start = gp._scale(rows[rows["run_hash"].isin(hand)]) if from_hand else np.zeros((0, len(gp.inputs_)))
+    own0 = (rows["design"] == "calibrate") & (rows["model"] == model.hash) & (rows["run_id"] < 2000)  # its round 0
+    pick = {"at hand": rows["run_hash"].isin(hand), "round 0": rows["run_hash"].isin(hand) | own0,
+            "none": pd.Series(False, index=rows.index)}[start_from]
+    start = gp._scale(rows[pick])
     s = pd.read_parquet(run / "posterior/samples.parquet")
     names = [p for p in gp.parameters if p in s.columns]
     t = s[names].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
@@ -103,9 +111,9 @@ def main() -> None:
         table, learnt = floor(run)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
         print(table.to_string(index=False))
-        for from_hand in (True, False):
-            start, path = placed(run, from_hand)
-            print(f"placed by an oracle from {'the ' + str(start) + ' heaps at hand' if from_hand else 'no heap'}: "
+        for start_from in STARTS:
+            start, path = placed(run, start_from)
+            print(f"placed by an oracle from {start} heaps ({start_from}): "
                   f"ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps "
                   f"({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
 
