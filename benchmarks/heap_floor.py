@@ -17,7 +17,8 @@ calibrate` (the pair that most lowers the surrogate's variance over the draws an
 the heaps at hand when the calibration of the model's revision began (``at hand``), from those and its round 0's
 space-filling heaps (``round 0``), or from none. It prints the
 heaps at which the angle's ratio first reaches 1: what an oracle of the posterior and the length scales would
-spend, so what a real calibration spends beyond it is the price of learning them.
+spend, so what a real calibration spends beyond it is the price of learning them. ``refits``: whether a round's
+length scales or its heaps held it back.
 
     .venv/bin/python benchmarks/heap_floor.py sample_runs/hidden-effect sample_runs/control-lab
 """
@@ -106,6 +107,46 @@ def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candi
     return len(start), path
 
 
+def refits(run: Path, draws: int = 400) -> pd.DataFrame:
+    """Per round of the model's calibration, its heaps (those at hand and its rounds' up to it) and the angle's
+    ratio at the answer's draws from a process fitted on them alone (``own fit``) and from the answer's process
+    (its length scales, signal and scatter, learnt from every heap) conditioned on the same heaps (``answer's
+    fit``): where the two agree, a round's heaps, not its length scales, set how sure it is."""
+    from calib_cli.measurements import measured_conditions
+    from calib_cli.model import load_model
+    from calib_cli.posterior.adaptive import _points
+    from calib_cli.posterior.calibrate import mean_variance
+    from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
+    from calib_cli.stages.common import resolve_settings
+
+    model, conds = load_model(run), measured_conditions(run)
+    rows = model_rows(run, model)
+    bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
+    rows = in_box(rows, bounds)
+    rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
+    final = model_surrogate(rows, model, 0, scale=bounds)
+    hand = rows["run_hash"].isin(set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")
+                                     ["run_hash"]))
+    own = (rows["design"] == "calibrate") & (rows["model"] == model.hash)
+    s = pd.read_parquet(run / "posterior/samples.parquet")
+    t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    X = _points(final, t, final.parameters, conds)
+    v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
+    Z = final._scale(X)
+    out = []
+    for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
+        sub = rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
+        mine = model_surrogate(sub, model, 0, scale=bounds)
+        S = final._scale(sub)
+        L = np.linalg.cholesky(final.latent_(S) + np.diag(final.pile_sd(S, scaled=True) ** 2 / final.y_sd_ ** 2))
+        A = np.linalg.solve(L, final.latent_(S, Z))
+        var = final.y_sd_ ** 2 * (final.latent_.diag(Z) - np.sum(A * A, axis=0))
+        out.append({"round": k, "heaps": len(sub),
+                    "own fit": float(np.mean(mine.predict(X, return_std=True)[1].reshape(len(t), -1) ** 2 / v)),
+                    "answer's fit": float(np.mean(var.reshape(len(t), -1) / v))})
+    return pd.DataFrame(out).round(2)
+
+
 def main() -> None:
     for run in map(Path, sys.argv[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
         table, learnt = floor(run)
@@ -116,6 +157,8 @@ def main() -> None:
             print(f"placed by an oracle from {start} heaps ({start_from}): "
                   f"ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps "
                   f"({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
+        print("the angle's ratio at the answer's draws after each round, its own fit and the answer's:")
+        print(refits(run).to_string(index=False))
 
 
 if __name__ == "__main__":
