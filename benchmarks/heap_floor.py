@@ -61,15 +61,12 @@ def floor(run: Path, draws: int = 256) -> tuple[pd.DataFrame, int]:
 STARTS = ("at hand", "round 0", "none")
 
 
-def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
-           most: int = 400) -> tuple[int, list[tuple[int, float]]]:
-    """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
-    the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
-    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
+def _answer(run: Path):
+    """The model's revision, its measured conditions, its heaps in the prior's box with an angle, the answer's
+    angle process fitted on all of them, which of them were at hand when the calibration began, and its
+    own (the calibration's) ones, and the answer's draws."""
     from calib_cli.measurements import measured_conditions
     from calib_cli.model import load_model
-    from calib_cli.posterior.adaptive import _greedy, _points
-    from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
     from calib_cli.stages.common import resolve_settings
 
@@ -77,25 +74,40 @@ def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candi
     rows = model_rows(run, model)
     bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
     rows = in_box(rows, bounds)
-    rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))]
-    gp = model_surrogate(rows, model, 0, scale=bounds)
+    rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
     hand = set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")["run_hash"])
-    own0 = (rows["design"] == "calibrate") & (rows["model"] == model.hash) & (rows["run_id"] < 2000)  # its round 0
-    pick = {"at hand": rows["run_hash"].isin(hand), "round 0": rows["run_hash"].isin(hand) | own0,
+    own = (rows["design"] == "calibrate") & (rows["model"] == model.hash)
+    return (model, conds, rows, bounds, model_surrogate(rows, model, 0, scale=bounds), rows["run_hash"].isin(hand),
+            own, pd.read_parquet(run / "posterior/samples.parquet"))
+
+
+def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """The latent covariance (standardised units) at the scaled points Z given piles at the scaled points S, with
+    ``gp``'s length scales, signal and scatter."""
+    if not len(S):
+        return gp.latent_(Z)
+    L = np.linalg.cholesky(gp.latent_(S) + np.diag(gp.pile_sd(S, scaled=True) ** 2 / gp.y_sd_ ** 2))
+    A = np.linalg.solve(L, gp.latent_(S, Z))
+    return gp.latent_(Z) - A.T @ A
+
+
+def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
+           most: int = 400) -> tuple[int, list[tuple[int, float]]]:
+    """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
+    the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
+    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
+    from calib_cli.posterior.adaptive import _greedy, _points
+    from calib_cli.posterior.calibrate import mean_variance
+
+    model, conds, rows, _, gp, hand, own, s = _answer(run)
+    pick = {"at hand": hand, "round 0": hand | (own & (rows["run_id"] < 2000)),
             "none": pd.Series(False, index=rows.index)}[start_from]
     start = gp._scale(rows[pick])
-    s = pd.read_parquet(run / "posterior/samples.parquet")
-    names = [p for p in gp.parameters if p in s.columns]
-    t = s[names].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    t = s[gp.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
     C, v = len(conds), mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
-    pts = gp._scale(_points(gp, t, names, conds))
+    pts = gp._scale(_points(gp, t, gp.parameters, conds))
     Z = np.vstack([pts, pts[:candidates * C]])  # the evaluation points, then the candidates among them
-    P = gp.latent_(Z)  # the latent covariance given the start heaps, in the standardised response's units
-    if len(start):
-        L = np.linalg.cholesky(gp.latent_(start) + np.diag(gp.pile_sd(start, scaled=True) ** 2 / gp.y_sd_ ** 2))
-        A = np.linalg.solve(L, gp.latent_(start, Z))
-        P = P - A.T @ A
-    P, n = [gp.y_sd_ ** 2 * P], len(pts)
+    P, n = [gp.y_sd_ ** 2 * _given(gp, start, Z)], len(pts)
     w = [np.r_[np.tile(1 / v, draws) / n, np.tile(1 / v, candidates)]]
     tau2 = [gp.pile_sd(Z[n:], scaled=True) ** 2 / repeats]
     ratio = lambda: float(np.mean(np.diag(P[0])[:n].reshape(draws, C) / v))  # noqa: E731
@@ -112,35 +124,19 @@ def refits(run: Path, draws: int = 400) -> pd.DataFrame:
     ratio at the answer's draws from a process fitted on them alone (``own fit``) and from the answer's process
     (its length scales, signal and scatter, learnt from every heap) conditioned on the same heaps (``answer's
     fit``): where the two agree, a round's heaps, not its length scales, set how sure it is."""
-    from calib_cli.measurements import measured_conditions
-    from calib_cli.model import load_model
     from calib_cli.posterior.adaptive import _points
     from calib_cli.posterior.calibrate import mean_variance
-    from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
-    from calib_cli.stages.common import resolve_settings
+    from calib_cli.posterior.evidence import model_surrogate
 
-    model, conds = load_model(run), measured_conditions(run)
-    rows = model_rows(run, model)
-    bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
-    rows = in_box(rows, bounds)
-    rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
-    final = model_surrogate(rows, model, 0, scale=bounds)
-    hand = rows["run_hash"].isin(set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")
-                                     ["run_hash"]))
-    own = (rows["design"] == "calibrate") & (rows["model"] == model.hash)
-    s = pd.read_parquet(run / "posterior/samples.parquet")
+    model, conds, rows, bounds, final, hand, own, s = _answer(run)
     t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
     X = _points(final, t, final.parameters, conds)
     v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
-    Z = final._scale(X)
     out = []
     for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
         sub = rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
         mine = model_surrogate(sub, model, 0, scale=bounds)
-        S = final._scale(sub)
-        L = np.linalg.cholesky(final.latent_(S) + np.diag(final.pile_sd(S, scaled=True) ** 2 / final.y_sd_ ** 2))
-        A = np.linalg.solve(L, final.latent_(S, Z))
-        var = final.y_sd_ ** 2 * (final.latent_.diag(Z) - np.sum(A * A, axis=0))
+        var = final.y_sd_ ** 2 * np.diag(_given(final, final._scale(sub), final._scale(X)))
         out.append({"round": k, "heaps": len(sub),
                     "own fit": float(np.mean(mine.predict(X, return_std=True)[1].reshape(len(t), -1) ** 2 / v)),
                     "answer's fit": float(np.mean(var.reshape(len(t), -1) / v))})
