@@ -13,12 +13,12 @@ the surrogate's variance at the draws when it learns from all of them.
 ``placed``: the same bar with what one condition's heaps teach the others and the neighbouring parameter points
 counted, by the answer's own angle surrogate (its length scales and scatter, as fitted on every heap) and its
 draws, both known before the first heap: pairs of piles are placed one at a time by the variance rule of `calib
-calibrate` (the pair that most lowers the surrogate's variance over the draws and conditions, each over v_c), from
+calibrate` for the angle alone (the pair that most lowers the angle surrogate's variance over the draws and
+conditions, each over v_c; the stage also weighs the profile's), a pair free to go where one went before, from
 the heaps at hand when the calibration of the model's revision began (``at hand``), from those and its round 0's
-space-filling heaps (``round 0``), or from none. It prints the
-heaps at which the angle's ratio first reaches 1: what an oracle of the posterior and the length scales would
-spend, so what a real calibration spends beyond it is the price of learning them. ``refits``: whether a round's
-length scales or its heaps held it back.
+space-filling heaps (``round 0``), or from none. It prints the heaps at which the angle's ratio first reaches 1:
+what an oracle of the posterior and the length scales would spend. ``refits``: per round, whether its length
+scales made it less sure than its heaps allow.
 
     .venv/bin/python benchmarks/heap_floor.py sample_runs/hidden-effect sample_runs/control-lab
 """
@@ -138,7 +138,8 @@ def refits(run: Path, draws: int = 400) -> pd.DataFrame:
         mine = model_surrogate(sub, model, 0, scale=bounds)
         var = final.y_sd_ ** 2 * np.diag(_given(final, final._scale(sub), final._scale(X)))
         out.append({"round": k, "heaps": len(sub),
-                    "own fit": float(np.mean(mine.predict(X, return_std=True)[1].reshape(len(t), -1) ** 2 / v)),
+                    "own fit": float(np.mean(mine.predict(pd.DataFrame(X, columns=final.inputs_), return_std=True)[1]
+                                             .reshape(len(t), -1) ** 2 / v)),
                     "answer's fit": float(np.mean(var.reshape(len(t), -1) / v))})
     return pd.DataFrame(out).round(2)
 
