@@ -7,7 +7,8 @@ pile scatter there (the angle's sd from the scatter model, the fullness's from i
 correlated as the lab's photographs are). Revision 1 starts where the committed run's did: a copy of the
 run with the rows at hand then (revision 0's, compare's and diagnose's real heaps; as
 benchmarks/gpu_device_prep.py makes it), and the real stage (calib_cli.stages.calibrate) runs with a
-stand-in campaign. ``--firsts`` sets round 0's heaps (0: the stage's default), ``--batches`` a later round's.
+stand-in campaign. ``--firsts`` sets round 0's heaps (0: the stage's default), ``--batches`` a later round's,
+``--weighs`` how a later round weighs the two responses' variances.
 Prints per setting and seed: the heaps learnt from when a round's surrogate ratio first fell to 1 or below
 (``decided_at``), those at the stop, why it stopped, how many of the 90 % intervals held the truth, and each
 round's heaps and ratio. A surface drawn from the surrogate's own kind of function flatters it: on
@@ -33,6 +34,7 @@ from calib_cli.heaps.index import append_index
 from calib_cli.dem.heap import condition_dict
 from calib_cli.measurements import measured_conditions
 from calib_cli.model import load_model
+from calib_cli.posterior import adaptive
 from calib_cli.posterior import evidence as E
 from calib_cli.posterior.profiles import FULLNESS, measured_fullness
 from calib_cli.stages import calibrate as cal
@@ -73,8 +75,20 @@ def stand_in(angle, full, rho, template):
     return campaign
 
 
-def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict) -> dict:
-    run = root / f"{first}-{batch}-{seed}"
+_plain_greedy = adaptive._greedy
+
+
+def _combined_greedy(P, w, tau2, n_eval, picks, integrated):
+    """The variance rule with each response's terms weighed by 1 / (1 + r_j)^2, r_j its ratio now: the slope of
+    the combined ratio the bar reads, 1 / (1 + r) = mean_j 1 / (1 + r_j), in each response's ratio (the stage
+    weighs the responses alike, as if the bar were their sum)."""
+    r = [float(np.sum(np.diag(Pj)[:n_eval] * wj[:n_eval])) for Pj, wj in zip(P, w)]
+    return _plain_greedy(P, [wj / (1 + rj) ** 2 for wj, rj in zip(w, r)], tau2, n_eval, picks, integrated)
+
+
+def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict, weigh: str = "sum") -> dict:
+    adaptive._greedy = _combined_greedy if weigh == "combined" else _plain_greedy
+    run = root / f"{first}-{batch}-{seed}-{weigh}"
     subprocess.run([sys.executable, str(Path(__file__).with_name("gpu_device_prep.py")), "--src", str(src),
                     "--out", str(run)], check=True, capture_output=True)
     t0 = time.perf_counter()
@@ -84,7 +98,7 @@ def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict
     rounds = per.drop_duplicates("round")
     sure = rounds[rounds["surrogate_ratio"] <= 1.0]
     t = r.table.set_index("parameter")
-    return {"first": first or "default", "batch": batch or "default", "seed": seed,
+    return {"first": first or "default", "batch": batch or "default", "weigh": weigh, "seed": seed,
             "start": int(rounds["heaps"].iloc[0] - rounds["calibration_heaps"].iloc[0]),
             "decided_at": int(sure["heaps"].min()) if len(sure) else np.nan,
             "trajectory": " ".join(f"{h}:{q:.2f}" for h, q in zip(rounds["heaps"], rounds["surrogate_ratio"])),
@@ -98,6 +112,8 @@ def main() -> None:
     ap.add_argument("--src", default="sample_runs/hidden-effect")
     ap.add_argument("--firsts", default="0", help="round 0's heaps, comma-separated (0: the stage's default)")
     ap.add_argument("--batches", default="0", help="a later round's heaps, comma-separated (0: the default)")
+    ap.add_argument("--weighs", default="sum", help="how a later round weighs the responses' variances: sum (the "
+                    "stage's) or combined (each by the combined ratio's slope in it), comma-separated to compare")
     ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
                     "piles' and the sampler's)")
     ap.add_argument("--budget", type=int, default=250)
@@ -110,12 +126,13 @@ def main() -> None:
         for seed in (int(x) for x in a.seeds.split(",")):
             for first in (int(f) or None for f in a.firsts.split(",")):
                 for batch in (int(b) or None for b in a.batches.split(",")):
-                    out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name]))
-                    print(out[-1], flush=True)
+                    for weigh in a.weighs.split(","):
+                        out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh))
+                        print(out[-1], flush=True)
     df = pd.DataFrame(out)
     print(df.drop(columns="trajectory").to_string())
-    print(df.groupby(["first", "batch"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
-    print("\n".join(f"{r.first} {r.batch} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
+    print(df.groupby(["first", "batch", "weigh"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
+    print("\n".join(f"{r.first} {r.batch} {r.weigh} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
 
 
 if __name__ == "__main__":
