@@ -26,45 +26,28 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 
-def floor(run: Path, draws: int = 256) -> tuple[pd.DataFrame, int]:
-    from calib_cli.measurements import measured_conditions
-    from calib_cli.model import load_model
-    from calib_cli.posterior.calibrate import _inputs, mean_variance
-    from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
-    from calib_cli.stages.common import resolve_settings
-
-    model, conds = load_model(run), measured_conditions(run)
-    rows = model_rows(run, model)
-    bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
-    rows = in_box(rows, bounds)
-    gp = model_surrogate(rows, model, 0, scale=bounds)  # as the answer's fit: the heaps in the prior's box
-    s = pd.read_parquet(run / "posterior/samples.parquet")
-    names = [p for p in gp.parameters if p in s.columns]
-    t = s[names].to_numpy(float)[np.random.default_rng(0).choice(len(s), min(draws, len(s)), replace=False)]
-    C = len(conds)
-    X = _inputs(gp, t, names, {}, {c: conds[c].to_numpy(float) for c in conds.columns if c in gp.inputs_}, C)
-    X = X.reshape(-1, len(gp.inputs_))
-    pile = gp.pile_sd(X).reshape(len(t), C) ** 2
-    latent = gp.predict(X, return_std=True)[1].reshape(len(t), C) ** 2
-    v = mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
-    return pd.DataFrame({"condition": conds["condition_id"], "lab sd": conds["sd"].round(2), "piles": conds["n"],
-                         "v_c": v.round(2), "pile variance": pile.mean(0).round(1),
-                         "surrogate variance now": latent.mean(0).round(2),
-                         "n_c": (pile / v[None, :]).mean(0).round(1)}), len(rows)
-
-
 STARTS = ("at hand", "round 0", "none")
 
 
-def _answer(run: Path):
-    """The model's revision, its measured conditions, its heaps in the prior's box with an angle, the answer's
-    angle process fitted on all of them, which of them were at hand when the calibration began, and its
-    own (the calibration's) ones, and the answer's draws."""
+class Answer(NamedTuple):
+    """A committed run's answer as the three tables read it."""
+    model: object
+    conds: pd.DataFrame  # the measured conditions
+    rows: pd.DataFrame  # the model's heaps in the prior's box with an angle
+    bounds: dict  # the prior's box
+    gp: object  # the answer's angle process, fitted on every one of ``rows``
+    hand: pd.Series  # which rows were at hand when the calibration began
+    own: pd.Series  # which rows the calibration simulated itself
+    samples: pd.DataFrame  # the answer's draws
+
+
+def _answer(run: Path) -> Answer:
     from calib_cli.measurements import measured_conditions
     from calib_cli.model import load_model
     from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
@@ -77,8 +60,8 @@ def _answer(run: Path):
     rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
     hand = set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")["run_hash"])
     own = (rows["design"] == "calibrate") & (rows["model"] == model.hash)
-    return (model, conds, rows, bounds, model_surrogate(rows, model, 0, scale=bounds), rows["run_hash"].isin(hand),
-            own, pd.read_parquet(run / "posterior/samples.parquet"))
+    return Answer(model, conds, rows, bounds, model_surrogate(rows, model, 0, scale=bounds),
+                  rows["run_hash"].isin(hand), own, pd.read_parquet(run / "posterior/samples.parquet"))
 
 
 def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -91,7 +74,25 @@ def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
     return gp.latent_(Z) - A.T @ A
 
 
-def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
+def floor(answer: Answer, draws: int = 256) -> tuple[pd.DataFrame, int]:
+    """The per-condition table of the module's docstring and the model's heaps in the prior's box."""
+    from calib_cli.posterior.adaptive import _points
+    from calib_cli.posterior.calibrate import mean_variance
+
+    conds, gp, s = answer.conds, answer.gp, answer.samples
+    t = s[gp.parameters].to_numpy(float)[np.random.default_rng(0).choice(len(s), min(draws, len(s)), replace=False)]
+    C = len(conds)
+    X = _points(gp, t, gp.parameters, conds)
+    pile = gp.pile_sd(X).reshape(len(t), C) ** 2
+    latent = gp.predict(X, return_std=True)[1].reshape(len(t), C) ** 2
+    v = mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
+    return pd.DataFrame({"condition": conds["condition_id"], "lab sd": conds["sd"].round(2), "piles": conds["n"],
+                         "v_c": v.round(2), "pile variance": pile.mean(0).round(1),
+                         "surrogate variance now": latent.mean(0).round(2),
+                         "n_c": (pile / v[None, :]).mean(0).round(1)}), len(answer.rows)
+
+
+def placed(answer: Answer, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
            most: int = 400) -> tuple[int, list[tuple[int, float]]]:
     """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
     the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
@@ -99,7 +100,7 @@ def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candi
     from calib_cli.posterior.adaptive import _greedy, _points
     from calib_cli.posterior.calibrate import mean_variance
 
-    model, conds, rows, _, gp, hand, own, s = _answer(run)
+    conds, rows, gp, hand, own, s = answer.conds, answer.rows, answer.gp, answer.hand, answer.own, answer.samples
     pick = {"at hand": hand, "round 0": hand | (own & (rows["run_id"] < 2000)),
             "none": pd.Series(False, index=rows.index)}[start_from]
     start = gp._scale(rows[pick])
@@ -119,7 +120,7 @@ def placed(run: Path, start_from: str, repeats: int = 2, draws: int = 170, candi
     return len(start), path
 
 
-def refits(run: Path, draws: int = 400) -> pd.DataFrame:
+def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
     """Per round of the model's calibration, its heaps (those at hand and its rounds' up to it) and the angle's
     ratio at the answer's draws from a process fitted on them alone (``own fit``) and from the answer's process
     (its length scales, signal and scatter, learnt from every heap) conditioned on the same heaps (``answer's
@@ -128,7 +129,7 @@ def refits(run: Path, draws: int = 400) -> pd.DataFrame:
     from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import model_surrogate
 
-    model, conds, rows, bounds, final, hand, own, s = _answer(run)
+    model, conds, rows, bounds, final, hand, own, s = answer
     t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
     X = _points(final, t, final.parameters, conds)
     v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
@@ -146,16 +147,17 @@ def refits(run: Path, draws: int = 400) -> pd.DataFrame:
 
 def main() -> None:
     for run in map(Path, sys.argv[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
-        table, learnt = floor(run)
+        answer = _answer(run)  # one fit of the answer's process for the three tables
+        table, learnt = floor(answer)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
         print(table.to_string(index=False))
         for start_from in STARTS:
-            start, path = placed(run, start_from)
+            start, path = placed(answer, start_from)
             print(f"placed by an oracle from {start} heaps ({start_from}): "
                   f"ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps "
                   f"({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
         print("the angle's ratio at the answer's draws after each round, its own fit and the answer's:")
-        print(refits(run).to_string(index=False))
+        print(refits(answer).to_string(index=False))
 
 
 if __name__ == "__main__":
