@@ -32,28 +32,23 @@ import pandas as pd
 
 from calib_cli.heaps.index import append_index
 from calib_cli.dem.heap import condition_dict
-from calib_cli.measurements import measured_conditions
-from calib_cli.model import load_model
 from calib_cli.posterior import adaptive
 from calib_cli.posterior import evidence as E
 from calib_cli.posterior.profiles import FULLNESS, measured_fullness
 from calib_cli.stages import calibrate as cal
-from calib_cli.stages.common import resolve_settings
+from heap_floor import _answer  # this script's folder is on the path when it runs
 
 TRUTHS = {"hidden-effect": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6},
           "control-lab": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.0}}
 
 
 def surfaces(src: Path):
-    """The lab's angle and fullness processes fitted on every heap of its final model, and the lab's rho."""
-    model = load_model(src)
-    rows = E.model_rows(src, model)
-    bounds = E.prior_bounds(model, "settings", rows, E.settings_ranges(resolve_settings(src, None, None)))
-    rows = E.in_box(rows, bounds)
-    angle = E.model_surrogate(rows, model, 0, scale=bounds)
-    full = E.model_surrogate(rows[np.isfinite(rows[FULLNESS].to_numpy(float))], model, 0, FULLNESS, bounds)
-    _, rho = measured_fullness(src, measured_conditions(src))
-    return angle, full, rho, rows.iloc[0].to_dict()
+    """The lab's angle and fullness processes fitted on every heap of its final model (as heap_floor.py reads its
+    answer), the lab's rho, and a row to copy the heaps' other columns from."""
+    a = _answer(src)
+    full = E.model_surrogate(a.rows[np.isfinite(a.rows[FULLNESS].to_numpy(float))], a.model, 0, FULLNESS, a.bounds)
+    _, rho = measured_fullness(src, a.conds)
+    return a.gp, full, rho, a.rows.iloc[0].to_dict()
 
 
 def stand_in(angle, full, rho, template):
