@@ -8,7 +8,7 @@ correlated as the lab's photographs are). Revision 1 starts where the committed 
 run with the rows at hand then (revision 0's, compare's and diagnose's real heaps; as
 benchmarks/gpu_device_prep.py makes it), and the real stage (calib_cli.stages.calibrate) runs with a
 stand-in campaign. ``--firsts`` sets round 0's heaps (0: the stage's default), ``--batches`` a later round's,
-``--weighs`` how a later round weighs the two responses' variances.
+``--weighs`` how a later round weighs the two responses' variances, ``--targets`` which draws it aims at.
 Prints per setting and seed: the heaps learnt from when a round's surrogate ratio first fell to 1 or below
 (``decided_at``), those at the stop, why it stopped, how many of the 90 % intervals held the truth, and each
 round's heaps and ratio. A surface drawn from the surrogate's own kind of function flatters it: on
@@ -16,6 +16,7 @@ hidden-effect the default decided at 276 here and at 348 for real.
 
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 0,48,24 --seeds 0,1
     python benchmarks/fitted_standin.py --src sample_runs/control-lab --firsts 0,24 --seeds 0
+    python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --targets tempered,mix --seeds 0,1
 """
 from __future__ import annotations
 
@@ -33,10 +34,9 @@ import pandas as pd
 from calib_cli.heaps.index import append_index
 from calib_cli.dem.heap import condition_dict
 from calib_cli.posterior import adaptive
-from calib_cli.posterior import evidence as E
 from calib_cli.posterior.profiles import FULLNESS, measured_fullness
 from calib_cli.stages import calibrate as cal
-from heap_floor import _answer  # this script's folder is on the path when it runs
+from heap_floor import _answer, _profile  # this script's folder is on the path when it runs
 
 TRUTHS = {"hidden-effect": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.6},
           "control-lab": {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.0}}
@@ -44,11 +44,11 @@ TRUTHS = {"hidden-effect": {"static_friction": 0.45, "rolling_friction": 0.15, "
 
 def surfaces(src: Path):
     """The lab's angle and fullness processes fitted on every heap of its final model (as heap_floor.py reads its
-    answer), the lab's rho, and a row to copy the heaps' other columns from."""
+    answer), the lab's rho, a row to copy the heaps' other columns from, and the prior's box."""
     a = _answer(src)
-    full = E.model_surrogate(a.rows[np.isfinite(a.rows[FULLNESS].to_numpy(float))], a.model, 0, FULLNESS, a.bounds)
+    full = _profile(a)[0]
     _, rho = measured_fullness(src, a.conds)
-    return a.gp, full, rho, a.rows.iloc[0].to_dict()
+    return a.gp, full, rho, a.rows.iloc[0].to_dict(), a.bounds
 
 
 def stand_in(angle, full, rho, template):
@@ -81,9 +81,37 @@ def _combined_greedy(P, w, tau2, n_eval, picks, integrated):
     return _plain_greedy(P, [wj / (1 + rj) ** 2 for wj, rj in zip(w, r)], tau2, n_eval, picks, integrated)
 
 
-def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict, weigh: str = "sum") -> dict:
+_plain_acquire = cal.acquire
+
+
+def aiming(targets: str, box: dict):
+    """The stage's ``acquire`` aimed at other draws than the last posterior's: ``posterior`` (the stage's),
+    ``tempered`` (each draw pushed away from the medians by sqrt(2), the spread of the posterior with its
+    likelihood's exponent halved were it Gaussian, kept in the prior's box) or ``mix`` (the last two
+    posteriors' draws together): where the posterior may go next, not only where it is."""
+    last: list[pd.DataFrame] = []
+
+    def acquire(surrogates, samples, measured, pairs, repeats=2, rule="variance", seed=0):
+        aim = samples
+        if targets == "tempered":
+            names = [p for p in samples.columns if p in box]
+            med = samples[names].median()
+            aim = samples.copy()
+            for p in names:
+                aim[p] = np.clip(med[p] + np.sqrt(2.0) * (samples[p] - med[p]), *box[p])
+        elif targets == "mix" and last:
+            aim = pd.concat([last[-1].sample(len(samples), replace=True, random_state=seed), samples],
+                            ignore_index=True).sample(frac=1.0, random_state=seed).reset_index(drop=True)
+        last.append(samples)
+        return _plain_acquire(surrogates, aim, measured, pairs, repeats, rule, seed)
+    return acquire
+
+
+def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict, weigh: str = "sum",
+        targets: str = "posterior", box: dict | None = None) -> dict:
     adaptive._greedy = _combined_greedy if weigh == "combined" else _plain_greedy
-    run = root / f"{first}-{batch}-{seed}-{weigh}"
+    cal.acquire = aiming(targets, box or {})
+    run = root / f"{first}-{batch}-{seed}-{weigh}-{targets}"
     subprocess.run([sys.executable, str(Path(__file__).with_name("gpu_device_prep.py")), "--src", str(src),
                     "--out", str(run)], check=True, capture_output=True)
     t0 = time.perf_counter()
@@ -93,7 +121,7 @@ def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict
     rounds = per.drop_duplicates("round")
     sure = rounds[rounds["surrogate_ratio"] <= 1.0]
     t = r.table.set_index("parameter")
-    return {"first": first or "default", "batch": batch or "default", "weigh": weigh, "seed": seed,
+    return {"first": first or "default", "batch": batch or "default", "weigh": weigh, "targets": targets, "seed": seed,
             "start": int(rounds["heaps"].iloc[0] - rounds["calibration_heaps"].iloc[0]),
             "decided_at": int(sure["heaps"].min()) if len(sure) else np.nan,
             "trajectory": " ".join(f"{h}:{q:.2f}" for h, q in zip(rounds["heaps"], rounds["surrogate_ratio"])),
@@ -109,25 +137,30 @@ def main() -> None:
     ap.add_argument("--batches", default="0", help="a later round's heaps, comma-separated (0: the default)")
     ap.add_argument("--weighs", default="sum", help="how a later round weighs the responses' variances: sum (the "
                     "stage's) or combined (each by the combined ratio's slope in it), comma-separated to compare")
+    ap.add_argument("--targets", default="posterior", help="where a later round aims: posterior (the stage's), "
+                    "tempered or mix (see aiming()), comma-separated to compare")
     ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
                     "piles' and the sampler's)")
     ap.add_argument("--budget", type=int, default=250)
     a = ap.parse_args()
     warnings.simplefilter("ignore")
     src = Path(a.src)
-    cal.run_campaign = stand_in(*surfaces(src))
+    *fitted, box = surfaces(src)
+    cal.run_campaign = stand_in(*fitted)
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in (int(x) for x in a.seeds.split(",")):
             for first in (int(f) or None for f in a.firsts.split(",")):
                 for batch in (int(b) or None for b in a.batches.split(",")):
                     for weigh in a.weighs.split(","):
-                        out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh))
-                        print(out[-1], flush=True)
+                        for targets in a.targets.split(","):
+                            out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh,
+                                           targets, box))
+                            print(out[-1], flush=True)
     df = pd.DataFrame(out)
     print(df.drop(columns="trajectory").to_string())
-    print(df.groupby(["first", "batch", "weigh"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
-    print("\n".join(f"{r.first} {r.batch} {r.weigh} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
+    print(df.groupby(["first", "batch", "weigh", "targets"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
+    print("\n".join(f"{r.first} {r.batch} {r.weigh} {r.targets} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
 
 
 if __name__ == "__main__":

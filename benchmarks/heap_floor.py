@@ -17,8 +17,11 @@ calibrate` for the angle alone (the pair that most lowers the angle surrogate's 
 conditions, each over v_c; the stage also weighs the profile's), a pair free to go where one went before, from
 the heaps at hand when the calibration of the model's revision began (``at hand``), from those and its round 0's
 space-filling heaps (``round 0``), or from none. It prints the heaps at which the angle's ratio first reaches 1:
-what an oracle of the posterior and the length scales would spend. ``refits``: per round, whether its length
-scales made it less sure than its heaps allow.
+what an oracle of the posterior and the length scales would spend. Then the same for the bar as the stage reads
+it: the angle's and the profile's processes (the fullness's fitted on every heap too), pairs weighed as the stage
+weighs them, until the combined ratio reaches 1; and from the heaps at hand plus a space-filling round 0 of 24,
+48 or 72 piles designed as the stage designs one. ``refits``: per round, whether its length scales made it less
+sure than its heaps allow.
 
     .venv/bin/python benchmarks/heap_floor.py sample_runs/hidden-effect sample_runs/control-lab
 """
@@ -33,10 +36,12 @@ import pandas as pd
 
 
 STARTS = ("at hand", "round 0", "none")
+ROUND0 = (24, 48, 72)  # space-filling first rounds of the stage's design, the oracle placing after them
 
 
 class Answer(NamedTuple):
     """A committed run's answer as the three tables read it."""
+    run: Path
     model: object
     conds: pd.DataFrame  # the measured conditions
     rows: pd.DataFrame  # the model's heaps in the prior's box with an angle
@@ -60,7 +65,7 @@ def _answer(run: Path) -> Answer:
     rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
     hand = set(pd.read_parquet(run / f"calibrate/rev{model.revision}/round-00/reused.parquet")["run_hash"])
     own = (rows["design"] == "calibrate") & (rows["model"] == model.hash)
-    return Answer(model, conds, rows, bounds, model_surrogate(rows, model, 0, scale=bounds),
+    return Answer(run, model, conds, rows, bounds, model_surrogate(rows, model, 0, scale=bounds),
                   rows["run_hash"].isin(hand), own, pd.read_parquet(run / "posterior/samples.parquet"))
 
 
@@ -92,32 +97,70 @@ def floor(answer: Answer, draws: int = 256) -> tuple[pd.DataFrame, int]:
                          "n_c": (pile / v[None, :]).mean(0).round(1)}), len(answer.rows)
 
 
-def placed(answer: Answer, start_from: str, repeats: int = 2, draws: int = 170, candidates: int = 85,
-           most: int = 400) -> tuple[int, list[tuple[int, float]]]:
+def _profile(answer: Answer):
+    """The answer's fullness process (fitted on every heap of ``answer.rows`` with a fullness, as the answer's
+    angle process is), the measured fullness means' variances v, and which rows have a fullness."""
+    from calib_cli.posterior.calibrate import mean_variance
+    from calib_cli.posterior.evidence import model_surrogate
+    from calib_cli.posterior.profiles import FULLNESS, measured_fullness
+
+    has = pd.Series(np.isfinite(answer.rows[FULLNESS].to_numpy(float)), index=answer.rows.index)
+    gp = model_surrogate(answer.rows[has], answer.model, 0, FULLNESS, answer.bounds)
+    table, _ = measured_fullness(answer.run, answer.conds)
+    return gp, mean_variance(table["sd"], table["n"], gp.noise_sd_), has
+
+
+def first_round(answer: Answer, heaps: int, repeats: int = 2, seed: int = 0) -> pd.DataFrame:
+    """A space-filling round 0 of ``heaps`` piles as the stage designs one (``adaptive.first_design``: pairs
+    of ``repeats`` piles over the prior's box and the measured conditions), as rows of the surrogates' inputs."""
+    from calib_cli.posterior.adaptive import first_design
+
+    design = first_design(answer.bounds, answer.conds["condition_id"].astype(str).tolist(), heaps // repeats, seed)
+    rows = design.merge(answer.conds.assign(condition_id=answer.conds["condition_id"].astype(str)), on="condition_id")
+    return rows.loc[rows.index.repeat(repeats)].reset_index(drop=True)
+
+
+def placed(answer: Answer, start_from: str, profile: bool = False, first: int = 0, repeats: int = 2,
+           draws: int = 170, candidates: int = 85, most: int = 400) -> tuple[int, list[tuple[int, float]]]:
     """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
     the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
-    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps."""
+    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps. ``profile``:
+    the fullness's process beside the angle's, both weighed by the variance rule as the stage weighs them, and
+    the ratio the combined one the bar reads (1 / (1 + r) = the mean of 1 / (1 + r_j)). ``first``: a
+    space-filling round 0 of this many piles (:func:`first_round`) added to the start."""
     from calib_cli.posterior.adaptive import _greedy, _points
     from calib_cli.posterior.calibrate import mean_variance
 
     conds, rows, gp, hand, own, s = answer.conds, answer.rows, answer.gp, answer.hand, answer.own, answer.samples
     pick = {"at hand": hand, "round 0": hand | (own & (rows["run_id"] < 2000)),
             "none": pd.Series(False, index=rows.index)}[start_from]
-    start = gp._scale(rows[pick])
     t = s[gp.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
-    C, v = len(conds), mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
-    pts = gp._scale(_points(gp, t, gp.parameters, conds))
-    Z = np.vstack([pts, pts[:candidates * C]])  # the evaluation points, then the candidates among them
-    P, n = [gp.y_sd_ ** 2 * _given(gp, start, Z)], len(pts)
-    w = [np.r_[np.tile(1 / v, draws) / n, np.tile(1 / v, candidates)]]
-    tau2 = [gp.pile_sd(Z[n:], scaled=True) ** 2 / repeats]
-    ratio = lambda: float(np.mean(np.diag(P[0])[:n].reshape(draws, C) / v))  # noqa: E731
-    heaps, path = len(start), [(len(start), ratio())]
+    C, X = len(conds), _points(gp, t, gp.parameters, conds)
+    n = len(X)
+    pairs = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_), pick)]
+    if profile:
+        full, v_full, has = _profile(answer)
+        pairs.append((full, v_full, pick & has))
+    extra = first_round(answer, first, repeats) if first else rows.iloc[:0]
+    P, w, tau2, vs = [], [], [], []
+    for g, v, start in pairs:
+        Z = g._scale(np.vstack([X, X[:candidates * C]]))  # the evaluation points, then the candidates among them
+        S = pd.concat([rows.loc[start, g.inputs_], extra[g.inputs_]], ignore_index=True)
+        P.append(g.y_sd_ ** 2 * _given(g, g._scale(S), Z))
+        w.append(np.r_[np.tile(1 / v, draws) / n, np.tile(1 / v, candidates)])
+        tau2.append(g.pile_sd(Z[n:], scaled=True) ** 2 / repeats)
+        vs.append(v)
+
+    def ratio() -> float:
+        r = [float(np.mean(np.diag(Pj)[:n].reshape(draws, C) / v)) for Pj, v in zip(P, vs)]
+        return 1.0 / float(np.mean([1.0 / (1.0 + x) for x in r])) - 1.0
+    heaps = int(pick.sum()) + len(extra)
+    path = [(heaps, ratio())]
     while path[-1][1] > 1.0 and heaps < most:
         _greedy(P, w, tau2, n, 1, integrated=True)  # one pick, P downdated in place
         heaps += repeats
         path.append((heaps, ratio()))
-    return len(start), path
+    return int(pick.sum()) + len(extra), path
 
 
 def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
@@ -129,7 +172,7 @@ def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
     from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import model_surrogate
 
-    model, conds, rows, bounds, final, hand, own, s = answer
+    _, model, conds, rows, bounds, final, hand, own, s = answer
     t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
     X = _points(final, t, final.parameters, conds)
     v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
@@ -151,11 +194,16 @@ def main() -> None:
         table, learnt = floor(answer)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
         print(table.to_string(index=False))
-        for start_from in STARTS:
-            start, path = placed(answer, start_from)
-            print(f"placed by an oracle from {start} heaps ({start_from}): "
-                  f"ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps "
-                  f"({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
+        for profile in (False, True):
+            for start_from in STARTS:
+                start, path = placed(answer, start_from, profile)
+                print(f"placed by an oracle, {'angle and profile (combined ratio)' if profile else 'angle'}, from "
+                      f"{start} heaps ({start_from}): ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} "
+                      f"heaps ({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
+        for first in ROUND0:
+            start, path = placed(answer, "at hand", True, first)
+            print(f"placed by an oracle, angle and profile, after a space-filling round 0 of {first} beside the heaps "
+                  f"at hand: ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps ({path[-1][0] - start} placed)")
         print("the angle's ratio at the answer's draws after each round, its own fit and the answer's:")
         print(refits(answer).to_string(index=False))
 
