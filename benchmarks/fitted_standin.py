@@ -1,5 +1,5 @@
-"""How many heaps would revision 1 of a sample lab's loop need under other round sizes, on a stand-in
-fitted to that lab's own heaps? Side by side in one run, nothing simulated.
+"""How many heaps would revision 1 of a sample lab's loop need under other round sizes, weighings or aims, on a
+stand-in fitted to that lab's own heaps? Side by side in one run, nothing simulated (but with ``--real``).
 
 The stand-in: the lab's surface as the committed run learnt it from all its heaps (the angle's and the
 fullness's Gaussian processes, fitted as the answer's are), each new pile that surface's mean plus its
@@ -8,7 +8,8 @@ correlated as the lab's photographs are). Revision 1 starts where the committed 
 run with the rows at hand then (revision 0's, compare's and diagnose's real heaps; as
 benchmarks/gpu_device_prep.py makes it), and the real stage (calib_cli.stages.calibrate) runs with a
 stand-in campaign. ``--firsts`` sets round 0's heaps (0: the stage's default), ``--batches`` a later round's,
-``--weighs`` how a later round weighs the two responses' variances, ``--targets`` which draws it aims at.
+``--weighs`` how a later round weighs the two responses' variances, ``--targets`` which draws it aims at;
+``--real`` simulates the new heaps instead (about 45 minutes a calibration on 2 cores).
 Prints per setting and seed: the heaps learnt from when a round's surrogate ratio first fell to 1 or below
 (``decided_at``), those at the stop, why it stopped, how many of the 90 % intervals held the truth, and each
 round's heaps and ratio. A surface drawn from the surrogate's own kind of function flatters it: on
@@ -17,6 +18,7 @@ hidden-effect the default decided at 276 here and at 348 for real.
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 0,48,24 --seeds 0,1
     python benchmarks/fitted_standin.py --src sample_runs/control-lab --firsts 0,24 --seeds 0
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --targets tempered,mix --seeds 0,1
+    python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --real --firsts 24 --targets tempered --seeds 0
 """
 from __future__ import annotations
 
@@ -108,15 +110,17 @@ def aiming(targets: str, box: dict):
 
 
 def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict, weigh: str = "sum",
-        targets: str = "posterior", box: dict | None = None) -> dict:
+        targets: str = "posterior", box: dict | None = None, workers: int = 0) -> dict:
+    """One calibration; ``workers``: simulate its heaps on that many (else the stand-in draws them), saying each
+    round as the stage does."""
     adaptive._greedy = _combined_greedy if weigh == "combined" else _plain_greedy
     cal.acquire = aiming(targets, box or {})
     run = root / f"{first}-{batch}-{seed}-{weigh}-{targets}"
     subprocess.run([sys.executable, str(Path(__file__).with_name("gpu_device_prep.py")), "--src", str(src),
                     "--out", str(run)], check=True, capture_output=True)
     t0 = time.perf_counter()
-    r = cal.calibrate(run, budget=budget, first=first, batch=batch, seed=seed, at_revision=1,
-                      say=lambda *a, **k: None)
+    r = cal.calibrate(run, budget=budget, first=first, batch=batch, seed=seed, at_revision=1, workers=workers or 1,
+                      say=None if workers else lambda *a, **k: None)
     per = r.rounds[r.rounds["revision"] == 1]
     rounds = per.drop_duplicates("round")
     sure = rounds[rounds["surrogate_ratio"] <= 1.0]
@@ -142,11 +146,15 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
                     "piles' and the sampler's)")
     ap.add_argument("--budget", type=int, default=250)
+    ap.add_argument("--real", action="store_true", help="simulate the new heaps (the run's own preset and engine) "
+                    "instead of drawing them from the stand-in: one real calibration a setting")
+    ap.add_argument("--workers", type=int, default=2, help="heaps simulated at once with --real")
     a = ap.parse_args()
     warnings.simplefilter("ignore")
     src = Path(a.src)
     *fitted, box = surfaces(src)
-    cal.run_campaign = stand_in(*fitted)
+    if not a.real:
+        cal.run_campaign = stand_in(*fitted)
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in (int(x) for x in a.seeds.split(",")):
@@ -155,7 +163,7 @@ def main() -> None:
                     for weigh in a.weighs.split(","):
                         for targets in a.targets.split(","):
                             out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh,
-                                           targets, box))
+                                           targets, box, a.workers if a.real else 0))
                             print(out[-1], flush=True)
     df = pd.DataFrame(out)
     print(df.drop(columns="trajectory").to_string())
