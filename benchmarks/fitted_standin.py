@@ -36,7 +36,7 @@ import pandas as pd
 from calib_cli.heaps.index import append_index
 from calib_cli.dem.heap import condition_dict
 from calib_cli.posterior import adaptive
-from calib_cli.posterior.profiles import FULLNESS, measured_fullness
+from calib_cli.posterior.profiles import FULLNESS
 from calib_cli.stages import calibrate as cal
 from heap_floor import _answer, _profile  # this script's folder is on the path when it runs
 
@@ -48,9 +48,8 @@ def surfaces(src: Path):
     """The lab's angle and fullness processes fitted on every heap of its final model (as heap_floor.py reads its
     answer), the lab's rho, a row to copy the heaps' other columns from, and the prior's box."""
     a = _answer(src)
-    full = _profile(a)[0]
-    _, rho = measured_fullness(src, a.conds)
-    return a.gp, full, rho, a.rows.iloc[0].to_dict(), a.bounds
+    full = _profile(a)
+    return a.gp, full.gp, full.rho, a.rows.iloc[0].to_dict(), a.bounds
 
 
 def stand_in(angle, full, rho, template):

@@ -97,17 +97,24 @@ def floor(answer: Answer, draws: int = 256) -> tuple[pd.DataFrame, int]:
                          "n_c": (pile / v[None, :]).mean(0).round(1)}), len(answer.rows)
 
 
-def _profile(answer: Answer):
-    """The answer's fullness process (fitted on every heap of ``answer.rows`` with a fullness, as the answer's
-    angle process is), the measured fullness means' variances v, and which rows have a fullness."""
+class Profile(NamedTuple):
+    """The answer's fullness as the oracle and the stand-in read it."""
+    gp: object  # its process, fitted on every heap of the answer's rows with a fullness
+    v: np.ndarray  # the measured fullness means' variances
+    has: pd.Series  # which of the answer's rows have a fullness
+    rho: float  # the lab's correlation of a photograph's fullness with its angle
+
+
+def _profile(answer: Answer) -> Profile:
+    """The answer's fullness (:class:`Profile`), its process fitted as the answer's angle process is."""
     from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import model_surrogate
     from calib_cli.posterior.profiles import FULLNESS, measured_fullness
 
     has = pd.Series(np.isfinite(answer.rows[FULLNESS].to_numpy(float)), index=answer.rows.index)
     gp = model_surrogate(answer.rows[has], answer.model, 0, FULLNESS, answer.bounds)
-    table, _ = measured_fullness(answer.run, answer.conds)
-    return gp, mean_variance(table["sd"], table["n"], gp.noise_sd_), has
+    table, rho = measured_fullness(answer.run, answer.conds)
+    return Profile(gp, mean_variance(table["sd"], table["n"], gp.noise_sd_), has, rho)
 
 
 def first_round(answer: Answer, heaps: int, repeats: int = 2, seed: int = 0) -> pd.DataFrame:
@@ -120,12 +127,12 @@ def first_round(answer: Answer, heaps: int, repeats: int = 2, seed: int = 0) -> 
     return rows.loc[rows.index.repeat(repeats)].reset_index(drop=True)
 
 
-def placed(answer: Answer, start_from: str, profile: bool = False, first: int = 0, repeats: int = 2,
+def placed(answer: Answer, start_from: str, profile: Profile | None = None, first: int = 0, repeats: int = 2,
            draws: int = 170, candidates: int = 85, most: int = 400) -> tuple[int, list[tuple[int, float]]]:
     """The angle's ratio as oracle-placed pairs of ``repeats`` piles are added (see the module's docstring), from
     the heaps at hand when the calibration began, those and its round 0's, or none (:data:`STARTS`): the heaps it
-    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps. ``profile``:
-    the fullness's process beside the angle's, both weighed by the variance rule as the stage weighs them, and
+    starts from and (heaps, ratio) after each pair, until the ratio is at most 1 or ``most`` heaps. ``profile``
+    (:func:`_profile`): the fullness's process beside the angle's, both weighed by the variance rule as the stage weighs them, and
     the ratio the combined one the bar reads (1 / (1 + r) = the mean of 1 / (1 + r_j)). ``first``: a
     space-filling round 0 of this many piles (:func:`first_round`) added to the start."""
     from calib_cli.posterior.adaptive import _greedy, _points
@@ -138,9 +145,8 @@ def placed(answer: Answer, start_from: str, profile: bool = False, first: int = 
     C, X = len(conds), _points(gp, t, gp.parameters, conds)
     n = len(X)
     pairs = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_), pick)]
-    if profile:
-        full, v_full, has = _profile(answer)
-        pairs.append((full, v_full, pick & has))
+    if profile is not None:
+        pairs.append((profile.gp, profile.v, pick & profile.has))
     extra = first_round(answer, first, repeats) if first else rows.iloc[:0]
     P, w, tau2, vs = [], [], [], []
     for g, v, start in pairs:
@@ -194,14 +200,16 @@ def main() -> None:
         table, learnt = floor(answer)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
         print(table.to_string(index=False))
-        for profile in (False, True):
+        full = _profile(answer)  # the fullness's process fitted once for the six oracles that read it
+        for profile in (None, full):
             for start_from in STARTS:
                 start, path = placed(answer, start_from, profile)
-                print(f"placed by an oracle, {'angle and profile (combined ratio)' if profile else 'angle'}, from "
+                both = profile is not None
+                print(f"placed by an oracle, {'angle and profile (combined ratio)' if both else 'angle'}, from "
                       f"{start} heaps ({start_from}): ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} "
                       f"heaps ({path[-1][0] - start} placed; " + ", ".join(f"{h}: {r:.2f}" for h, r in path[1::6]) + ")")
         for first in ROUND0:
-            start, path = placed(answer, "at hand", True, first)
+            start, path = placed(answer, "at hand", full, first)
             print(f"placed by an oracle, angle and profile, after a space-filling round 0 of {first} beside the heaps "
                   f"at hand: ratio {path[0][1]:.3g} -> {path[-1][1]:.3g} at {path[-1][0]} heaps ({path[-1][0] - start} placed)")
         print("the angle's ratio at the answer's draws after each round, its own fit and the answer's:")
