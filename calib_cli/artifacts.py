@@ -226,7 +226,8 @@ def read_table(path: Path, columns: Sequence[str] | None = None, what: str = "ar
     try:
         df = pq.read_table(path).to_pandas()
     except Exception as e:  # pyarrow raises several types for corrupt files
-        raise CalibError(f"{what} {path} is not a readable Parquet file ({type(e).__name__})") from None
+        hint = ": a .csv is not one; give the .parquet a stage wrote" if path.suffix.lower() in (".csv", ".txt") else ""
+        raise CalibError(f"{what} {path} is not a readable Parquet file ({type(e).__name__}){hint}") from None
     if columns:
         missing = [c for c in columns if c not in df.columns]
         if missing:

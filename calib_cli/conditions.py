@@ -73,8 +73,9 @@ def _numbers(df: pd.DataFrame, c: str, path: Path, what: str) -> pd.Series:
     bad = ~np.isfinite(v)  # a floor's value too: every condition gives it, or the column is left out
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise CalibError(f"{what} {path}: column {c} has a missing or non-numeric value on line {i + 2} "
-                         f"({df[c].iloc[i]!r})")
+        raw = df[c].iloc[i]
+        shown = "empty or NaN" if pd.isna(raw) else repr(str(raw))
+        raise CalibError(f"{what} {path}: column {c} has a missing or non-numeric value on line {i + 2} ({shown})")
     for i, x in enumerate(v):
         check(c, x, f"{what} line {i + 2}")
     return v

@@ -108,8 +108,15 @@ def load_model(run: Path) -> Model:
         return Model(tuple(DEFAULT_EFFECTS), 0, "default model (no model.toml yet)")
     try:
         d = tomllib.loads(p.read_text())
-        return Model(tuple(d["effects"]), int(d.get("revision", 1)), str(d.get("note", "")))
-    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise CalibError(f"{p} is not a valid model file (not TOML: {e})") from None
+    effects = d.get("effects")
+    if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
+        raise CalibError(f"{p} is not a valid model file: it needs effects = [\"name\", ...] (`calib model add` "
+                         f"writes it), got {effects!r}")
+    try:
+        return Model(tuple(effects), int(d.get("revision", 1)), str(d.get("note", "")))
+    except (TypeError, ValueError) as e:
         raise CalibError(f"{p} is not a valid model file ({e})") from None
 
 

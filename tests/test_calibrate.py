@@ -252,7 +252,7 @@ def tmp_run(run):
     return other
 
 
-def test_calibrate_refuses_a_budget_too_small_and_an_unknown_rule(lab):
+def test_calibrate_refuses_a_budget_too_small_an_unknown_rule_and_an_unusable_sampler_or_cluster(lab):
     from calib_cli.stages.calibrate import calibrate
 
     run, _ = lab
@@ -260,6 +260,13 @@ def test_calibrate_refuses_a_budget_too_small_and_an_unknown_rule(lab):
         calibrate(run, budget=3, **QUIET)
     with pytest.raises(CalibError, match="--rule must be one of"):
         calibrate(run, rule="best", **QUIET)
+    # refused before round 0 is designed or a heap runs, not when the first posterior is fitted
+    with pytest.raises(CalibError, match="emcee needs at least"):
+        calibrate(run, walkers=2, **QUIET)
+    with pytest.raises(CalibError, match="--first 500 is more than --budget 10"):
+        calibrate(run, first=500, budget=10, **QUIET)
+    with pytest.raises(CalibError, match="not a scheduler address"):
+        calibrate(run, dask="notanaddress", **QUIET)
     assert not (run / "calibrate").exists()
 
 

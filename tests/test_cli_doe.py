@@ -211,6 +211,14 @@ def test_console_entry_point_exit_codes(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().startswith("error: responses file not found")
     assert "Traceback" not in r.stderr
     assert run("--version").returncode == 0
+    # a value outside an option's range is one line naming the command's help, not click's box of five
+    for args, word in [(("compare", "--run", tmp_path / "r", "--repeats", "0"), "--repeats"),
+                       (("model", "add"), "effect"), (("nosuch",), "nosuch")]:
+        r = run(*args)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and word in lines[0], r.stderr
+        assert "--help)" in lines[0]
+    assert run().returncode == 2 and "Usage" in run().stdout + run().stderr  # no command: the help
 
 
 def test_error_messages_keep_their_brackets(tmp_path):

@@ -346,6 +346,15 @@ BAD: list[Bad] = [
     Bad("settings-toml-target-inf", ["pb", "design", "--run", "{run}", "--force"],
         prep=lambda run: (run / "settings.toml").write_text((run / "settings.toml").read_text() + "\ntarget = inf\n")),
     Bad("diff-runs-folder-of-photos", ["diff-runs", "{run}", str(PHOTOS)]),
+    Bad("images-conditions-name-typo", ["measure-angle", "--run", "{run}", "--images", "{tmp}", "--conditions",
+                                        "{tmp}/c.csv"], {"h.png": _photo(), "c.csv": COND_HEAD + "h1.png,A,4,5,40,75,50\n"}),
+    Bad("synth-lab-noise-negative", ["synth-lab", "--out", "{tmp}/lab", "--noise", "-6", "--repeats", "1"]),
+    Bad("synth-lab-noise-nan", ["synth-lab", "--out", "{tmp}/lab", "--noise", "nan", "--repeats", "1"]),
+    Bad("synth-lab-out-is-a-file", ["synth-lab", "--out", "{tmp}/f", "--repeats", "1"], {"f": "a file"}),
+    Bad("sim-dask-no-port", [*SIM, "--set", "static_friction=0.3", "--dask", "notanaddress"]),
+    Bad("calibrate-dask-no-port", ["calibrate", "--run", "{run}", "--dask", "tcp://somewhere"]),
+    Bad("diagnose-alpha-zero", ["diagnose", "--run", "{run}", "--alpha", "0"]),
+    Bad("model-show-no-such-run", ["model", "show", "--run", "{tmp}/no-such-run"]),
 ]
 
 

@@ -91,11 +91,15 @@ def test_a_rig_lists_every_combination_in_the_labs_naming():
 
 
 @pytest.mark.parametrize("bad, words", [
-    ({"particle_sizes_mm": [[5, 4]]}, "0 < d_min <= d_max"),
-    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": []}, "at least one positive"),
-    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": ["tall"]}, "lists of numbers"),
+    ({"particle_sizes_mm": [[5, 4]]}, "d_min <= d_max"),
+    ({"particle_sizes_mm": [4, 5]}, "pair [d_min, d_max]"),
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": []}, "at least one value"),
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": ["tall"]}, "fill_height_mm must be a number"),
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": [0.05, 0.075]}, "are these metres"),  # each value checked
+    ({"particle_sizes_mm": [[0.004, 0.005]]}, "are these metres"),
     ({"particle_sizes_mm": [[4, 5]], "floor": ["steel"]}, "unknown key(s) floor"),
-    ({"particle_sizes_mm": [[4, 5]], "piles": 0}, "piles must be at least 1"),
+    ({"particle_sizes_mm": [[4, 5]], "piles": 0}, "piles must be a whole number of at least 1"),
+    ({"particle_sizes_mm": [[4, 5]], "piles": 2.7}, "piles must be a whole number"),  # not cut to 2
 ])
 def test_a_bad_rig_file_is_a_one_line_error(bad, words):
     with pytest.raises(CalibError) as e:
@@ -265,6 +269,26 @@ def test_an_information_gain_beyond_the_simulated_heaps_is_shown_but_not_ranked(
                         np.ones(2), 10, VARS).set_index("condition_id")
     assert list(t.index) == ["H75", "H150"]
     assert t.loc["H150", "info_gain_nats"] > t.loc["H75", "info_gain_nats"] > 0
+
+
+def test_where_nothing_is_ranked_the_table_does_not_say_best_first():
+    """Every candidate beyond the heaps (the hidden-effect run's case): the table keeps the rig's order, so
+    neither the command's heading nor the report's may read it as a ranking; one gain inside ranks again."""
+    from calib_cli.posterior.suggest import any_ranked, rank_conditions
+    from calib_cli.stages.suggest import SuggestResult
+
+    ev = _evidence_for_ranking()
+    ev.G = ev.G.iloc[:, :0]
+    cand = pd.DataFrame({"condition_id": ["H150", "H75"], "particle_d_min_mm": 4.0, "cylinder_diameter_mm": 40.0,
+                         "fill_height_mm": [150.0, 75.0]})
+    mu = np.vstack([30.0 + 20.0 * ev.draws[:, 0], 30.0 + 5.0 * ev.draws[:, 0]])
+    outside = rank_conditions(ev, cand.assign(beyond_heaps=["fill height 150 beyond", "fill height 75 beyond"]), mu,
+                              np.ones(2), 10, VARS)
+    inside = rank_conditions(ev, cand.assign(beyond_heaps=["fill height 150 beyond", ""]), mu, np.ones(2), 10, VARS)
+    assert not any_ranked(outside) and any_ranked(inside)
+    assert list(outside["condition_id"]) == ["H150", "H75"]  # the rig's order, kept
+    assert "none is ranked" in SuggestResult(None, table=outside).title()
+    assert SuggestResult(None, table=inside).title().endswith("best first")
 
 
 def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, tmp_path, monkeypatch):

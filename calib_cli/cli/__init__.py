@@ -123,16 +123,31 @@ def command_root():
 def main() -> None:
     """Console-script entry point: no traceback for anything a user can cause.
 
-    typer/click handle usage errors and --help themselves (standalone mode, exit code 2);
-    user errors inside commands are CalibError (handle_errors, exit 2); whatever else escapes
-    is a bug, reported in one line (exit 70) unless CALIB_DEBUG is set.
+    a usage error (an unknown option, a value out of its range) is one line naming the command's --help
+    (exit code 2); user errors inside commands are CalibError (handle_errors, exit 2); whatever else
+    escapes is a bug, reported in one line (exit 70) unless CALIB_DEBUG is set.
     """
+    # typer's own click (vendored by recent typer, click itself by older ones): its usage errors' base class
+    usage = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
     try:
-        app()
+        # not standalone: click would print a usage error as a box of five lines; here it is one
+        code = app(standalone_mode=False)
+    except usage as e:
+        if any(c.__name__ == "NoArgsIsHelpError" for c in type(e).__mro__):
+            e.show()
+        else:
+            from rich.markup import escape
+
+            err_console.print(f"[bold red]error:[/] {escape(e.format_message())} (calib {_command(e)}--help)",
+                              highlight=False, soft_wrap=True)
+        sys.exit(e.exit_code)
     except KeyboardInterrupt:
         err_console.print("[bold red]interrupted[/]")
         sys.exit(130)
     except Exception as e:
+        if type(e).__name__ == "Abort":  # Ctrl-C outside a command, as click reports it
+            err_console.print("[bold red]interrupted[/]")
+            sys.exit(130)
         if os.environ.get("CALIB_DEBUG"):
             raise
         from rich.markup import escape
@@ -140,3 +155,11 @@ def main() -> None:
         err_console.print(f"[bold red]internal error:[/] {type(e).__name__}: {escape(str(e))} "
                           "(set CALIB_DEBUG=1 for a traceback)")
         sys.exit(70)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def _command(e) -> str:
+    """The command a usage error is about, for its --help hint ("compare ", "model add "; "" for calib's own)."""
+    ctx = getattr(e, "ctx", None)
+    path = ctx.command_path.split()[1:] if ctx is not None and ctx.command_path else []
+    return "".join(f"{p} " for p in path)

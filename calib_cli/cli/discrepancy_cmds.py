@@ -42,9 +42,12 @@ def _show(m: Model) -> None:
 @handle_errors
 def model_show(run: RunOpt):
     """Print the model's effects (RUN/model.toml; the default model if there is none)."""
+    from ..errors import CalibError
     from ..model import load_model
 
-    _show(load_model(check_run_dir(run)))
+    if not check_run_dir(run).exists():  # a typo: the default model would pass for this run's
+        raise CalibError(f"no run directory {run}: give an existing one (calib init --run {run} makes one)")
+    _show(load_model(run))
 
 
 #: the effects, as model add and remove list them (calib_cli.model.EFFECTS' names)
@@ -246,6 +249,6 @@ def show_ranking(r, out: Console = console) -> None:
 
 def show_suggestions(r, out: Console = console) -> None:
     """suggest-conditions' ranking and its reasons."""
-    out.print(df_table(r.summary(), "the next conditions to measure, best first", width=out.width))
+    out.print(df_table(r.summary(), r.title(), width=out.width))
     for line in r.conclusion():
         out.print(line)

@@ -147,6 +147,10 @@ def _outputs(paths: list[str], check: bool) -> int:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 2 or sys.argv[1] in ("-h", "--help"):
+        print("usage: python -m calib_cli.cli.docs outputs [--check] FILE.md ...  (render the output blocks again)\n"
+              "       python -m calib_cli.cli.docs docs/cli.md  (unescape typer's markdown)")
+        sys.exit(0 if len(sys.argv) > 1 else 2)
     if sys.argv[1] == "outputs":
         args = [a for a in sys.argv[2:] if a != "--check"]
         sys.exit(_outputs(args, "--check" in sys.argv))

@@ -21,6 +21,7 @@ import pandas as pd
 
 from .. import __version__
 from .. import artifacts as art
+from ..errors import CalibError
 from ..dem import KERNEL_VERSION
 from ..dem.heap import HeapTest, Numerics, condition_dict, resume, run_heap
 from ..dem.render import render_side_view
@@ -203,6 +204,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     Every executor writes through :func:`execute` into the same cache, so results do not depend
     on where they ran; Dask workers must see the run directory (a shared filesystem).
     """
+    check_dask(dask)
     requests = list(requests)
     run_dir = Path(run_dir)
     (run_dir / RUNS).mkdir(parents=True, exist_ok=True)
@@ -264,15 +266,41 @@ def _indexed_rows(run_dir: Path, requests: list[Request]) -> dict[str, dict]:
             for r in hit.to_dict("records")}
 
 
+def check_dask(dask: str | None) -> None:
+    """Refuse a ``--dask`` that is neither "local" nor a scheduler address (``[protocol://]host:port``),
+    before any heap runs."""
+    if not dask or dask == "local":
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(dask)
+        if scheme != "inproc":
+            parse_host_port(loc)
+    except ValueError as e:
+        raise CalibError(f"--dask {dask!r} is not a scheduler address ({e}): give tcp://HOST:PORT as `dask "
+                         "scheduler` prints it, or local") from None
+
+
+def _client(dask: str, cluster):
+    from distributed import Client
+
+    try:
+        return Client(cluster if cluster is not None else dask)
+    except (OSError, TimeoutError) as e:
+        raise CalibError(f"no Dask scheduler answered at {dask} ({e}): start one (`dask scheduler`) and its "
+                         "workers where they see the run directory, or use --dask local") from None
+
+
 def _run_on_dask(todo: list[tuple[int, Request]], run_dir: Path, dask: str, workers: int, force: bool,
                  finish: Callable[[int, dict], None]) -> None:
     """Run (label, request) pairs on a Dask cluster (``dask``: a scheduler's address, or "local" for a
     LocalCluster of ``workers`` processes), calling ``finish(label, row)`` as each heap is done."""
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import LocalCluster, as_completed
 
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=None) if dask == "local" else None
-    client = Client(cluster if cluster is not None else dask)
+    client = _client(dask, cluster)
     try:
         futs = {client.submit(_execute_in_worker, req, str(run_dir.resolve()), force, pure=False): i
                 for i, req in todo}

@@ -328,6 +328,14 @@ def _start(log_prob, lo: np.ndarray, hi: np.ndarray, n_walkers: int, rng: np.ran
     return cand[pick]
 
 
+def check_sampler(parameters: int, walkers: int, steps: int) -> None:
+    """Refuse an ensemble emcee cannot run: fewer walkers than twice the parameters, or under 10 steps (a
+    stage calls it before its first heap or fit, not after)."""
+    if walkers < 2 * parameters or steps < 10:
+        raise CalibError(f"--walkers {walkers} --steps {steps}: emcee needs at least {2 * parameters} walkers (twice "
+                         f"the {parameters} parameters) and 10 steps")
+
+
 def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[float, float]],
                         fixed: Optional[Mapping[str, float]] = None, n_walkers: int = 32, n_steps: int = 5000,
                         seed: int = 0, scatter: bool = False,
@@ -349,8 +357,7 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
     if loose or set(names) - set(gp.parameters):
         raise CalibError(f"give every surrogate parameter ({', '.join(gp.parameters)}) a prior range or a fixed "
                          f"value; got bounds for {', '.join(names)} and fixed {', '.join(fixed) or 'none'}")
-    if n_walkers < 2 * len(names) or n_steps < 10:
-        raise CalibError(f"emcee needs at least {2 * len(names)} walkers (twice the parameters) and 10 steps")
+    check_sampler(len(names), n_walkers, n_steps)
     from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
 
     if second is not None and not (np.size(second.mean) == np.size(second.sd) == np.size(second.n) == len(measured)):

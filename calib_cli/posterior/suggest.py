@@ -38,6 +38,7 @@ import pandas as pd
 
 from ..discrepancy.stats import confound, project_out
 from ..errors import CalibError
+from ..parameters import check
 
 #: the rig's variables a rig file may list, with the heap-test variable each sets
 RIG_VARIABLES = ("cylinder_diameter_mm", "fill_height_mm", "lift_speed_mm_s")
@@ -81,20 +82,28 @@ def parse_rig(d: dict, where: str = "rig file") -> Rig:
     if unknown:
         raise CalibError(f"{where}: unknown key(s) {', '.join(unknown)}; a rig lists particle_sizes_mm, "
                          f"{', '.join(RIG_VARIABLES)} and piles")
-    try:
-        sizes = tuple((float(a), float(b)) for a, b in rig.get("particle_sizes_mm", []))
-        values = {k: tuple(float(v) for v in rig[k]) for k in RIG_VARIABLES if k in rig}
-        piles = int(rig.get("piles", 10))
-    except (TypeError, ValueError):
-        raise CalibError(f"{where}: particle_sizes_mm must be pairs [d_min, d_max] and the other variables lists "
-                         "of numbers") from None
-    if not sizes or any(not (0 < a <= b) or not math.isfinite(b) for a, b in sizes):
-        raise CalibError(f"{where}: particle_sizes_mm must list at least one pair [d_min, d_max] with 0 < d_min <= d_max")
-    if any(not vs or any(not (v > 0 and math.isfinite(v)) for v in vs) for vs in values.values()):
-        raise CalibError(f"{where}: every rig variable needs at least one positive, finite value")
-    if piles < 1:
-        raise CalibError(f"{where}: piles must be at least 1")
+    sizes = _rig_sizes(rig.get("particle_sizes_mm", []), where)
+    values = {}
+    for k in (k for k in RIG_VARIABLES if k in rig):
+        vs = rig[k] if isinstance(rig[k], list) else [rig[k]]
+        if not vs:
+            raise CalibError(f"{where}: {k} needs at least one value")
+        values[k] = tuple(check(k, v, f"{where}, {k}") for v in vs)
+    piles = rig.get("piles", 10)
+    if isinstance(piles, bool) or not isinstance(piles, int) or piles < 1:
+        raise CalibError(f"{where}: piles must be a whole number of at least 1, got {piles!r}")
     return Rig(values, sizes, piles)
+
+
+def _rig_sizes(pairs, where: str) -> tuple[tuple[float, float], ...]:
+    """particle_sizes_mm as (d_min, d_max) pairs, each size checked as a condition's (:func:`check`)."""
+    if not isinstance(pairs, list) or not pairs or any(not isinstance(p, list) or len(p) != 2 for p in pairs):
+        raise CalibError(f"{where}: particle_sizes_mm must list at least one pair [d_min, d_max], got {pairs!r}")
+    sizes = tuple((check("particle_d_min_mm", a, f"{where}, particle_sizes_mm"),
+                   check("particle_d_max_mm", b, f"{where}, particle_sizes_mm")) for a, b in pairs)
+    if any(a > b for a, b in sizes):
+        raise CalibError(f"{where}: particle_sizes_mm must list pairs [d_min, d_max] with d_min <= d_max")
+    return sizes
 
 
 # ------------------------------------------------------------------ sensitivities at new conditions
@@ -274,12 +283,23 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     out["best_separation"] = seps.max(axis=1) if len(seps.columns) else np.nan
     out["best_effect"] = [list(ev.G.columns)[k] if np.isfinite(b) else ""
                           for k, b in zip(top, out["best_separation"])]
-    ranked_sep = out["best_separation"].where(~out["extrapolated"])
-    beyond = out["beyond_heaps"].fillna("").astype(bool).to_numpy() if "beyond_heaps" in out else np.zeros(len(out), bool)
-    ranked_gain = out["info_gain_nats"].where(~beyond)
+    ranked_gain, ranked_sep = _ranked(out)
     order = ranked_gain.rank(ascending=False, na_option="bottom") + ranked_sep.rank(ascending=False,
                                                                                    na_option="bottom")
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
+
+
+def _ranked(table: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """The information gains and separations that rank a candidate: NaN where the surrogate extrapolates
+    (a gain beyond the heaps, a separation from extrapolated sensitivities) or cannot tell."""
+    beyond = table["beyond_heaps"].fillna("").astype(bool).to_numpy() if "beyond_heaps" in table \
+        else np.zeros(len(table), bool)
+    return table["info_gain_nats"].where(~beyond), table["best_separation"].where(~table["extrapolated"])
+
+
+def any_ranked(table: pd.DataFrame) -> bool:
+    """Whether any candidate's gain or separation is ranked; if none is, the table keeps the rig's order."""
+    return any(s.notna().any() for s in _ranked(table))
 
 
 def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:

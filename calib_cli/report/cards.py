@@ -9,7 +9,7 @@ import pandas as pd
 
 from ..model import EFFECTS
 from ..posterior.evidence import bf_text, edges, effect_verdict
-from ..posterior.suggest import best_per_effect
+from ..posterior.suggest import any_ranked, best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
 from .summary import PINNED, Fit, solution_params
@@ -215,7 +215,9 @@ def posterior_card(f: RunFiles) -> str:
     body += _rounds_note(f, rev)
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
-        body += "<h3>Measure next</h3>" + "".join(
+        head = "Measure next" if any_ranked(nxt) else \
+            "Measure next: none ranked (the surrogate extrapolates at each), the first in the rig's order"
+        body += f"<h3>{head}</h3>" + "".join(
             f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
                         f"({sep:.2g} chi-square units, sensitivities {how})</p>"

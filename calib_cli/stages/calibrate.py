@@ -23,12 +23,12 @@ import pandas as pd
 from .. import artifacts as art
 from ..heaps.index import RESULTS
 from ..heaps.keys import Request
-from ..heaps.runner import run_campaign
+from ..heaps.runner import check_dask, run_campaign
 from ..errors import CalibError
 from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
 from ..posterior.adaptive import RULES, acquire, first_design, reference_round, stop_reason
-from ..posterior.calibrate import response_variances
+from ..posterior.calibrate import check_sampler, response_variances
 from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
                                   profile_rows, second_response, settings_ranges, write_posterior)
@@ -331,6 +331,10 @@ def _plan(model: Model, conds: pd.DataFrame, budget: int, first: Optional[int], 
         raise CalibError(f"--rule must be one of {', '.join(RULES)}, got {plan.rule!r}")
     if plan.repeats < 1 or plan.first < 1 or plan.batch < 1:
         raise CalibError("--repeats, --first and --batch must be at least 1")
+    if first and plan.first > plan.budget:
+        raise CalibError(f"--first {plan.first} is more than --budget {plan.budget}: round 0 spends the budget's "
+                         "heaps, so give a --budget of at least --first")
+    check_sampler(len(model.parameters), plan.walkers, plan.steps)
     if min(plan.first, plan.budget) // plan.repeats < 2:
         raise CalibError(f"--budget {plan.budget} leaves round 0 fewer than 2 points of {plan.repeats} heaps: "
                          f"give at least {2 * plan.repeats} (a surrogate of {inputs} inputs wants {heaps_needed(model, [])} "
@@ -395,6 +399,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     setup = {"pre": heap_preset(preset, g, precision), "preset": preset, "modulus": g, "engine": name,
              "engine_settings": run_heap_settings(cfg, engine)}
     check_engine(setup["engine"])
+    check_dask(dask)
     conds = measured_conditions(run)
     if conds.empty:
         raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")

@@ -195,6 +195,8 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     """Rank the effects missing from the model by how much of compare's misfit each would explain.
     Writes RUN/diagnose/ranking.parquet, sensitivities.parquet and trends.parquet."""
     say = say or plain
+    if not 0.0 < alpha < 1.0:
+        raise CalibError(f"--alpha {alpha:g} must lie strictly between 0 and 1 (a significance level)")
     run = check_run_dir(run)
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)

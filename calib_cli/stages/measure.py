@@ -299,7 +299,7 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     if cond is not None and "pile" in cond.columns:
         table, profiles = columns_by_pile(table, cond, profiles)
     if cond is not None:
-        _warn_unmatched(table, cond, say)
+        _check_matched(table, cond)
     _check_usable(table, keep_flagged, say)
     per_condition = _aggregate(table, cond, keep_flagged)
     prof = pd.concat(profiles, ignore_index=True) if profiles else pd.DataFrame(
@@ -326,13 +326,18 @@ def _settings(band, limits: ShapeLimits, keep_flagged: bool) -> dict:
     return out
 
 
-def _warn_unmatched(table: pd.DataFrame, cond: pd.DataFrame, say: Say) -> None:
-    unknown = sorted(set(cond["image"]) - set(table["image"]))
-    if unknown:
-        say(f"[yellow]warning:[/] {len(unknown)} image(s) in the conditions table are not among the images measured: "
-            f"{', '.join(unknown[:5])}")
-    if (table["condition_id"] == "unassigned").any():
-        say("[yellow]warning:[/] images not in the conditions table are grouped as 'unassigned'")
+def _check_matched(table: pd.DataFrame, cond: pd.DataFrame) -> None:
+    """Raise (nothing written) when the conditions table and the images measured disagree: a row whose image
+    is not there (a typo, a missing file) or an image with no row would leave a condition short or put
+    photographs in no condition."""
+    listed = sorted(set(cond["image"]) - set(table["image"]))
+    unlisted = sorted(set(table.loc[table["condition_id"] == "unassigned", "image"]))
+    if listed or unlisted:
+        parts = ([f"{len(listed)} row(s) of the conditions table name no image measured ({', '.join(listed[:5])})"]
+                 if listed else []) + ([f"{len(unlisted)} image(s) have no row there ({', '.join(unlisted[:5])})"]
+                                       if unlisted else [])
+        raise CalibError("the conditions table and the images disagree: " + "; ".join(parts)
+                         + ": give each photograph one row, its file name as in the folder")
 
 
 def _check_usable(table: pd.DataFrame, keep_flagged: bool, say: Say) -> None:

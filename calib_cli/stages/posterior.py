@@ -17,6 +17,7 @@ from ..measurements import measured_conditions
 from ..model import MODEL_FILE, load_model
 from ..posterior.evidence import (PRIORS, RESPONSE, check_rows, evidence_lock, extrapolation_note, fit_posterior,
                                   model_rows, prior_bounds, settings_ranges, write_posterior)
+from ..posterior.calibrate import check_sampler
 from ..posterior.suggest import region_design
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 
@@ -78,6 +79,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     if prior not in PRIORS:
         raise CalibError(f"--prior must be one of {', '.join(PRIORS)}, got {prior!r}")
     model = load_model(run)
+    check_sampler(len(model.parameters), walkers, steps)
     conds = measured_conditions(run)
     if conds.empty:
         raise CalibError(f"no measured condition in {run / 'measure' / 'conditions.parquet'}: "

@@ -13,7 +13,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..heaps.index import RESULTS
 from ..heaps.keys import RUNS, Request
-from ..heaps.runner import REUSE_ENV, reusable, run_campaign
+from ..heaps.runner import REUSE_ENV, check_dask, reusable, run_campaign
 from ..conditions import read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
@@ -256,6 +256,7 @@ def simulate_heap(run: Path, params: Pairs = None, design: Optional[Path] = None
                   dask: Optional[str] = None, say: Optional[Say] = None, **options) -> SimulateResult:
     """Plan and run a simulation (:func:`plan_simulation` takes the ``options``): writes
     RUN/simulate/results.parquet and RUN/simulate/runs/<hash>/ per heap. Raises if no heap formed."""
+    check_dask(dask)
     result = run_simulation(plan_simulation(run, params, design, say=say, **options), workers, dask)
     for note in result.notes():
         (say or plain)(note)

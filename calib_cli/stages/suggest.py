@@ -19,7 +19,7 @@ from ..heaps.index import RESULTS
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
-from ..posterior.suggest import Evidence, Rig, best_per_effect, explain, parse_rig, rank_conditions
+from ..posterior.suggest import Evidence, Rig, any_ranked, best_per_effect, explain, parse_rig, rank_conditions
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
 from ..measurements import measured_conditions
@@ -149,6 +149,13 @@ class SuggestResult(Result):
             t = t.assign(sensitivities=np.select([t["simulated"], ~t["known"], t["extrapolated"]],
                                                  ["simulated", "unknown", "extrapolated"], "interpolated"))
         return t[[c for c in cols if c in t]]
+
+    def title(self) -> str:
+        """The table's heading: ranked best first, or (no candidate's gain or separation ranked, each the
+        surrogate's extrapolation) in the rig's order."""
+        if any_ranked(self.table):
+            return "the next conditions to measure, best first"
+        return "the conditions the rig offers, in its order: none is ranked (the surrogate extrapolates at each)"
 
     def conclusion(self) -> list[str]:
         return [f"[bold]{r.condition_id}[/]: {r.reason}" for r in self.table.head(self.top).itertuples()] + \
@@ -313,6 +320,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     RUN/suggest/sensitivities.parquet."""
     say = say or plain
     run = check_run_dir(run)
+    resolve_settings(run, None, None)  # a broken settings.toml stops every command, this one too
     the_rig = load_rig(rig)
     piles = int(piles or the_rig.piles)
     if piles < 1 or top < 1 or repeats < 1:
