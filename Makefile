@@ -108,7 +108,7 @@ hidden-floor: setup
 	$(CALIB) run stages/hidden-floor.toml --run $(FLOOR) --var reuse=$(LAB)
 
 # Capillary bridges hidden where the hidden-effect lab has JKR cohesion: does diagnose tell them apart?
-# (docs/tutorial-hidden-effect.md, "A capillary lab"; revision 0 only)
+# (docs/changelog.md, the former tutorial section 9, "A capillary lab"; revision 0 only)
 hidden-capillary: setup
 	$(CALIB) run stages/hidden-capillary.toml --run $(CAPL) --var reuse=$(LAB)
 

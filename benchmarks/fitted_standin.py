@@ -18,6 +18,7 @@ hidden-effect the default decided at 276 here and at 348 for real.
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 0,48,24 --seeds 0,1
     python benchmarks/fitted_standin.py --src sample_runs/control-lab --firsts 0,24 --seeds 0
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --targets tempered,mix --seeds 0,1
+    python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 24,0 --targets plugin --seeds 0
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --real --firsts 24 --targets tempered --seeds 0
 """
 from __future__ import annotations
@@ -85,16 +86,56 @@ def _combined_greedy(P, w, tau2, n_eval, picks, integrated):
 _plain_acquire = cal.acquire
 
 
+_plain_surrogates = cal._surrogates
+
+
+def plugin(fit, samples: pd.DataFrame, measured: pd.DataFrame, seed: int) -> pd.DataFrame:
+    """The posterior's draws resampled to the posterior whose likelihood leaves the surrogates' own variance out
+    (the measured means' alone, V0, against V0 + S): weights N(r; 0, V0) / N(r; 0, V0 + S) at each draw, r the
+    residuals of both responses. Where the rounds end the surrogates' variance is small beside the measured
+    means', so this is where the posterior is heading if the surrogates' means are right; resampling keeps it
+    inside the last posterior's support."""
+    from calib_cli.posterior.calibrate import _inputs, _joint_terms, mvn_logpdf, response_variances
+    gp, second = fit.gp, fit.second
+    names = [p for p in samples.columns if p in gp.parameters]
+    t, C = samples[names].to_numpy(float), len(measured)
+    cv = {c: measured[c].to_numpy(float) for g in (gp, second.gp if second else gp) for c in g.inputs_
+          if c not in g.parameters}
+    X = _inputs(gp, t, names, {}, cv, C)
+    X2 = _inputs(second.gp, t, names, {}, cv, C) if second else None
+    (_, v), *rest = response_variances(gp, measured, second)
+    r, V = _joint_terms(gp, second, X, X2, measured["mean"].to_numpy(float), v, rest[0][1] if rest else None)
+    V0 = V.copy()
+    V0[:, :C, :C] -= gp.predict_joint(X)[1]
+    if second:
+        V0[:, C:, C:] -= second.gp.predict_joint(X2)[1]
+    lw = mvn_logpdf(r, V0) - mvn_logpdf(r, V)
+    w = np.exp(lw - lw.max())
+    w /= w.sum()
+    print(f"  plugin: effective draws {1 / np.sum(w ** 2):.0f} of {len(w)}", flush=True)
+    pick = np.random.default_rng(seed).choice(len(w), len(w), p=w)
+    return samples.iloc[pick].reset_index(drop=True)
+
+
 def aiming(targets: str, box: dict):
     """The stage's ``acquire`` aimed at other draws than the last posterior's: ``posterior`` (the stage's),
     ``tempered`` (each draw pushed away from the medians by sqrt(2), the spread of the posterior with its
-    likelihood's exponent halved were it Gaussian, kept in the prior's box) or ``mix`` (the last two
-    posteriors' draws together): where the posterior may go next, not only where it is."""
+    likelihood's exponent halved were it Gaussian, kept in the prior's box), ``mix`` (the last two
+    posteriors' draws together): where the posterior may go next, not only where it is; or ``plugin`` (the
+    posterior were the surrogates exact, :func:`plugin`): where it narrows to."""
     last: list[pd.DataFrame] = []
+    fits: list = []
+
+    def surrogates(run, model, prev, conds, plan):
+        fits.append(prev.fit)
+        return _plain_surrogates(run, model, prev, conds, plan)
+    cal._surrogates = surrogates
 
     def acquire(surrogates, samples, measured, pairs, repeats=2, rule="variance", seed=0):
         aim = samples
-        if targets == "tempered":
+        if targets == "plugin" and fits and fits[-1] is not None:
+            aim = plugin(fits[-1], samples, measured, seed)
+        elif targets == "tempered":
             names = [p for p in samples.columns if p in box]
             med = samples[names].median()
             aim = samples.copy()
@@ -141,7 +182,7 @@ def main() -> None:
     ap.add_argument("--weighs", default="sum", help="how a later round weighs the responses' variances: sum (the "
                     "stage's) or combined (each by the combined ratio's slope in it), comma-separated to compare")
     ap.add_argument("--targets", default="posterior", help="where a later round aims: posterior (the stage's), "
-                    "tempered or mix (see aiming()), comma-separated to compare")
+                    "tempered, mix or plugin (see aiming()), comma-separated to compare")
     ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
                     "piles' and the sampler's)")
     ap.add_argument("--budget", type=int, default=250)
