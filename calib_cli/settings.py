@@ -230,21 +230,33 @@ def _parse_value(text: str) -> Any:
         return text
 
 
-def parse_overrides(items: Iterable[str]) -> dict:
-    """``["pb.alpha=0.1", "target=33"]`` -> nested dict."""
+def parse_overrides(items) -> dict:
+    """``["pb.alpha=0.1", "target=33"]`` (one such string alone too), or from Python ``{"pb.alpha": 0.1}``
+    -> nested dict."""
     out: dict = {}
-    for item in items or ():
+    if isinstance(items, Mapping):
+        for key, value in items.items():
+            _put(out, str(key), value)
+        return out
+    for item in [items] if isinstance(items, str) else items or ():
         if "=" not in item:
             raise CalibError(f"setting {item!r} is not KEY=VALUE")
         key, text = item.split("=", 1)
-        parts = key.strip().split(".")
-        node = out
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-        if parts[-1] in node:
-            raise CalibError(f"setting {key.strip()} is given twice: give it once")
-        node[parts[-1]] = _parse_value(text.strip())
+        _put(out, key, _parse_value(text.strip()))
     return out
+
+
+def _put(out: dict, key: str, value) -> None:
+    """``value`` at the dotted ``key`` of the nested ``out``; a key given twice is an error."""
+    parts = key.strip().split(".")
+    node = out
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise CalibError(f"setting {key.strip()}: {p} is a value, not a table")
+    if parts[-1] in node:
+        raise CalibError(f"setting {key.strip()} is given twice: give it once")
+    node[parts[-1]] = value
 
 
 def read_toml(path: Path) -> dict:
@@ -257,12 +269,21 @@ def read_toml(path: Path) -> dict:
         raise CalibError(f"settings file {path} is not valid TOML: {e}") from None
 
 
-def with_overrides(text: str, items: Iterable[str]) -> str:
+def override_items(items) -> list[str]:
+    """``KEY=VALUE`` strings from what a caller gave: strings as typed, one string, or a mapping (its values
+    written as TOML: JSON's numbers, strings and booleans are TOML's)."""
+    if isinstance(items, Mapping):
+        return [f"{k}={json.dumps(v)}" for k, v in items.items()]
+    return [items] if isinstance(items, str) else list(items or ())
+
+
+def with_overrides(text: str, items) -> str:
     """Settings TOML ``text`` with ``KEY=VALUE`` overrides written in front of it as dotted keys
     (``heap.shear_modulus = 1.5e8``: before any table header TOML reads them as top-level keys),
     so that a file's comments and layout survive. A value that is not TOML is written as a string,
-    as ``parse_overrides`` reads it. Checked as ``load_settings`` checks a file."""
-    items = list(items)
+    as ``parse_overrides`` reads it. Checked as ``load_settings`` checks a file. From Python ``items`` may be
+    a mapping ({"heap.shear_modulus": 1.5e8}) or one string."""
+    items = override_items(items)
     parse_overrides(items)  # every item KEY=VALUE, with parse_overrides' message where not
     lines = []
     for item in items:

@@ -283,3 +283,18 @@ def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     assert r.exit_code == 0 and load_settings([tmp_path / "fresh" / "settings.toml"])["heap"]["shear_modulus"] == 5e7
     r = calib("init", "--run", tmp_path / "none", "--settings", tmp_path / "nope.toml")
     assert r.exit_code == 2 and "not found" in r.output and not (tmp_path / "none").exists()
+
+
+def test_the_designs_warnings_are_the_results_own():
+    """What `ascent analyze` and `bbd analyze` warn of comes from their results (docs/library.md), so a
+    notebook gets the same lines: the best step at the path's end; a lack of fit, R2 adjusted and predicted apart."""
+    from types import SimpleNamespace
+
+    from calib_cli.stages.doe import AscentResult, BBDResult
+
+    assert "end of the path" in AscentResult(None, analysis=SimpleNamespace(at_edge=True)).warnings()[0]
+    assert AscentResult(None, analysis=SimpleNamespace(at_edge=False)).warnings() == []
+    bad = SimpleNamespace(stats_={"lack_of_fit_p": 0.01, "r2_adj": 0.9, "r2_pred": 0.5})
+    w = BBDResult(None, rsm=bad, alpha=0.05).warnings()
+    assert len(w) == 2 and "lack of fit" in w[0] and "0.2" in w[1]
+    assert BBDResult(None, rsm=bad, alpha=0.005).warnings() == [w[1]]

@@ -831,3 +831,34 @@ def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     assert EDGE_SHARE > 0.025
     from calib_cli.model import EFFECTS
     assert pressed_edge(np.full(100, 0.99), 0.5, 1.0, EFFECTS["restitution"]) == ""
+
+
+def test_the_surrogate_and_the_sampler_say_what_they_lack_in_one_line():
+    """From a notebook (docs/library.md): an unfitted surrogate, a missing column, the wrong shape and a
+    measured table without its sd are CalibErrors naming what is missing, not pandas' or numpy's errors."""
+    import pandas as pd
+
+    from calib_cli.errors import CalibError
+    from calib_cli.posterior.calibrate import calibrate_posterior
+    from calib_cli.posterior.gp import GPSurrogate
+
+    rng = np.random.default_rng(0)
+    rows = pd.DataFrame({"static_friction": rng.random(24), "rolling_friction": rng.random(24)})
+    y = 30 + 10 * rows["static_friction"] + rng.normal(0, 0.5, 24)
+    gp = GPSurrogate(["static_friction", "rolling_friction"])
+    with pytest.raises(CalibError, match="not fitted"):
+        gp.predict(rows)
+    with pytest.raises(CalibError, match="lack the parameter column"):
+        GPSurrogate(["static_friction", "surface_energy"]).fit(rows, y)
+    gp.fit(rows, y)
+    with pytest.raises(CalibError, match="rolling_friction"):
+        gp.predict(rows[["static_friction"]])
+    with pytest.raises(CalibError, match="3 column"):
+        gp.predict(np.zeros((2, 3)))
+    with pytest.raises(CalibError, match="groups, points, inputs"):
+        gp.predict_joint(rows)
+    measured = pd.DataFrame({"mean": [35.0], "n": [10]})
+    with pytest.raises(CalibError, match="lack column.*sd"):
+        calibrate_posterior(gp, measured, {"static_friction": (0, 1), "rolling_friction": (0, 1)})
+    with pytest.raises(CalibError, match="bounds as"):
+        calibrate_posterior(gp, measured.assign(sd=1.0), [("static_friction", 0, 1)])

@@ -62,3 +62,18 @@ def test_bad_toml_file(tmp_path):
         load_settings([p])
     with pytest.raises(CalibError, match="not found"):
         load_settings([tmp_path / "missing.toml"])
+
+
+def test_overrides_from_python_are_a_mapping_or_one_string_and_a_clash_is_one_line(tmp_path):
+    """docs/library.md: a KEY=VALUE option takes a dict from Python; one string is one pair, not its letters."""
+    from calib_cli.heaps.inputs import given_pairs
+    from calib_cli.stages.run_dir import init_run
+
+    assert parse_overrides({"heap.shear_modulus": 1.5e8, "target": 33}) == {"heap": {"shear_modulus": 1.5e8},
+                                                                            "target": 33}
+    assert parse_overrides("pb.alpha=0.1") == {"pb": {"alpha": 0.1}}
+    assert given_pairs("static_friction=0.3", "--set") == {"static_friction": 0.3}
+    with pytest.raises(CalibError, match="target is a value, not a table"):  # was an AttributeError: exit 70
+        parse_overrides(["target=30", "target.x=2"])
+    init_run(tmp_path / "run", setting={"heap.shear_modulus": 1.5e8})
+    assert load_settings([tmp_path / "run" / "settings.toml"])["heap"]["shear_modulus"] == 1.5e8

@@ -119,7 +119,7 @@ SettingOpt = Annotated[
     typer.Option("--setting", "-s", help="Override one setting, e.g. -s pb.alpha=0.1 (repeatable)."),
 ]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Rerun even if inputs and settings are unchanged.")]
-AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", help="Do nothing unless the model is at "
+AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", min=0, help="Do nothing unless the model is at "
                                                      "this revision (a pipeline's step for one revision).",
                                                      show_default=False)]
 ResponsesOpt = Annotated[

@@ -7,7 +7,6 @@ from pathlib import Path
 import typer
 from typing_extensions import Annotated
 
-from ..errors import CalibError
 from rich.markup import escape
 from rich.table import Table
 
@@ -25,9 +24,6 @@ def diff_runs_cmd(
     validation, comparison) beside a reference run's, and why they differ where they do."""
     from ..stages.rundiff import diff_runs
 
-    for p in (run, reference):
-        if not p.is_dir():
-            raise CalibError(f"no run directory {p}")
     d = diff_runs(run, reference, rtol)
     t = Table(title=f"{run} against {reference}", title_justify="left", header_style="bold",
               width=min(console.width, 100))

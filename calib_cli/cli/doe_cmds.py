@@ -102,9 +102,8 @@ def ascent_analyze(run: RunOpt, responses: ResponsesOpt = None, target: Optional
     console.print(df_table(r.summary(), f"Steepest ascent vs target {tgt:g} deg (cf. paper Table 5)",
                            {"relative_error_percent": lambda v: f"{v:.2f} %"}))
     console.print(df_table(res.bracket, f"Bracket around step {res.best_step} (the Box-Behnken ranges)"))
-    if res.at_edge:
-        console.print("[yellow]warning:[/] the best step is at the end of the path; the optimum may lie outside "
-                      "it. Widen the screening ranges or extend the path.")
+    for w in r.warnings():
+        console.print(f"[yellow]warning:[/] {w}")
 
 
 # ------------------------------------------------------------------ bbd
@@ -151,7 +150,5 @@ def bbd_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsO
     console.print(f"R2 {s['r2']:.4f}  adj R2 {s['r2_adj']:.4f}  pred R2 {s['r2_pred']:.4f}  "
                   f"adequate precision {s['adeq_precision']:.4f}  CV {s['cv_percent']:.2f} %  "
                   f"lack of fit F {s['lack_of_fit_F']:.2f} p {s['lack_of_fit_p']:.4f}")
-    if s["lack_of_fit_p"] < r.alpha:
-        console.print("[yellow]warning:[/] lack of fit is significant: the quadratic model misses structure")
-    if s["r2_adj"] - s["r2_pred"] > 0.2:
-        console.print("[yellow]warning:[/] adjusted and predicted R2 differ by more than 0.2")
+    for w in r.warnings():
+        console.print(f"[yellow]warning:[/] {w}")

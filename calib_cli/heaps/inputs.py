@@ -169,8 +169,11 @@ Pairs = Union[Mapping, Iterable[str], None]
 
 
 def given_pairs(items: Pairs, what: str) -> dict:
-    """KEY=VALUE strings (the command line's) or a mapping (Python's) as a dict."""
-    return dict(items) if isinstance(items, Mapping) else parse_pairs(items, what)
+    """KEY=VALUE strings (the command line's; one string is one pair, not its characters) or a mapping
+    (Python's) as a dict."""
+    if isinstance(items, Mapping):
+        return dict(items)
+    return parse_pairs([items] if isinstance(items, str) else items, what)
 
 
 def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:

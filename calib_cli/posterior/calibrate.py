@@ -351,6 +351,14 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
     The same seed gives the same draws."""
     import emcee
 
+    if not isinstance(bounds, Mapping) or not isinstance(measured, pd.DataFrame):
+        raise CalibError("calibrate_posterior takes bounds as {parameter: (low, high)} and measured as a frame, one "
+                         "row per condition")
+    conds = [c for c in gp.inputs_ if c not in gp.parameters]
+    lacking = [c for c in ("mean", "sd", "n", *conds) if c not in measured.columns]
+    if lacking:
+        raise CalibError(f"the measured conditions lack column(s) {', '.join(lacking)}: one row per condition with "
+                         "its mean, sd and n piles, and the surrogate's condition variables")
     fixed = {k: float(v) for k, v in (fixed or {}).items()}
     names = list(bounds)
     loose = [p for p in gp.parameters if p not in bounds and p not in fixed]

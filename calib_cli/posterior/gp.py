@@ -201,6 +201,11 @@ class GPSurrogate:
         from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
         from threadpoolctl import threadpool_limits  # scikit-learn's own dependency
 
+        if not isinstance(X, pd.DataFrame) or len(X) != len(np.atleast_1d(y)):
+            raise CalibError("GPSurrogate.fit(X, y) takes the heaps as a frame and one response per row")
+        missing = [c for c in self.parameters if c not in X.columns]
+        if missing:
+            raise CalibError(f"GPSurrogate.fit: the heaps lack the parameter column(s) {', '.join(missing)}")
         y = np.asarray(y, float)
         keep = np.isfinite(y)
         rows, y = X[keep], y[keep]
@@ -259,9 +264,18 @@ class GPSurrogate:
         return np.log(self.white_sd_ ** 2 + v), jac[:, :, None] * cov * jac[:, None, :]
 
     def _scale(self, X) -> np.ndarray:
+        if not hasattr(self, "lows_"):
+            raise CalibError("this GPSurrogate is not fitted yet: call fit(X, y) first")
         if isinstance(X, pd.DataFrame):
+            missing = [c for c in self.inputs_ if c not in X.columns]
+            if missing:
+                raise CalibError(f"the points lack the surrogate's input column(s) {', '.join(missing)} "
+                                 f"(its inputs_: {', '.join(self.inputs_)})")
             X = X[self.inputs_].to_numpy(float)
         X = np.atleast_2d(np.asarray(X, float))
+        if X.shape[-1] != len(self.inputs_):
+            raise CalibError(f"the points have {X.shape[-1]} column(s), the surrogate {len(self.inputs_)} inputs "
+                             f"({', '.join(self.inputs_)})")
         return (X - self.lows_) / (self.highs_ - self.lows_)
 
     def predict(self, X, return_std: bool = False):
@@ -289,6 +303,9 @@ class GPSurrogate:
         ``inputs_`` order), cov_g = k(X_g, X_g) - k(X_g, X)(K + sigma^2 I)^-1 k(X, X_g): a point's
         conditions share the surrogate's error at one parameter set. The kernel is stationary, so
         k(x, x') is k(0, x - x') and every group's block costs m^2 differences."""
+        if isinstance(X, pd.DataFrame) or np.ndim(X) != 3:
+            raise CalibError("predict_joint(X) takes an array (groups, points, inputs) in inputs_ order; "
+                             "predict(X) takes a frame")
         X = np.asarray(X, float)
         b, m, k = X.shape
         Xs = self._scale(X.reshape(-1, k))

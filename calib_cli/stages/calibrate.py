@@ -127,6 +127,11 @@ class CalibrateResult(Result):
     def run_posterior(self) -> Path:
         return self.stage.run_dir / "posterior"
 
+    def summary(self) -> pd.DataFrame | str:
+        """The answer: each parameter's median, 90 % interval and verdict (posterior/summary.parquet); for a step
+        of another model revision, what it did."""
+        return self.table if self.table is not None else super().summary()
+
     def per_round(self) -> pd.DataFrame:
         """A row per round: heaps, the interval of each parameter and the effects' Bayes factors."""
         r = self.rounds

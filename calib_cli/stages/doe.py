@@ -72,6 +72,13 @@ class AscentResult(Result):
             return art.read_table(self.dir / "path.parquet")
         return self.analysis.path[["step", *self.factors, self.response, "relative_error_percent", "best"]]
 
+    def warnings(self) -> list[str]:
+        """What the analysis warns of: the best step at the end of the path."""
+        if self.analysis is None or not self.analysis.at_edge:
+            return []
+        return ["the best step is at the end of the path; the optimum may lie outside it. Widen the screening "
+                "ranges or extend the path."]
+
 
 @dataclass
 class BBDResult(Result):
@@ -84,6 +91,17 @@ class BBDResult(Result):
     def summary(self) -> pd.DataFrame:
         """The fit's statistics (R2, adjusted and predicted R2, lack of fit, ...)."""
         return art.read_table(self.dir / "fit.parquet")
+
+    def warnings(self) -> list[str]:
+        """What the fit warns of: a significant lack of fit (at ``alpha``), adjusted and predicted R2 apart."""
+        if self.rsm is None:
+            return []
+        s, out = self.rsm.stats_, []
+        if s["lack_of_fit_p"] < self.alpha:
+            out.append("lack of fit is significant: the quadratic model misses structure")
+        if s["r2_adj"] - s["r2_pred"] > 0.2:
+            out.append("adjusted and predicted R2 differ by more than 0.2")
+        return out
 
 
 def _fixed_values(cfg: dict, section: str, names: list[str]) -> dict[str, float]:
@@ -129,9 +147,11 @@ def pb_analyze(run: Path, responses: Optional[Path] = None, settings: Settings =
     space = space_from_design(design_path) or ParameterSpace.from_data(data, names, factor_space(cfg, names))
     st = stage(run, "pb", "analyze", inputs=inputs,
                    settings={"space": space.to_dicts(), "alpha": cfg["pb"]["alpha"], "response": response})
-    if st.up_to_date() and not force:
-        return PBResult(st, True)
+    # up to date: the same analysis of the same responses (a least-squares fit, milliseconds), not written again,
+    # so a notebook's result has its fields on a rerun too
     res = pb_mod.analyze(data, space, response, float(cfg["pb"]["alpha"]))
+    if st.up_to_date() and not force:
+        return PBResult(st, True, res)
     fit = pd.DataFrame([{**{k: res.fit.stats[k] for k in ("r2", "r2_adj", "r2_pred", "adeq_precision",
                                                            "cv_percent", "std_dev", "mean", "model_F", "model_p")},
                          "intercept": float(res.fit.coef["Intercept"]), "n_runs": len(data),
@@ -254,9 +274,9 @@ def ascent_analyze(run: Path, responses: Optional[Path] = None, target: Optional
         inputs = {"design": design_path, "results": art.Rows(run / "simulate" / "results.parquet", data)}
     inputs |= tin
     st = stage(run, "ascent", "analyze", inputs=inputs, settings={"target": tgt, "factors": factors})
-    if st.up_to_date() and not force:
-        return AscentResult(st, True)
     res = ascent_mod.analyze(data, factors, response, tgt)
+    if st.up_to_date() and not force:  # the same path read again (as pb_analyze), not written
+        return AscentResult(st, True, res, factors, response, tgt)
     for step in res.path.loc[~np.isfinite(res.path[response]), "step"]:
         say(f"[yellow]warning:[/] step {step} formed no heap (no angle): it cannot be the best step")
     with st.commit() as out:
@@ -322,9 +342,9 @@ def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings 
     if space is None:
         space = ParameterSpace.from_data(data, names, factor_space(cfg, names))
     st = stage(run, "bbd", "analyze", inputs=inputs, settings={"space": space.to_dicts(), "response": response})
-    if st.up_to_date() and not force:
-        return BBDResult(st, True)
     rsm = bbd_mod.QuadraticRSM(space).fit(data[space.names], data[response])
+    if st.up_to_date() and not force:  # the same surface fitted again (as pb_analyze), not written
+        return BBDResult(st, True, rsm, rsm.fit_.coefficient_table(), float(cfg["bbd"]["alpha"]))
     s = rsm.stats_
     fit = pd.DataFrame([{k: s[k] for k in ("r2", "r2_adj", "r2_pred", "adeq_precision", "cv_percent",
                                              "lack_of_fit_F", "lack_of_fit_p", "std_dev", "mean", "press",

@@ -81,9 +81,16 @@ class InvertResult(Result):
 
     def __post_init__(self):
         if self.solution is None and (self.dir / "solution.parquet").is_file():
+            # read back (the stage was up to date): what the files hold; ``warnings`` and ``verdict`` are
+            # the words of the run that wrote them (force=True says them again)
             self.solution = art.read_table(self.dir / "solution.parquet")
             self.ranges = art.read_table(self.dir / "ranges.parquet")
             self.per_condition = art.read_table(self.dir / "predicted_conditions.parquet")
+            self.identifiable = bool((self.ranges["width_fraction"] <= IDENTIFIABLE_FRACTION).all())
+            self.target_source = str(art.read_provenance(self.dir / "solution.parquet").get("target_source", ""))
+            if (self.dir / "solution_set.parquet").is_file():
+                self.n_near = len(art.read_table(self.dir / "solution_set.parquet"))
+                self.tolerance = float(art.read_provenance(self.dir / "solution_set.parquet").get("tolerance", 0.0))
 
     def summary(self) -> pd.DataFrame:
         """The solution: the parameters and the predicted angle there."""

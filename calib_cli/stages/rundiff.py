@@ -182,7 +182,9 @@ def diff_runs(run: Path, reference: Path, rtol: float = 1e-6) -> RunDiff:
     """The headline numbers of ``run`` against ``reference``'s and, where they differ, why."""
     run, reference = Path(run), Path(reference)
     for p in (run, reference):
-        if p.is_dir() and not _is_run(p):
+        if not p.is_dir():
+            raise CalibError(f"no run directory {p}")
+        if not _is_run(p):
             raise CalibError(f"{p} is not a run directory (no settings.toml and no stage lock in it)")
     problems: list[str] = []
     table = pd.DataFrame(_headline_rows(run, reference, rtol, problems),

@@ -50,11 +50,11 @@ def _posterior(run: Path, model: Model) -> pd.DataFrame:
     """The posterior draws of the current model, or an error saying to sample them first."""
     path = run / "posterior" / "summary.parquet"
     if not path.is_file():
-        raise CalibError(f"no posterior in {run}: run `calib calibrate-posterior --run {run}` first")
+        raise CalibError(f"no posterior in {run}: run `calib calibrate --run {run}` (or calibrate-posterior) first")
     rev = art.read_provenance(path).get("model_revision")
     if rev is not None and int(rev) != model.revision:
         raise CalibError(f"{path} is the posterior of model revision {rev}, but the model is revision "
-                         f"{model.revision}: run `calib calibrate-posterior --run {run}` first")
+                         f"{model.revision}: run `calib calibrate --run {run}` (or calibrate-posterior) first")
     return art.read_table(run / "posterior" / "samples.parquet")
 
 
