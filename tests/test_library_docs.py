@@ -46,7 +46,7 @@ def test_the_paper_example_runs(tmp_path, monkeypatch, capsys):
                                                        "table5_ascent.csv").warnings() == []
     again = invert.invert(scope["run"])
     assert again.skipped and again.summary().equals(sol)
-    for name in ("identifiable", "n_near", "tolerance", "target_source"):
+    for name in ("identifiable", "n_near", "tolerance", "target_source", "warnings", "verdict"):
         assert getattr(again, name) == getattr(scope["solution"], name), name
 
 

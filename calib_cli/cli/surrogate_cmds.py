@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 
 from ..errors import CalibError
 from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
@@ -110,12 +111,12 @@ def invert(
     console.print(df_table(r.ranges, f"Near-optimal set: {r.n_near} points within {r.tolerance:g} deg of the best "
                                      "fitness"))
     for line in r.warnings:
-        console.print(line)
+        console.print(f"[yellow]warning:[/] {escape(line)}")
     refinement = r.refinement()
     if refinement is not None:
         console.print(df_table(refinement, f"Refinement by simulation: {int(refinement['round'].max())} correction(s)"))
-    for line in r.verdict:
-        console.print(line)
+    for line in r.verdict:  # a line that warns is marked so (plain text in the result, for a notebook too)
+        console.print(f"[yellow]warning:[/]{escape(line[8:])}" if line.startswith("warning:") else escape(line))
 
 
 def calibrate_posterior(

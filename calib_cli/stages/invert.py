@@ -81,13 +81,15 @@ class InvertResult(Result):
 
     def __post_init__(self):
         if self.solution is None and (self.dir / "solution.parquet").is_file():
-            # read back (the stage was up to date): what the files hold; ``warnings`` and ``verdict`` are
-            # the words of the run that wrote them (force=True says them again)
+            # read back (the stage was up to date): what the files hold, and the words the run that wrote them
+            # said (a solution written before 2026-11-29 kept none: force=True says them again)
             self.solution = art.read_table(self.dir / "solution.parquet")
             self.ranges = art.read_table(self.dir / "ranges.parquet")
             self.per_condition = art.read_table(self.dir / "predicted_conditions.parquet")
             self.identifiable = bool((self.ranges["width_fraction"] <= IDENTIFIABLE_FRACTION).all())
-            self.target_source = str(art.read_provenance(self.dir / "solution.parquet").get("target_source", ""))
+            said = art.read_provenance(self.dir / "solution.parquet")
+            self.target_source = str(said.get("target_source", ""))
+            self.warnings, self.verdict = list(said.get("warnings", [])), list(said.get("verdict", []))
             if (self.dir / "solution_set.parquet").is_file():
                 self.n_near = len(art.read_table(self.dir / "solution_set.parquet"))
                 self.tolerance = float(art.read_provenance(self.dir / "solution_set.parquet").get("tolerance", 0.0))
@@ -272,8 +274,14 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     sol = pd.DataFrame([{**dict(zip(prob.params, best_x.tolist())), "predicted_angle": float(np.mean(preds)),
                          "fitness": fit_at, "model": name, "target": float(np.mean(targets))}])
     per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
+    result = InvertResult(st, False, sol, per_cond, res.ranges, len(res.solution_set), float(iv["tolerance"]), tsource,
+                          res.identifiable, val)
+    result.warnings = _warnings(result, prob, best_x)
+    result.verdict = _verdict(result, prob, float(iv["refine_z"]))
     with st.commit() as out:
-        out.table("solution.parquet", sol, targets=targets, target_source=tsource, refine_round=chosen)
+        # the words kept with the solution: a rerun that finds the stage up to date reads them back
+        out.table("solution.parquet", sol, targets=targets, target_source=tsource, refine_round=chosen,
+                  warnings=result.warnings, verdict=result.verdict)
         out.table("predicted_conditions.parquet", per_cond)
         out.table("history.parquet", hist)
         out.table("solution_set.parquet", res.solution_set, tolerance=float(iv["tolerance"]))
@@ -284,19 +292,16 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
         if val is not None and val.refinement is not None:
             out.table("refinement.parquet", val.refinement, accepted=val.accepted, chosen_round=chosen,
                       stalled=val.stalled)
-    result = InvertResult(st, False, sol, per_cond, res.ranges, len(res.solution_set), float(iv["tolerance"]), tsource,
-                          res.identifiable, val)
-    result.warnings = _warnings(result, prob, best_x)
-    result.verdict = _verdict(result, prob, float(iv["refine_z"]))
     return result
 
 
 def _warnings(r: InvertResult, prob: Problem, best_x: np.ndarray) -> list[str]:
-    """An unidentifiable solution, and parameters at the edge of the surrogate's box."""
+    """An unidentifiable solution, and parameters at the edge of the surrogate's box (plain text: the command
+    prints each as a warning)."""
     out = []
     if not r.identifiable:
         wide = r.ranges.loc[r.ranges["width_fraction"] > IDENTIFIABLE_FRACTION, "parameter"].tolist()
-        out.append(f"[yellow]warning:[/] not identifiable from the data given: {', '.join(wide)} can vary over "
+        out.append(f"not identifiable from the data given: {', '.join(wide)} can vary over "
                    f"more than {IDENTIFIABLE_FRACTION * 100:.0f} % of its range with the predicted angle within "
                    "tolerance. One angle cannot pin "
                    "several parameters; add heap tests under other conditions (docs: the discrepancy loop).")
@@ -304,7 +309,7 @@ def _warnings(r: InvertResult, prob: Problem, best_x: np.ndarray) -> list[str]:
     box, at = dict(zip(prob.params, zip(prob.lows, prob.highs))), dict(zip(prob.params, best_x.tolist()))
     for q, side in at_bounds(at, box).items():
         lo, hi = box[q]
-        out.append(f"[yellow]warning:[/] {q} = {at[q]:.4g} is at the {side} end of the range "
+        out.append(f"{q} = {at[q]:.4g} is at the {side} end of the range "
                    f"the surrogate was fitted on [{lo:.4g}, {hi:.4g}]: the targets may want a value beyond it. "
                    f"Widen factors.{q} and redo the design, or, if the range is physical, look for a missing "
                    "effect (calib compare, calib diagnose)")
@@ -324,7 +329,7 @@ def _verdict(r: InvertResult, prob: Problem, refine_z: float) -> list[str]:
             out.append(f"round {v.chosen}'s heaps agree with the targets (rms z <= {refine_z:g}): its "
                        "parameters are the solution")
         else:
-            out.append(f"[yellow]warning:[/] no round's heaps lie within {refine_z:g} combined sd "
+            out.append(f"warning: no round's heaps lie within {refine_z:g} combined sd "
                        "(rms z) of the targets; the "
                        f"solution is round {v.chosen}'s, the closest. The surrogate is wrong where the targets "
                        "lie: simulate more there (a narrower BBD around the solution) or add conditions.")
@@ -338,5 +343,5 @@ def _verdict(r: InvertResult, prob: Problem, refine_z: float) -> list[str]:
                        f"{ok.std(ddof=1) if len(ok) > 1 else float('nan'):.2f}, relative error "
                        f"{100 * abs(ok.mean() - t) / t:.3f} % against {t:.2f} (cf. paper 3.6: 32.31, 0.748 %)")
         else:
-            out.append(f"[yellow]validation{where}: no run formed a heap[/]")
+            out.append(f"warning: validation{where}: no run formed a heap")
     return out

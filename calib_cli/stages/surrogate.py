@@ -126,8 +126,8 @@ def fit_surrogate(run: Path, responses: Optional[Path] = None, from_simulations:
     sc = cfg["surrogate"]
     data, names, inputs = _training_data(run, responses, cfg, from_simulations, say)
     st = stage(run, "surrogate", "fit", inputs=inputs, settings={"surrogate": sc, "inputs": names})
-    if st.up_to_date() and not force:
-        return FitResult(st, True)
+    if st.up_to_date() and not force:  # the training rows are at hand: their count, not 0
+        return FitResult(st, True, n_samples=len(data))
     X, y = data[names].to_numpy(float), data[cfg["response"]].to_numpy(float)
     if len(y) < 8:
         raise CalibError(f"{len(y)} samples are too few for the surrogates (a quadratic in 3 factors has 10 terms)")
