@@ -150,10 +150,13 @@ def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     rows = []
     for r, edge in zip(post.itertuples(index=False), edges(post)):
         unit = units.get(r.parameter, "-")
-        decided = bool(getattr(r, "decided", True))
-        state = (badge("undecided", "warn") if not decided
-                 else badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge
-                 else badge("identified", "pass") if r.identified
+        decided, p_off = bool(getattr(r, "decided", True)), float(getattr(r, "p_off", math.nan))
+        at_edge = badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge else ""
+        # an effect the data favour off: its averaged interval is the neutral value's, not an identification
+        state = (badge("undecided", "warn") + (" " + at_edge if at_edge else "") if not decided
+                 else at_edge if edge
+                 else badge(f"off, P(off) {p_off:.2f}", "pass") if np.isfinite(p_off) and p_off >= 0.5
+                 else badge(f"identified, {100 * r.rel_width:.0f} % of range", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
         rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
                      esc("" if unit == "-" else unit), state])
@@ -168,7 +171,8 @@ def _effects_table(post: pd.DataFrame) -> str:
         return ""
     p_off = lambda r: getattr(r, "p_off", math.nan)  # noqa: E731  (a posterior averaged over it on and off)
     rows = [[esc(owner.get(r.parameter, r.parameter)), esc(bf_text(r.bf_off, bool(getattr(r, "bf_upper", False)))),
-             num(p_off(r), 2) if np.isfinite(p_off(r)) else "&ndash;",
+             num(p_off(r), 2) if np.isfinite(p_off(r))
+             else "not averaged: the Bayes factor is a bound" if getattr(r, "bf_upper", False) else "&ndash;",
              _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
             for r in eff.itertuples(index=False)]
     return rows_table(["effect", "Bayes factor of off", "probability off (the intervals average it)", ""], rows,

@@ -136,12 +136,40 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
         if nf == 0:
             return "pass", f"{who} reproduce{'s' * one} {which} within two combined standard uncertainties ({stats})."
         missed = "the measured condition" if n == 1 else f"{nf} of {n} {cs}"
+        chance = _within_chance(f, fit) if fit.kind == "compare" else None
+        if chance:
+            return "pass", (f"{who} reproduce{'s' * one} the {n} {cs} as well as chance allows: {missed} "
+                            f"lie{'s' * (nf == 1)} beyond two combined standard uncertainties, {chance} ({stats}).")
         return "fail", f"{who} miss{'es' * one} {missed} by more than two combined standard uncertainties ({stats})."
     if fit.kind == "surrogate":
         return "info", (f"Not checked by simulation: at the solution the surrogate predicts the measured "
                         f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}, but no heap was simulated there "
                         "(<code>calib invert --validate N</code>, <code>calib compare</code>).")
     return "info", "Not checked by simulation yet: <code>calib compare</code> simulates the calibrated point."
+
+
+def _within_chance(f: RunFiles, fit: Fit) -> str:
+    """Why compare's conditions beyond |z| = 2 are no misfit, or "" where they are one: the z of the model's
+    conditions taken together, at a family-wise 5 % (every |z| within Sidak's bar for n conditions, and the
+    chi-square of the z's, sum z^2 on compare's own degrees of freedom, sum z^2 / (chi2/dof), not beyond
+    p 0.05). With six conditions a model that is right has one |z| > 2 about one time in four."""
+    from scipy import stats
+
+    res, hist = f.table("compare/residuals.parquet"), f.table("compare/history.parquet")
+    z = res["z"].to_numpy(float) if res is not None and "z" in res.columns else np.array([])
+    z = z[np.isfinite(z)]
+    if len(z) < 2 or hist is None or not len(hist) or not np.isfinite(hist["chi2_dof"].iloc[-1]):
+        return ""
+    n, x2 = len(z), float(np.sum(z ** 2))
+    bar = float(stats.norm.isf((1 - 0.95 ** (1 / n)) / 2))
+    dof = x2 / float(hist["chi2_dof"].iloc[-1]) if hist["chi2_dof"].iloc[-1] > 0 else float(n)
+    p = float(stats.chi2.sf(x2, dof))
+    if np.abs(z).max() > bar or p < 0.05:
+        return ""
+    chance = 1 - (1 - 2 * float(stats.norm.sf(2.0))) ** n
+    return (f"as at least one of {n} does by chance {chance:.0%} of the time (largest |z| "
+            f"{np.abs(z).max():.2f}, within the {bar:.2f} that {n} conditions allow at 5%; "
+            f"&chi;&sup2; of all {n}: p {p:.2f})").replace("%", " %")
 
 
 def _loose_clause(f: RunFiles) -> str:
@@ -163,17 +191,18 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     from ..model import EFFECTS
     from ..posterior.evidence import bf_text, edges, effect_verdict
 
+    edge = edges(post) != ""
+    cut = list(post.loc[edge, "parameter"])
+    pressed = (f" Pressed against an edge of its range, so cut by it: {words(cut)} (widen the range in settings.toml, "
+               "or the model lacks an effect)." if cut else "")
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
-                f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').")
-    edge = edges(post) != ""
-    ident = list(post.loc[post["identified"].astype(bool), "parameter"])
-    loose = list(post.loc[~post["identified"].astype(bool) & ~edge, "parameter"])
-    cut = list(post.loc[edge, "parameter"])
+                f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').{pressed}")
+    off = post["p_off"].fillna(0.0).to_numpy(float) >= 0.5 if "p_off" in post.columns else np.zeros(len(post), bool)
+    ident = list(post.loc[post["identified"].astype(bool) & ~off, "parameter"])
+    loose = list(post.loc[~post["identified"].astype(bool) & ~edge & ~off, "parameter"])
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
-        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "") + \
-        (f" Pressed against an edge of its range, so cut by it: {words(cut)} (widen the range in settings.toml, "
-         "or the model lacks an effect)." if cut else "")
+        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "") + pressed
     owner = {e.parameter: e.name for e in EFFECTS.values()}
     said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide",
             "undecided": "undecided, the surrogate is unsure where the posterior lies"}
