@@ -35,7 +35,7 @@ nav{font-size:13px;margin:6px 0 10px}nav a{margin-right:10px}code{font-size:12.5
 table{border-collapse:collapse;font-size:12.5px;margin:.3em 0 .8em}table.compact{margin:0}
 td,th{border:1px solid #ccc;padding:2px 6px;text-align:left;vertical-align:top}th{background:#f0f0f0}
 td.n,th.n{text-align:right}
-.badge{display:inline-block;padding:0 6px;border-radius:8px;font-size:12px;font-weight:600;white-space:nowrap}
+.badge{display:inline-block;padding:0 6px;border-radius:8px;font-size:12px;font-weight:600}
 .pass{background:#d5f0dc;color:#145a32}.fail{background:#f8d4cf;color:#7b241c}
 .warn{background:#fcefc7;color:#7d5a00}.info{background:#dde8f5;color:#1b4f72}
 svg.chart{max-width:100%;height:auto;font-size:11px}.legend{font-size:12px;margin:2px 0}
@@ -54,8 +54,12 @@ def first_screen(f: RunFiles) -> str:
     """Headline and verdict, then the posterior, the fit, the error history, the ranking, the surrogate's
     best fit and the photographs."""
     fit = fit_rows(f)
-    return (f"<section id=summary>{headline(f, fit)}<div class=grid>{posterior_card(f)}{fit_card(f, fit)}"
-            f"<div class=stack>{history_card(f)}{ranking_card(f)}{params_card(f)}</div>"
+    post, point = f.table("posterior/summary.parquet"), params_card(f)
+    # the answer leads: the posterior where there is one, else the surrogate's best fit (and the posterior's
+    # "not run yet" beside the history)
+    lead, aside = (point, posterior_card(f)) if point and (post is None or post.empty) else (posterior_card(f), point)
+    return (f"<section id=summary>{headline(f, fit)}<div class=grid>{lead}{fit_card(f, fit)}"
+            f"<div class=stack>{history_card(f)}{ranking_card(f)}{aside}</div>"
             f"{photos_card(f)}</div></section>")
 
 

@@ -142,7 +142,7 @@ def ranking_card(f: RunFiles) -> str:
 def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
     word = effect_verdict(bf, upper, decided)
     return {"on": badge("called for", "fail"), "off": badge("favoured off", "pass"),
-            "open": badge("not decided", "warn"), "undecided": badge("undecided: surrogate unsure", "warn")}.get(word, "")
+            "open": badge("not decided", "warn"), "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
 
 
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
