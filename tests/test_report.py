@@ -100,6 +100,8 @@ def test_first_screen_of_a_run_with_diagnose():
     assert "surface_energy</td><td>0.522</td><td>0.397 &ndash; 0.695</td><td>J/m2</td>" in top
     assert ">pinned<" not in top and "best fit (GA)" not in top
     assert "8 rounds, 240 heaps simulated, the posterior on 372; stopped by the stability rule" in top
+    # the one set a user simulates with: compare's point, not the medians
+    assert "static_friction 0.458, rolling_friction 0.123, restitution 0.218, surface_energy 0.516 J/m2." in top
     # fit per condition: one chart row per condition, pass or fail as compare's residuals say
     sol = art.read_table(RUNS / "hidden-effect" / "compare" / "residuals.parquet")
     chart = top[top.index("<svg"):top.index("</svg>")]

@@ -196,6 +196,19 @@ def _rounds_note(f: RunFiles, rev) -> str:
                 "(<a href='calibrate/rounds.png'>the intervals round by round</a>).", "prov")
 
 
+def _point_note(f: RunFiles, rev) -> str:
+    """The one parameter set to put into a DEM model: the posterior's most probable draw, which compare
+    simulates (calibrate/point.parquet), where it is this revision's."""
+    point = f.table("calibrate/point.parquet")
+    if point is None or point.empty or f.prov("calibrate/point.parquet").get("model_revision") != rev:
+        return ""
+    units = {e.parameter: e.unit for e in EFFECTS.values() if e.unit != "-"}
+    values = ", ".join(f"{esc(p)} {num(float(v), 3)}{' ' + esc(units[p]) if p in units else ''}"
+                       for p, v in point.iloc[0].items())
+    return note(f"One set to simulate with (the posterior's most probable draw, what <code>calib compare</code> "
+                f"simulates; <code>calibrate/point.parquet</code>): {values}.", "prov")
+
+
 def posterior_card(f: RunFiles) -> str:
     """The answer: each parameter's median and 90 % interval with its unit, whether identified, each added
     effect's Bayes factor, and what to measure next; or, without a posterior, the command that makes one."""
@@ -216,7 +229,7 @@ def posterior_card(f: RunFiles) -> str:
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
     body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "
                  f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.", "prov")
-    body += _rounds_note(f, rev)
+    body += _rounds_note(f, rev) + _point_note(f, rev)
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
         head = "Measure next" if any_ranked(nxt) else \
