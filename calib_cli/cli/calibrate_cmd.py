@@ -66,8 +66,9 @@ def calibrate(
     """
     from ..stages.calibrate import calibrate as run_calibration
 
+    # a bar on a terminal only: piped, the transient bar left an empty line before every message
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as prog:
+                  console=console, transient=True, disable=not console.is_terminal) as prog:
         task = prog.add_task("heaps", total=None)
 
         def on_heap(req, row):
