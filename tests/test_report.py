@@ -108,7 +108,7 @@ def test_first_screen_of_a_run_with_diagnose():
     assert all(c in chart for c in sol["condition_id"])
     assert chart.count(">pass<") == (~sol["fails"]).sum() and chart.count(">fail<") == sol["fails"].sum() == 1
     # error history and ranking with verdicts
-    assert "+ cohesion" in top and top.count("1 of 6 fail") == 2  # revisions 0 and 1
+    assert "+ cohesion" in top and top.count("1 of 6 |z| &gt; 2") == 2  # revisions 0 and 1
     assert ">significant<" in top and "not significant" in top
     # one photograph per condition, and an honest word about the missing simulated side views (a clone
     # keeps none; a checkout that ran the pipeline keeps its heaps' folders, and shows them)

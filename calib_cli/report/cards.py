@@ -116,7 +116,8 @@ def history_card(f: RunFiles) -> str:
         shown = ", ".join(eff) if before is None else "+ " + ", ".join(e for e in eff if e not in before) \
             if set(eff) - set(before) else "(same effects)"
         before = eff
-        failing = badge(f"{int(r.n_fail)} of {int(r.n_conditions)} fail", "fail" if r.n_fail else "pass")
+        # a count, not a verdict (the headline judges the conditions together): amber, not red
+        failing = badge(f"{int(r.n_fail)} of {int(r.n_conditions)} |z| > 2", "warn" if r.n_fail else "pass")
         rows.append([str(int(r.revision)), esc(shown), deg(r.rmse), num(r.chi2_dof, 3), failing])
     return card("Error across model revisions",
                 rows_table(["rev.", "effects", "RMSE", "&chi;&sup2;/dof", ""], rows, "compact"))
@@ -176,7 +177,9 @@ def _effects_table(post: pd.DataFrame) -> str:
              _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
             for r in eff.itertuples(index=False)]
     return rows_table(["effect", "Bayes factor of off", "probability off (the intervals average it)", ""], rows,
-                      "compact")
+                      "compact") + note("Bayes factor of off: how much more probable the data are with the effect "
+                                        "off than with it on; below 0.1 they call for it, above 3 they favour it off "
+                                        "(Jeffreys).", "prov")
 
 
 _STOPS = {"budget": "its budget", "stable": "the stability rule"}  # calibrate's stop reasons, as a sentence reads them

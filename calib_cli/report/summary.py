@@ -112,10 +112,12 @@ def _diagnosis_clause(f: RunFiles) -> str:
     if hist is not None and len(hist) and int(hist["revision"].iloc[-1]) > int(drev if str(drev).isdigit() else -1):
         last = hist.iloc[-1]
         added = [e for e in sig if e in str(last["effects"]).split(",")]
-        was = hist.loc[hist["revision"] == int(drev), "rmse"]
+        was = hist.loc[hist["revision"] == int(drev)]
         if added:
+            # both: the RMSE weighs every condition alike, chi2/dof by its uncertainty, and they can part ways
             text += (f"; revision {int(last['revision'])} adds {words(added)}"
-                     + (f" (RMSE {deg(was.iloc[0])} &rarr; {deg(last['rmse'])})" if len(was) else ""))
+                     + (f" (RMSE {deg(was['rmse'].iloc[0])} &rarr; {deg(last['rmse'])}, &chi;&sup2;/dof "
+                        f"{num(was['chi2_dof'].iloc[0], 3)} &rarr; {num(last['chi2_dof'], 3)})" if len(was) else ""))
     return text + "."
 
 
