@@ -203,3 +203,12 @@ def test_a_misfit_is_judged_on_the_conditions_together():
     assert judge([0.1, 1.0, -1.2, 0.6, -2.9, 0.0], 2.3) == "fail"  # beyond 2.63
     assert judge([2.1, 1.9, 1.9, 1.8, 1.9, 0.0], 3.3) == "fail"  # each within, together p < 0.05
     assert judge([2.3], 5.3) == "fail"  # one condition: |z| > 2 is the bar
+
+
+def test_the_surrogates_best_fit_says_how_far_its_surrogate_can_be_trusted():
+    """A near-optimal tolerance of 0.25 deg means little from a surrogate that misses held-out heaps by 12 deg
+    (the sample calibration's bp); and three parameters reaching one angle within 0.00 deg says nothing."""
+    cal = summary_of(build_report(RUNS / "calibration"))
+    assert "The surrogate inverted (bp) predicts a heap it was not fitted to within RMSE 12.40&deg;" in cal
+    paper = summary_of(build_report(RUNS / "paper"))
+    assert "with 3 parameters for 1 angle the search can always reach it" in paper

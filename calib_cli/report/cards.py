@@ -67,7 +67,21 @@ def params_card(f: RunFiles) -> str:
     if outside:
         body += note(f"* {esc(', '.join(outside))}: the solution lies outside the surrogate's near-optimal range, "
                      "moved there by the refinement by simulation.", "prov")
-    return card("The surrogate's best fit (GA)", body + _fixed_and_validation(f, params))
+    return card("The surrogate's best fit (GA)", body + _held_out(f) + _fixed_and_validation(f, params))
+
+
+def _held_out(f: RunFiles) -> str:
+    """How well the inverted surrogate predicts heaps it was not fitted to (leave-one-out): the scale a
+    near-optimal tolerance of a fraction of a degree is to be read against."""
+    m, sol = f.table("surrogate/metrics.parquet"), f.table("invert/solution.parquet")
+    if m is None or sol is None or "model" not in sol.columns:
+        return ""
+    loo = m[(m["split"] == "loo") & (m["model"] == sol["model"].iloc[0])]
+    if loo.empty:
+        return ""
+    r = loo.iloc[0]
+    return note(f"The surrogate inverted ({esc(r['model'])}) predicts a heap it was not fitted to within RMSE "
+                f"{deg(float(np.sqrt(r['mse'])))} (leave-one-out R&sup2; {num(r['r2'], 2)}).", "prov")
 
 
 def _fixed_and_validation(f: RunFiles, params: dict) -> str:

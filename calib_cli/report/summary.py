@@ -144,9 +144,12 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
                             f"lie{'s' * (nf == 1)} beyond two combined standard uncertainties, {chance} ({stats}).")
         return "fail", f"{who} miss{'es' * one} {missed} by more than two combined standard uncertainties ({stats})."
     if fit.kind == "surrogate":
+        params = solution_params(f)
+        free = (f" (with {len(params)} parameters for {n} angle{'s' * (n != 1)} the search can always reach "
+                f"{'it' if n == 1 else 'them'}: that says nothing of the model)") if len(params) >= n else ""
         return "info", (f"Not checked by simulation: at the solution the surrogate predicts the measured "
-                        f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}, but no heap was simulated there "
-                        "(<code>calib invert --validate N</code>, <code>calib compare</code>).")
+                        f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}{free}, but no heap was simulated "
+                        "there (<code>calib invert --validate N</code>, <code>calib compare</code>).")
     return "info", "Not checked by simulation yet: <code>calib compare</code> simulates the calibrated point."
 
 
