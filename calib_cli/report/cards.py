@@ -111,11 +111,23 @@ def fit_card(f: RunFiles, fit: Fit) -> str:
         return card("Fit per condition", _missing("calib measure-angle", "measures the heaps"))
     sim = {"compare": "simulated", "validation": "simulated", "surrogate": "surrogate"}.get(fit.kind, "simulated")
     body = fit_chart(fit.rows) + legend(sim)
-    rule = " Pass: |measured &minus; simulated| &le; 2 combined standard uncertainties." \
-        if fit.kind in ("compare", "validation") else ""
+    rule = " Pass: |measured &minus; simulated| &le; 2 combined standard uncertainties" \
+        + _uncertainty_words(f) + "." if fit.kind in ("compare", "validation") else ""
     said = f"Simulated: {fit.label}.{rule}" if fit.kind != "measured" else \
         "Measured only: no heap simulated at a calibrated point yet."
     return card("Fit per condition", body + note(said, "prov"))
+
+
+def _uncertainty_words(f: RunFiles) -> str:
+    """compare's combined standard uncertainty of a residual, which the pass rule uses: the whiskers are the
+    piles' own sd, not it."""
+    res = f.table("compare/residuals.parquet")
+    if res is None or "uncertainty" not in res.columns or not np.isfinite(res["uncertainty"]).any():
+        return ""
+    u = res["uncertainty"].to_numpy(float)
+    u = u[np.isfinite(u)]
+    said = deg(float(u[0])) if np.ptp(u) < 1e-9 else f"{deg(float(u.min()))}&ndash;{deg(float(u.max()))}"
+    return f" (u = {said} here, from both means' scatter; the whiskers are the piles' own sd)"
 
 
 def history_card(f: RunFiles) -> str:
