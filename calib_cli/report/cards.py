@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ..model import EFFECTS
-from ..posterior.evidence import bf_text, edges, effect_verdict
+from ..posterior.evidence import BF_OFF, bf_text, edges, effect_verdict
 from ..posterior.suggest import any_ranked, best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
@@ -172,6 +172,10 @@ def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
             "open": badge("not decided", "warn"), "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
 
 
+#: P(off) at which an averaged answer's interval is the effect's neutral value: a Bayes factor of off of BF_OFF
+FAVOURED_OFF = BF_OFF / (1 + BF_OFF)
+
+
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     units = {e.parameter: e.unit for e in EFFECTS.values()}
     rows = []
@@ -182,7 +186,7 @@ def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
         # an effect the data favour off: its averaged interval is the neutral value's, not an identification
         state = (badge("undecided", "warn") + (" " + at_edge if at_edge else "") if not decided
                  else at_edge if edge
-                 else badge(f"off, P(off) {p_off:.2f}", "pass") if np.isfinite(p_off) and p_off >= 0.5
+                 else badge(f"off, P(off) {p_off:.2f}", "pass") if np.isfinite(p_off) and p_off >= FAVOURED_OFF
                  else badge(f"identified, {100 * r.rel_width:.0f} % of range", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
         rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",

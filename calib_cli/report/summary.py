@@ -194,7 +194,7 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
     each added effect's verdict with its Bayes factor."""
     from ..model import EFFECTS
-    from ..posterior.evidence import bf_text, edges, effect_verdict
+    from ..posterior.evidence import BF_OFF, bf_text, edges, effect_verdict
 
     edge = edges(post) != ""
     cut = list(post.loc[edge, "parameter"])
@@ -203,7 +203,9 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').{pressed}")
-    off = post["p_off"].fillna(0.0).to_numpy(float) >= 0.5 if "p_off" in post.columns else np.zeros(len(post), bool)
+    # an effect the data favour off: its averaged interval is the neutral value's, not an identification
+    off = post["p_off"].fillna(0.0).to_numpy(float) >= BF_OFF / (1 + BF_OFF) if "p_off" in post.columns \
+        else np.zeros(len(post), bool)
     ident = list(post.loc[post["identified"].astype(bool) & ~off, "parameter"])
     loose = list(post.loc[~post["identified"].astype(bool) & ~edge & ~off, "parameter"])
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
