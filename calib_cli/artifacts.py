@@ -412,6 +412,14 @@ def run_lock(run: Path, wait: bool = False):
         os.close(fd)  # closing the last descriptor releases the lock
 
 
+def check_free(run: Path) -> None:
+    """Refuse at once a run directory another calib command holds, with :func:`run_lock`'s one line: a command
+    that plans before it writes (simulate-heap) printed its plan and progress bars first."""
+    if Path(run).is_dir():
+        with run_lock(run):
+            pass
+
+
 #: what a writer killed mid-write leaves: a stage's or a heap's staging folder, an atomic write's temporary file
 LEFTOVERS = (".*.staging-*", ".*.tmp")
 

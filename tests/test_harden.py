@@ -260,6 +260,7 @@ def test_a_second_writer_of_a_run_directory_fails_naming_the_holder(tmp_path):
         r = runner.invoke(app, ["simulate-heap", "--run", str(run), "--preset", "smoke", "--set",
                                 "static_friction=0.3"])
         one_line_error(r, str(run), f"pid {proc.pid}")
+        assert "run(s)" not in r.output and "runs" not in r.output  # refused before its plan and progress bars
         r = runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)])
         one_line_error(r, str(run), f"pid {proc.pid}")
         assert sorted(p.name for p in run.iterdir()) == [".lock"]

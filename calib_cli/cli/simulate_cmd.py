@@ -52,10 +52,12 @@ def simulate_heap(
     result.json}. Finished runs are cached by the hash of their parameters, condition, numerics,
     seed and kernel; rerunning skips them and Ctrl-C loses nothing finished.
     """
+    from ..artifacts import check_free
     from ..heaps.runner import check_dask
     from ..stages.simulate import plan_simulation, run_simulation
 
     check_dask(dask)
+    check_free(run)
     plan = plan_simulation(run, set_, design, repeats, seed, preset, shear_modulus, condition, conditions, engine, mpi,
                            shape, force, say=say)
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.2f}/{task.total:.2f}"),
