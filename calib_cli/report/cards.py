@@ -260,8 +260,10 @@ def posterior_card(f: RunFiles) -> str:
         body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
                      f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
+    corner = (" Every pair of parameters: <a href='posterior/corner.png'>the posterior's corner plot</a>."
+              if (f.run / "posterior" / "corner.png").is_file() else "")
     body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "
-                 f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.", "prov")
+                 f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.{corner}", "prov")
     body += _rounds_note(f, rev) + _point_note(f, rev)
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
