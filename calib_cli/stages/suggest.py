@@ -308,6 +308,24 @@ def _conditions_csv(table: pd.DataFrame, top: int, piles: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int) -> list[str]:
+    """What limits a ranking: a surrogate less sure than a measured mean even where there are heaps, gains or
+    separations carried beyond the heaps or the measured range (shown, not ranked)."""
+    notes = []
+    if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
+        notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
+                     f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
+                     "heaps where the posterior lies (a design over its 90 % intervals) will teach more than any new "
+                     "condition until it falls")
+    if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
+        notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
+                     "extrapolation and is not ranked: simulate heaps there first")
+    if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
+        notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
+                     "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
+    return notes
+
+
 @writes_run
 def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: int = 5, force: bool = False,
                        say: Optional[Say] = None, simulate=(), set_: Pairs = None, preset: Optional[str] = None,
@@ -320,7 +338,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     RUN/suggest/sensitivities.parquet."""
     say = say or plain
     run = check_run_dir(run)
-    resolve_settings(run, None, None)  # a broken settings.toml stops every command, this one too
+    cfg = resolve_settings(run, None, None)  # read first: a broken settings.toml stops every command, this one too
     the_rig = load_rig(rig)
     piles = int(piles or the_rig.piles)
     if piles < 1 or top < 1 or repeats < 1:
@@ -357,7 +375,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                          **({"profiles_at_hand": profiles_at_hand(run, rows)} if profile else {}),
                          **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
                          "preset": preset, **modulus_settings(shear_modulus),
-                         **run_heap_settings(resolve_settings(run, None, None))} if simulate else {})})
+                         **run_heap_settings(cfg)} if simulate else {})})
     if st.up_to_date() and not force:
         return SuggestResult(st, True, top=top)
     ev, notes = _evidence(run, model, measured, samples)
@@ -374,17 +392,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
-    if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
-        notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
-                     f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
-                     "heaps where the posterior lies (a design over its 90 % intervals) will teach more than any new "
-                     "condition until it falls")
-    if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
-        notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
-                     "extrapolation and is not ranked: simulate heaps there first")
-    if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
-        notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
-                     "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
+    notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles)
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
