@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 
 from ..model import EFFECTS
-from ..posterior.evidence import BF_OFF, bf_text, edges, effect_verdict
+from ..posterior.evidence import bf_text, edges, effect_verdict
 from ..posterior.suggest import any_ranked, best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
-from .summary import PINNED, Fit, solution_params
+from .summary import PINNED, Fit, favoured_off, solution_params
 
 
 def card(title: str, body: str, cls: str = "") -> str:
@@ -172,21 +172,16 @@ def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
             "open": badge("not decided", "warn"), "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
 
 
-#: P(off) at which an averaged answer's interval is the effect's neutral value: a Bayes factor of off of BF_OFF
-FAVOURED_OFF = BF_OFF / (1 + BF_OFF)
-
-
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     units = {e.parameter: e.unit for e in EFFECTS.values()}
     rows = []
-    for r, edge in zip(post.itertuples(index=False), edges(post)):
+    for r, edge, off in zip(post.itertuples(index=False), edges(post), favoured_off(post)):
         unit = units.get(r.parameter, "-")
-        decided, p_off = bool(getattr(r, "decided", True)), float(getattr(r, "p_off", math.nan))
+        decided = bool(getattr(r, "decided", True))
         at_edge = badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge else ""
-        # an effect the data favour off: its averaged interval is the neutral value's, not an identification
         state = (badge("undecided", "warn") + (" " + at_edge if at_edge else "") if not decided
                  else at_edge if edge
-                 else badge(f"off, P(off) {p_off:.2f}", "pass") if np.isfinite(p_off) and p_off >= FAVOURED_OFF
+                 else badge(f"off, P(off) {r.p_off:.2f}", "pass") if off
                  else badge(f"identified, {100 * r.rel_width:.0f} % of range", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
         rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",

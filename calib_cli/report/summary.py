@@ -190,11 +190,21 @@ def _loose_clause(f: RunFiles) -> str:
             f"range.{note}").replace("%", " %")
 
 
+def favoured_off(post: pd.DataFrame) -> np.ndarray:
+    """Per row of a posterior summary, whether it is an effect the data favour off (P(off) at a Bayes factor of
+    off of BF_OFF or more): its averaged interval is then the neutral value's, not an identification."""
+    from ..posterior.evidence import BF_OFF
+
+    if "p_off" not in post.columns:
+        return np.zeros(len(post), bool)
+    return post["p_off"].fillna(0.0).to_numpy(float) >= BF_OFF / (1 + BF_OFF)
+
+
 def _posterior_clause(post: pd.DataFrame) -> str:
     """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
     each added effect's verdict with its Bayes factor."""
     from ..model import EFFECTS
-    from ..posterior.evidence import BF_OFF, bf_text, edges, effect_verdict
+    from ..posterior.evidence import bf_text, edges, effect_verdict
 
     edge = edges(post) != ""
     cut = list(post.loc[edge, "parameter"])
@@ -203,9 +213,7 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').{pressed}")
-    # an effect the data favour off: its averaged interval is the neutral value's, not an identification
-    off = post["p_off"].fillna(0.0).to_numpy(float) >= BF_OFF / (1 + BF_OFF) if "p_off" in post.columns \
-        else np.zeros(len(post), bool)
+    off = favoured_off(post)
     ident = list(post.loc[post["identified"].astype(bool) & ~off, "parameter"])
     loose = list(post.loc[~post["identified"].astype(bool) & ~edge & ~off, "parameter"])
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
