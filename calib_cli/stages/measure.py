@@ -290,6 +290,7 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         inputs = {f"image:{n}": p for n, p in files.items()}
     if conditions is not None:
         inputs["conditions"] = conditions
+        _check_matched(set(files) if table is None else set(table["image"]), cond)  # before any image is read
     st = stage(run, "measure", "angles", inputs=inputs, settings=_settings(band, limits, keep_flagged))
     if st.up_to_date() and not force:
         return MeasureResult(st, True, keep_flagged=keep_flagged)
@@ -298,8 +299,6 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         table, profiles, overlays = _measure_images(files, cmap, cond is None, band, limits, keep_flagged, progress)
     if cond is not None and "pile" in cond.columns:
         table, profiles = columns_by_pile(table, cond, profiles)
-    if cond is not None:
-        _check_matched(table, cond)
     _check_usable(table, keep_flagged, say)
     per_condition = _aggregate(table, cond, keep_flagged)
     prof = pd.concat(profiles, ignore_index=True) if profiles else pd.DataFrame(
@@ -326,12 +325,12 @@ def _settings(band, limits: ShapeLimits, keep_flagged: bool) -> dict:
     return out
 
 
-def _check_matched(table: pd.DataFrame, cond: pd.DataFrame) -> None:
-    """Raise (nothing written) when the conditions table and the images measured disagree: a row whose image
-    is not there (a typo, a missing file) or an image with no row would leave a condition short or put
-    photographs in no condition."""
-    listed = sorted(set(cond["image"]) - set(table["image"]))
-    unlisted = sorted(set(table.loc[table["condition_id"] == "unassigned", "image"]))
+def _check_matched(names: set, cond: pd.DataFrame) -> None:
+    """Raise (nothing written) when the conditions table and the images to measure (``names``) disagree: a row
+    whose image is not there (a typo, a missing file) or an image with no row would leave a condition short
+    or put photographs in no condition."""
+    listed = sorted(set(cond["image"]) - names)
+    unlisted = sorted(names - set(cond["image"]))
     if listed or unlisted:
         parts = ([f"{len(listed)} row(s) of the conditions table name no image measured ({', '.join(listed[:5])})"]
                  if listed else []) + ([f"{len(unlisted)} image(s) have no row there ({', '.join(unlisted[:5])})"]
