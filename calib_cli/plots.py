@@ -149,3 +149,67 @@ def rounds_figure(rounds, answer=None):
     fig.suptitle(f"calibrate, model revision {int(rounds['revision'].iloc[0])}: the posterior round by round")
     fig.tight_layout()
     return fig
+
+
+def _distinct_variables(table, names):
+    """The condition variables that vary, those that only repeat another's pattern (particle_d_max_mm
+    when every grain class is 1 mm wide) folded into the first one's label."""
+    kept: dict[str, list[str]] = {}
+    for v in names:
+        if v not in table.columns or table[v].nunique() < 2:
+            continue
+        twin = next((k for k in kept if abs(np.corrcoef(table[k].astype(float), table[v].astype(float))[0, 1]) > 1 - 1e-9
+                     and table[k].nunique() == table[v].nunique()), None)
+        kept.setdefault(twin or v, []).extend([v] if twin else [])
+    return kept
+
+
+def residuals_figure(table, revision: int, variables):
+    """compare's residual (measured - simulated, +-2 combined u) per condition against each condition
+    variable that varies, one colour per condition, conditions that share a value side by side; a
+    condition beyond 2 u drawn as a cross."""
+    groups = _distinct_variables(table, variables) or {"condition": []}
+    n = len(groups)
+    fig, axes = plt.subplots(1, n, figsize=(3.6 * n + 2.2, 3.4), squeeze=False, sharey=True)
+    colours = plt.get_cmap("tab10" if len(table) <= 10 else "tab20")
+    fails = table["fails"].astype(bool).to_numpy() if "fails" in table.columns else np.zeros(len(table), bool)
+    for ax, (v, twins) in zip(axes[0], groups.items()):
+        x = table[v].to_numpy(float) if v in table.columns else np.arange(len(table), dtype=float)
+        span = (np.ptp(x) or 1.0) * 0.035
+        for i in range(len(table)):  # the conditions at one value side by side, in the table's order
+            same = np.flatnonzero(x == x[i])
+            dx = (np.searchsorted(same, i) - (len(same) - 1) / 2) * span
+            ax.errorbar(x[i] + dx, table["residual"].iloc[i], yerr=2 * table["uncertainty"].iloc[i],
+                        fmt="X" if fails[i] else "o", ms=7 if fails[i] else 5, capsize=2, color=colours(i % 20),
+                        label=str(table["condition_id"].iloc[i]) + (" (beyond 2 u)" if fails[i] else ""))
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(np.unique(x))
+        ax.set_xlabel(v + (f"\n({', '.join(twins)} with it)" if twins else ""))
+    axes[0, 0].set_ylabel("measured - simulated [deg]\n(bars: 2 combined u)")
+    axes[0, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8, frameon=False)
+    fig.suptitle(f"residuals, model revision {revision}")
+    fig.tight_layout()
+    return fig
+
+
+def history_figure(hist):
+    """compare's error per model revision: the RMSE over conditions and chi2/dof (1: the residuals as
+    large as the measured and simulated scatter explains), each revision labelled by what it added."""
+    seen: set[str] = set()
+    labels = []
+    for rev, eff in zip(hist["revision"], hist["effects"]):
+        effects = [e for e in str(eff).split(",") if e]
+        new = [e for e in effects if e not in seen] if seen else []
+        labels.append(f"{rev}" + (f"\n+ {', '.join(new)}" if new else ""))
+        seen.update(effects)
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+    for ax, col, ylabel in zip(axes, ("rmse", "chi2_dof"), ("RMSE over conditions [deg]", "chi2 / dof")):
+        ax.plot(labels, hist[col], "o-")
+        ax.set_ylabel(ylabel)
+        y = hist[col].to_numpy(float)
+        ax.set_ylim(0, max(1.15 * float(np.max(y[np.isfinite(y)], initial=0.0)), 1.3))
+        ax.set_xlabel("model revision")
+    axes[1].axhline(1.0, color="k", lw=0.6, ls="--")
+    fig.suptitle("error per model revision (chi2/dof near 1: within the uncertainties)")
+    fig.tight_layout()
+    return fig

@@ -49,7 +49,7 @@ def parse(page: str) -> Tree:
 
 
 def summary_of(page: str) -> str:
-    return page[page.index("<section id=summary>"):page.index("<section id=screening>")]
+    return page[page.index("<section id=summary>"):page.index("<section id=posterior>")]
 
 
 @pytest.mark.parametrize("name", ["paper", "smoke", "calibration", "hidden-effect", "hidden-wall", "control-lab",
@@ -115,6 +115,19 @@ def test_first_screen_of_a_run_with_diagnose():
     assert top.count('src="measure/overlays/') == len(sol)
     kept = any((RUNS / "hidden-effect" / "simulate" / "runs").glob("*/side.png"))
     assert ("No simulated side view is kept in this run directory for any condition" in top) != kept
+
+
+def test_the_posterior_section_shows_the_rounds_the_corner_plot_and_the_surrogates_errors():
+    """What the posterior card summarises, drawn below it; the card's links lead there. The trends diagnose
+    fitted are labelled with the revision it judged, not the one compare now holds."""
+    page = build_report(RUNS / "hidden-effect")
+    sec = page[page.index("<section id=posterior>"):page.index("<section id=screening>")]
+    assert 'src="calibrate/rounds.png"' in sec and 'src="posterior/corner.png"' in sec
+    assert "Model revision 1's posterior draws" in sec and ">gp<" in sec and ">fullness<" in sec
+    assert summary_of(page).count("href='#posterior'") == 2
+    assert "Model revision 0's residual against each condition variable" in page
+    paper = build_report(RUNS / "paper")
+    assert "Not run in this run directory (<code>calib calibrate</code>)" in paper
 
 
 def test_first_screen_flags_an_interval_its_box_cut(tmp_path):

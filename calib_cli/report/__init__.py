@@ -10,17 +10,17 @@ from pathlib import Path
 from .. import __version__
 from ..errors import CalibError
 from .cards import fit_card, history_card, params_card, posterior_card, ranking_card
-from .details import RAW_STAGES, discrepancy, measurement, raw_tables, simulations
+from .details import RAW_STAGES, discrepancy, measurement, posterior, raw_tables, simulations
 from .html import RunFiles, esc
 from .photos import photos_card
 from .stages import ascent, bbd, inversion, screening, surrogate
 from .summary import fit_rows, headline
 
 #: (anchor, title) of the sections after the first screen, in page order
-SECTIONS = [("screening", "Screening"), ("ascent", "Ascent"), ("bbd", "Response surface"),
+SECTIONS = [("posterior", "Posterior"), ("screening", "Screening"), ("ascent", "Ascent"), ("bbd", "Response surface"),
             ("surrogate", "Surrogates"), ("inversion", "GA"), ("measurement", "Measurement"),
             ("discrepancy", "Discrepancy loop"), ("simulations", "Simulations"), ("raw", "Raw tables")]
-RENDERERS = [screening, ascent, bbd, surrogate, inversion, measurement, discrepancy, simulations, raw_tables]
+RENDERERS = [posterior, screening, ascent, bbd, surrogate, inversion, measurement, discrepancy, simulations, raw_tables]
 
 CSS = """*{box-sizing:border-box}
 body{font:14px/1.4 system-ui,sans-serif;max-width:1320px;margin:0 auto;padding:10px 18px;color:#222}
@@ -45,9 +45,9 @@ img{max-width:100%;border:1px solid #ddd}figure{margin:0}figcaption{font-size:12
 .pair.both img{height:150px;width:auto;max-width:58%;object-fit:contain}
 .pair.both img.side{max-width:40%;border:none}.pair figcaption{flex-basis:100%}
 .figs{display:grid;grid-template-columns:repeat(2,minmax(0,1fr));gap:10px;margin:6px 0}
-.figs.three{grid-template-columns:repeat(3,minmax(0,1fr))}
+.figs.three{grid-template-columns:repeat(3,minmax(0,1fr))}.figs.post{grid-template-columns:3fr 2fr}
 details{margin:4px 0}summary{cursor:pointer}details.raw{border-bottom:1px solid #eee;padding:2px 0}
-@media (max-width:1000px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}}"""
+@media (max-width:1000px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}.figs.post{grid-template-columns:1fr}}"""
 
 
 def first_screen(f: RunFiles) -> str:

@@ -221,7 +221,7 @@ def _rounds_note(f: RunFiles, rev) -> str:
     why = str(last["stop"]).split(":")[0]
     return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, {int(last['calibration_heaps'])} heaps "
                 f"simulated, the posterior on {int(last['heaps'])}; stopped by {esc(_STOPS.get(why, why))} "
-                "(<a href='calibrate/rounds.png'>the intervals round by round</a>).", "prov")
+                "(<a href='#posterior'>the intervals round by round</a>).", "prov")
 
 
 def _point_note(f: RunFiles, rev) -> str:
@@ -255,7 +255,7 @@ def posterior_card(f: RunFiles) -> str:
         body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
                      f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
-    corner = (" Every pair of parameters: <a href='posterior/corner.png'>the posterior's corner plot</a>."
+    corner = (" Every pair of parameters: <a href='#posterior'>the posterior's corner plot</a>."
               if (f.run / "posterior" / "corner.png").is_file() else "")
     body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "
                  f"{esc(', '.join(used[:-1]) + ' and ' + used[-1] if len(used) > 1 else used[0])}.{corner}", "prov")

@@ -6,11 +6,11 @@ import html
 
 import pandas as pd
 
-from .html import RunFiles, esc, img, note, table
+from .html import RunFiles, esc, figure, img, note, table
 from .stages import _cols, figures, not_run, section
 
 #: stage folders in run order: their Parquet tables are listed raw at the end
-RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "compare", "diagnose", "posterior", "suggest",
+RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "calibrate", "compare", "diagnose", "posterior", "suggest",
               "simulate"]
 
 
@@ -33,6 +33,27 @@ def measurement(f: RunFiles) -> str:
     return section("measurement", "Measured repose angle", "2.1, Table 1", body)
 
 
+def posterior(f: RunFiles) -> str:
+    """calibrate's rounds (the intervals narrowing, the surrogates' ratio, the Bayes factors), the answer's
+    corner plot and the surrogates' held-out errors: what the first screen's posterior card summarises."""
+    title = "The posterior: calibration in rounds"
+    if not f.has_dir("posterior"):
+        return section("posterior", title, None, not_run("calib calibrate"))
+    rev = f.prov("posterior/summary.parquet").get("model_revision", "?")
+    shots = [figure(f.run, f.run / rel, cap) for rel, cap in (
+        ("calibrate/rounds.png", "Each parameter's 90 % interval and median against the heaps its round's posterior "
+                                 "learnt from; the surrogates' variance over the measured means' (a verdict below 1) "
+                                 "and each effect's Bayes factor of off"),
+        ("posterior/corner.png", f"Model revision {esc(rev)}'s posterior draws over the prior's ranges, every pair "
+                                 "(dashed: 90 % intervals)")) if (f.run / rel).is_file()]
+    body = f"<div class='figs post'>{''.join(shots)}</div>" if shots else ""
+    sur = f.table("posterior/surrogates.parquet")
+    if sur is not None and not sur.empty:
+        body += note("The surrogates' held-out error per pile against the piles' own scatter (deg for the angle), "
+                     "by cross-validation over the design points:") + table(sur, digits=3)
+    return section("posterior", title, None, body)
+
+
 def discrepancy(f: RunFiles) -> str:
     """compare's residual and history plots, diagnose's ranking with its evidence, and its trends."""
     if not f.has_dir("compare") and not f.has_dir("diagnose"):
@@ -48,7 +69,8 @@ def discrepancy(f: RunFiles) -> str:
         body += table(_cols(rank, ["effect", "verdict", "p_value", "explained_fraction", "evidence"]), digits=3)
         tr = f.table("diagnose/trends.parquet")
         if tr is not None:
-            body += note("The residual against each condition variable:") + table(tr, digits=3)
+            body += note(f"Model revision {esc(rev)}'s residual against each condition variable (a line fitted "
+                         "over the conditions):") + table(tr, digits=3)
     return section("discrepancy", "Discrepancy loop: model against the measurements", None, body)
 
 

@@ -50,8 +50,9 @@ R = TypeVar("R")
 #: draws, not 256 (its Monte Carlo spread was as wide as its distance from the bar)
 #: posterior 10, calibrate 3, calibrate-answer 5: each condition's pile variance moderated across the
 #: conditions (limma's empirical Bayes) in the measured means' variances
-#: compare 2: chi2/dof divides by the degrees of freedom the fit took from the measured means, not C - p
-CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 2,
+#: compare 2: chi2/dof divides by the degrees of freedom the fit took from the measured means, not C - p;
+#: 3: its figures tell the conditions apart and draw chi2/dof beside the RMSE
+CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
                  "diagnose": 2, "posterior": 10, "suggest": 5, "calibrate": 3,
                  "calibrate-answer": 5}
 

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
@@ -16,7 +15,7 @@ from ..discrepancy.point import model_and_theta, simulate_at
 from ..discrepancy.stats import residual_table, summary
 from ..measurements import measured_conditions
 from ..model import Model
-from ..plots import plt  # the Agg backend, set in one place
+from ..plots import history_figure, residuals_figure
 from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
                      writes_run)
@@ -32,24 +31,6 @@ def _history(hist: pd.DataFrame, model: Model, theta: dict, summ: dict) -> pd.Da
                                            **{f"param_{k}": v for k, v in theta.items()}}])], ignore_index=True)
     hist = hist.sort_values("revision", kind="stable").reset_index(drop=True)
     return hist
-
-
-def _compare_plots(table: pd.DataFrame, hist: pd.DataFrame, revision: int):
-    """The residuals against every condition variable that varies, and the error per model revision."""
-    vars_ = [c for c in COND_VARS if c in table.columns and table[c].nunique() > 1]
-    fig1, axes = plt.subplots(1, max(len(vars_), 1), figsize=(4.5 * max(len(vars_), 1), 4), squeeze=False)
-    for ax, v in zip(axes[0], vars_ or ["condition_id"]):
-        x = table[v] if v in table.columns else np.arange(len(table))
-        ax.errorbar(x, table["residual"], yerr=2 * table["uncertainty"], fmt="o", capsize=3)
-        ax.axhline(0, color="k", lw=0.8)
-        ax.set_xlabel(v)
-        ax.set_ylabel("measured - simulated [deg] (+-2u)")
-    fig1.suptitle(f"residuals, model revision {revision}")
-    fig2, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(hist["revision"].astype(str) + "\n" + hist["effects"].str.replace(",", "\n"), hist["rmse"], "o-")
-    ax.set_ylabel("RMSE over conditions [deg]")
-    ax.set_title("error per model revision")
-    return fig1, fig2
 
 
 @dataclass
@@ -114,7 +95,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
             table[c] = conds[c].to_numpy()
     summ = summary(res, len(model.parameters))
     hist = _history(hist, model, theta, summ)
-    fig1, fig2 = _compare_plots(table, hist, model.revision)
+    fig1, fig2 = residuals_figure(table, model.revision, COND_VARS), history_figure(hist)
     # the history under the same lock as the residuals: one commit, so no reader sees one without the other
     with st.commit() as out:
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
