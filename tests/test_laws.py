@@ -142,4 +142,52 @@ def test_a_law_declares_its_own_parameters_in_its_module_alone():
             assert not named, f"{p.name} of law {law.name} is named outside {home.name}: {named}"
         if law.effect is not None:
             assert EFFECTS[law.effect.name] is law.effect
+            # its parameter is one of the law's calibrated values, and the effect's range lies within what the
+            # law accepts (a calibration must not draw a value the heap's check refuses mid-campaign)
+            own = next(p for p in law.params if p.name == law.effect.parameter)
+            assert not own.setting and own.low <= law.effect.low < law.effect.high <= own.high
+            # a model without the effect leaves its value out of the heap's parameters: adding a law keeps
+            # every heap simulated before it under its cache key
+            assert not law.effect.pinned_when_absent
     assert EFFECTS["capillary"].parameter == "surface_tension"
+
+
+def test_two_laws_of_one_family_selected_are_refused_not_resolved_by_order(monkeypatch):
+    """A second cohesion law selected by the same values as the capillary bridge: the run cannot have both."""
+    from dataclasses import replace
+
+    from calib_cli.dem.laws import compose
+
+    twin = replace(REGISTRY["cohesion"]["capillary"], name="twin")
+    monkeypatch.setitem(REGISTRY["cohesion"], "twin", twin)
+    with pytest.raises(CalibError, match=r"select 2 cohesion laws \(capillary, twin\)"):
+        compose(Interaction(surface_tension=0.07), Interaction(), Interaction())
+    assert compose(Interaction(), Interaction(), Interaction()).cohesion == "none"
+
+
+def test_a_bad_value_names_itself_in_one_short_line():
+    with pytest.raises(CalibError) as e:
+        Interaction(contact_angle=95.0).validate("particle-particle")
+    assert str(e.value).startswith("particle-particle: contact_angle") and str(e.value).endswith("(got 95)")
+    assert "Interaction(" not in str(e.value)
+    with pytest.raises(CalibError, match=r"static_friction must be finite \(got nan\)"):
+        Interaction(static_friction=float("nan")).validate()
+
+
+def test_the_gpu_compile_check_composes_every_registered_law():
+    """benchmarks/gpu_compile.py compiles the GPU kernels of a few compositions (on a machine with the [gpu]
+    extra): together they must use every law, so a law added to the registry is compiled for the GPU too.
+    Its list is read as text: importing the benchmark would leave numba's CUDA simulator."""
+    import ast
+    import pathlib
+
+    src = (pathlib.Path(__file__).parents[1] / "benchmarks" / "gpu_compile.py").read_text()
+    node = next(n for n in ast.parse(src).body if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") ==
+                "COMPOSITIONS")
+    used = set()
+    for grains, walls in ast.literal_eval(node.value):
+        w = Interaction(static_friction=0.3, **walls)
+        m = contact_model(Interaction(static_friction=0.5, rolling_friction=0.2, **grains), w, w)
+        used |= {(f, getattr(m, f)) for f in FAMILIES}
+    missing = {(f, name) for f in FAMILIES for name in REGISTRY[f]} - used
+    assert not missing, f"add a composition using {sorted(missing)} to benchmarks/gpu_compile.py's COMPOSITIONS"

@@ -66,27 +66,28 @@ class _BuiltIn:
     caps_pulloff: float = 0.0
 
     def validate(self, what: str = "interaction") -> None:
+        """Each value within what its law accepts: a one-line error naming the value, not the whole row."""
+        for name in ("static_friction", "rolling_friction", "restitution", "surface_energy"):
+            if not np.isfinite(getattr(self, name)):
+                raise CalibError(f"{what}: {name} must be finite (got {getattr(self, name)})")
         checks = [
-            (self.static_friction >= 0, "static_friction must be >= 0"),
-            (self.rolling_friction >= 0, "rolling_friction must be >= 0"),
-            (0 < self.restitution <= 1, "restitution must lie in (0, 1]"),
-            (self.surface_energy >= 0, "surface_energy must be >= 0"),
-            (self.rolling_own_spin in (0.0, 1.0), "rolling_own_spin must be 0 or 1"),
-            (self.friction_net_force in (0.0, 1.0), "friction_net_force must be 0 or 1"),
-            (self.rolling_spring in (0.0, 1.0), "rolling_spring must be 0 or 1"),
+            (self.static_friction >= 0, "static_friction must be >= 0", "static_friction"),
+            (self.rolling_friction >= 0, "rolling_friction must be >= 0", "rolling_friction"),
+            (0 < self.restitution <= 1, "restitution must lie in (0, 1]", "restitution"),
+            (self.surface_energy >= 0, "surface_energy must be >= 0", "surface_energy"),
+            (self.rolling_own_spin in (0.0, 1.0), "rolling_own_spin must be 0 or 1", "rolling_own_spin"),
+            (self.friction_net_force in (0.0, 1.0), "friction_net_force must be 0 or 1", "friction_net_force"),
+            (self.rolling_spring in (0.0, 1.0), "rolling_spring must be 0 or 1", "rolling_spring"),
             (not (self.rolling_spring and self.rolling_own_spin), "rolling_spring and rolling_own_spin exclude "
-             "each other (two rolling laws)"),
-            (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1"),
+             "each other (two rolling laws)", None),
+            (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1", "caps_pulloff"),
             (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
-             "each other (two friction caps)"),
-            *((why is None, why) for why in (p.check(getattr(self, p.name)) for p in law_params())),
+             "each other (two friction caps)", None),
+            *((why is None, why, p.name) for p, why in ((p, p.check(getattr(self, p.name))) for p in law_params())),
         ]
-        for ok, msg in checks:
+        for ok, msg, name in checks:
             if not ok:
-                raise CalibError(f"{what}: {msg} (got {self})")
-        for v in (self.static_friction, self.rolling_friction, self.restitution, self.surface_energy):
-            if not np.isfinite(v):
-                raise CalibError(f"{what}: parameters must be finite (got {self})")
+                raise CalibError(f"{what}: {msg}" + (f" (got {getattr(self, name):g})" if name else ""))
 
 
 #: Contact parameters between two materials (EDEM's 'interaction' table): the built-in laws' values,

@@ -28,8 +28,10 @@ law's arithmetic means raising its version); test it, document it (docs/physics.
 values of its own declares them in its module (:class:`~.params.Param`: the interaction, the heap
 test's parameters, the walls' rule and the validation take them from there), takes its columns with
 :func:`.columns.allocate`, computes them in ``constants``, says when a run composes it
-(``selected``), and may bring a diagnose candidate (an :class:`~calib_cli.effects.Effect`): the
-entry names them. :mod:`.capillary` is the example.
+(``selected``; two laws of one family selected by the same values are refused), and may bring a diagnose
+candidate (an :class:`~calib_cli.effects.Effect`, ``pinned_when_absent=False``): the entry names them.
+:mod:`.capillary` is the example. Tests then ask for the effect's name in ``calib_cli/cli/names.py`` and
+a composition using the law in ``benchmarks/gpu_compile.py`` (docs/physics.md).
 """
 
 from __future__ import annotations
@@ -59,8 +61,8 @@ class Law:
     reference: str
     #: the gap beyond contact over which it acts, of an interaction row and the largest pair's R*
     reach: Callable[[np.ndarray, float], float] | None = None
-    #: whether a run of these interactions (particle-particle, then the walls) composes this law; the
-    #: first law of its family that says so wins, the family's first law is the default
+    #: whether a run of these interactions (particle-particle, then the walls) composes this law; at most
+    #: one law of a family may say so (:func:`compose`), the family's first law is the default
     selected: Callable[..., bool] | None = None
     #: the interaction values only this law reads, its parameter-row columns and their values
     #: (``constants(**values) -> tuple``, one per column)
@@ -119,10 +121,14 @@ def law_effects() -> list[Effect]:
 
 def compose(*interactions) -> "ContactModel":
     """The laws a run of these interactions (particle-particle first, then the walls) composes: per
-    family the first law whose ``selected`` says so, else the family's first (its default)."""
+    family the law whose ``selected`` says so, else the family's first (its default). A contact has one
+    law per family: values that select two of one family are refused, not resolved by order."""
     chosen = {}
     for family, laws in REGISTRY.items():
         picked = [law.name for law in laws.values() if law.selected is not None and law.selected(*interactions)]
+        if len(picked) > 1:
+            raise CalibError(f"the values given select {len(picked)} {family} laws ({', '.join(picked)}); a contact "
+                             f"has one {family} law: give the values of one of them")
         chosen[family] = picked[0] if picked else next(iter(laws))
     return ContactModel(**chosen)
 

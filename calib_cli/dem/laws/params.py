@@ -20,7 +20,7 @@ class Param:
     #: a fixed setting of the law (chosen, like a law switch, and shared by the walls), not a value the
     #: calibration moves
     setting: bool = False
-    #: the walls never take the grains' value (no wall holds a liquid bridge): 0 unless given per wall
+    #: the walls never take the grains' value (no wall holds a liquid bridge): 0 at the floor and the cylinder
     wall_zero: bool = False
     low_open: bool = False
     high_open: bool = False
