@@ -200,6 +200,8 @@ def _check_declared(key: str, v: Any, where: str) -> None:
                                  else None)
     if name in QUANTITIES and _is_number(v):
         check(name, v, f"setting {key}{where}")
+    elif name and _is_number(v):
+        _check_law_value(name, v, f"setting {key}{where}")
     if key == "heap.precision" and v not in PRECISION_NAMES:
         raise CalibError(f"setting heap.precision = {v!r}{where} must be one of {', '.join(PRECISION_NAMES)}")
     if key == "heap.preset" and v not in PRESET_NAMES:
@@ -207,6 +209,16 @@ def _check_declared(key: str, v: Any, where: str) -> None:
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise CalibError(f"setting heap.preset = {v!r}{where} is an unknown preset{hint}; choose one of "
                          f"{', '.join(PRESET_NAMES)}")
+
+
+def _check_law_value(name: str, v: Any, where: str) -> None:
+    """A factor of a contact law's own value (a capillary bridge's surface tension) against its declaration.
+    The laws import numba, so they are read only when a factor names such a value."""
+    from .dem.laws import law_params
+
+    why = next((p.check(float(v)) for p in law_params() if p.name == name), None)
+    if why:
+        raise CalibError(f"{where}: {why} (got {float(v):g})")
 
 
 def _merge(base: dict, over: Mapping, path: str = "") -> dict:
@@ -278,13 +290,18 @@ def override_items(items) -> list[str]:
 
 
 def with_overrides(text: str, items) -> str:
-    """Settings TOML ``text`` with ``KEY=VALUE`` overrides written in front of it as dotted keys
-    (``heap.shear_modulus = 1.5e8``: before any table header TOML reads them as top-level keys),
-    so that a file's comments and layout survive. A value that is not TOML is written as a string,
-    as ``parse_overrides`` reads it. Checked as ``load_settings`` checks a file. From Python ``items`` may be
-    a mapping ({"heap.shear_modulus": 1.5e8}) or one string."""
+    """Settings TOML ``text`` with ``KEY=VALUE`` overrides. Where TOML allows, they are written in front of
+    it as dotted keys (``heap.shear_modulus = 1.5e8``: before any table header TOML reads them as
+    top-level keys), so that a file's comments and layout survive. Where it does not (a key the file sets,
+    or one under a table the file declares: ``-s pb.alpha=0.1`` beside ``[pb]``) the file is read, the
+    overrides set in it, and the result written out whole, the file as given kept below as comments.
+    A value that is not TOML is written as a string, as ``parse_overrides`` reads it. Checked as
+    ``load_settings`` checks a file. From Python ``items`` may be a mapping ({"heap.shear_modulus": 1.5e8})
+    or one string."""
+    import tomli_w
+
     items = override_items(items)
-    parse_overrides(items)  # every item KEY=VALUE, with parse_overrides' message where not
+    over = parse_overrides(items)  # every item KEY=VALUE, with parse_overrides' message where not
     lines = []
     for item in items:
         key, val = (t.strip() for t in item.split("=", 1))
@@ -293,15 +310,31 @@ def with_overrides(text: str, items) -> str:
         except tomllib.TOMLDecodeError:
             val = json.dumps(val)
         lines.append(f"{key} = {val}")
-    out = "# set with calib init -s\n" + "\n".join(lines) + "\n\n" + text
+    head = "# set with calib init -s\n" + "\n".join(lines) + "\n\n"
     try:
+        out = head + text
         data = tomllib.loads(out)
-    except tomllib.TOMLDecodeError as e:
-        raise CalibError(f"cannot write -s {' '.join(items)} into the settings: {e} (a key the file sets "
-                         "already? edit the file)") from None
+    except tomllib.TOMLDecodeError:
+        try:
+            data = _set_in(tomllib.loads(text), over)
+        except tomllib.TOMLDecodeError as e:
+            raise CalibError(f"the settings file is not valid TOML: {e}") from None
+        kept = "".join(f"# {line}\n" if line.strip() else "#\n" for line in text.splitlines())
+        out = (f"# the settings file below with calib init -s {' '.join(items)} set in it\n"
+               + tomli_w.dumps(data) + "\n# the settings file as given:\n" + kept)
     check_types(data)
     validate(_merge(DEFAULTS, data))
     return out
+
+
+def _set_in(data: dict, over: Mapping) -> dict:
+    """``data`` with every value of the nested ``over`` set in it (tables merged, values replaced)."""
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(data.get(k), dict):
+            _set_in(data[k], v)
+        else:
+            data[k] = copy.deepcopy(v)
+    return data
 
 
 def load_settings(files: Iterable[Path] = (), overrides: Iterable[str] = ()) -> dict:

@@ -213,7 +213,9 @@ def test_console_entry_point_exit_codes(tmp_path):
     assert run("--version").returncode == 0
     # a value outside an option's range is one line naming the command's help, not click's box of five
     for args, word in [(("compare", "--run", tmp_path / "r", "--repeats", "0"), "--repeats"),
-                       (("model", "add"), "effect"), (("nosuch",), "nosuch")]:
+                       (("model", "add"), "effect"), (("nosuch",), "nosuch"),
+                       # a script's unset variable (--run "$RUN"): not the current directory
+                       (("init", "--run", ""), "is empty"), (("run", "stages/paper.toml", "--run", " "), "is empty")]:
         r = run(*args)
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and word in lines[0], r.stderr
@@ -250,8 +252,8 @@ def test_ascent_aims_at_the_measured_angle(tmp_path):
 
 def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     """init -s writes KEY=VALUE in front of the copied settings (its comments kept), reruns
-    without change, and never replaces a different settings file without --force; bad input
-    leaves nothing behind."""
+    without change, sets a key the file sets already, and never replaces a different settings file
+    without --force; bad input leaves nothing behind."""
     from calib_cli.settings import load_settings
 
     run = tmp_path / "run"
@@ -269,13 +271,16 @@ def test_init_writes_settings_overrides_and_keeps_an_existing_file(tmp_path):
     assert r.exit_code == 0 and "initialised" in r.output and target.read_text() == text
     r = calib("init", "--run", run, "-s", "heap.shear_modulus=1.5e8")
     assert r.exit_code == 0 and "already" in r.output and target.read_text() == text
-    for args, needle in [(["-s", "heap.shear_modulus=5e8"], "edit the file"),
-                         (["--settings", SETTINGS_DIR / "smoke.toml"], "--force"),
+    for args, needle in [(["--settings", SETTINGS_DIR / "smoke.toml"], "--force"),
                          (["-s", "heap.shear_modulus=stiff"], "heap.shear_modulus = 'stiff' must be a number"),
                          (["-s", "heap.presets=smoke"], "unknown setting")]:
         r = calib("init", "--run", run, *args)
         assert r.exit_code == 2 and needle in " ".join(r.output.split()), (args, r.output)
         assert target.read_text() == text
+    # -s of a key the file sets already: set in it (the file written out whole, as given kept below as comments)
+    r = calib("init", "--run", run, "-s", "heap.shear_modulus=5e8")
+    assert r.exit_code == 0 and load_settings([target])["heap"]["shear_modulus"] == 5e8, r.output
+    assert load_settings([target])["ascent"] == s["ascent"] and "# the settings file as given:" in target.read_text()
     r = calib("init", "--run", run, "--settings", SETTINGS_DIR / "smoke.toml", "--force")
     assert r.exit_code == 0 and target.read_text() == (SETTINGS_DIR / "smoke.toml").read_text()
     # -s alone on a fresh run: the defaults with the override; a missing --settings file is one line

@@ -87,6 +87,17 @@ def test_set_and_condition_values_are_checked_where_they_enter():
     assert parse_params({"static_friction": "0.4", "contact_angle": 20}) == {"static_friction": 0.4, "contact_angle": 20}
 
 
+def test_a_factor_of_a_contact_law_s_own_value_is_checked_when_the_settings_are_read():
+    """A law's values are declared with the law (calib_cli.dem.laws); a factor range beyond what the law accepts
+    is refused by `calib init`, not at the first heap of a design."""
+    from calib_cli.settings import check_types
+
+    with pytest.raises(CalibError, match=r"factors.surface_tension.low: surface_tension .* must lie in \[0, 1\] "
+                                         r"N/m \(got -0.5\)"):
+        check_types({"factors": {"surface_tension": {"low": -0.5, "high": 0.07}}})
+    check_types({"factors": {"surface_tension": {"low": 0.0, "high": 0.07}}})
+
+
 @pytest.mark.parametrize("text,says", [
     ("image,condition_id\nh.png,\n", "condition_id is empty on line(s) 2"),
     ("image;condition_id\nh.png;A\n", "separates its columns with semicolons"),

@@ -331,11 +331,56 @@ def write(tmp_path, text, name="p.toml"):
     (GOOD, ["--var", "run=x"], ["'run' is the run directory"]),
     (GOOD.replace("stages/settings/paper.toml", "nowhere.toml"), [], ["step 'init' reads nowhere.toml",
                                                                       "does not exist"]),
+    ("[[step]]\nname = 'a'\ncommand = ['init', '--run', '{run}', '--help']\noutputs = ['x']\n", [],
+     ["step a", "is given --help, which runs nothing"]),
 ])
 def test_a_bad_pipeline_is_one_error_line(tmp_path, at_root, text, args, fragments):
     path = write(tmp_path, text)
     one_error(calib("run", path, "--run", tmp_path / "run", *args), *fragments)
     assert not (tmp_path / "run").exists()  # checked before anything ran
+
+
+def test_the_pipeline_holds_its_run_directory_from_its_first_step_to_its_last(tmp_path, at_root):
+    """A second command (another pipeline with other variables) cannot write the run between two steps: the
+    lock is taken before the first step and names this pipeline."""
+    run, seen = tmp_path / "run", []
+    execute(plan(load_pipeline(write(tmp_path, GOOD), run, root=ROOT_CMD)),
+            on_start=lambda i, step: seen.append((run / ".lock").read_text()))
+    assert seen and seen[0].startswith(f"pid {os.getpid()}:")
+
+
+def test_an_edited_settings_file_of_the_pipeline_replaces_the_run_s_copy_a_hand_edit_does_not(tmp_path, at_root):
+    """`calib run` again after an edit redoes what changed, the settings file included; an edit made to the
+    run's own copy is not overwritten without --force."""
+    settings = tmp_path / "mine.toml"
+    shutil.copy("stages/settings/paper.toml", settings)
+    path = write(tmp_path, GOOD.replace("stages/settings/paper.toml", str(settings)))
+    run = tmp_path / "run"
+    assert calib("run", path, "--run", run).exit_code == 0
+    settings.write_text(settings.read_text().replace("alpha = 0.05", "alpha = 0.01", 1))
+    r = calib("run", path, "--run", run)
+    assert r.exit_code == 0 and "1 ran" in r.output, r.output
+    assert (run / "settings.toml").read_text() == settings.read_text()
+    with open(run / "settings.toml", "a") as f:
+        f.write("# my note\n")
+    settings.write_text(settings.read_text().replace("alpha = 0.01", "alpha = 0.02", 1))
+    one_error(calib("run", path, "--run", run), "exists and differs from --settings: give --force")
+    assert (run / "settings.toml").read_text().endswith("# my note\n")
+
+
+def test_an_override_under_a_table_the_settings_declare_is_set_in_it(tmp_path):
+    """-s pb.alpha=0.1 beside the file's [pb] table, and -s target=33 where the file sets target: TOML cannot
+    take them as dotted keys in front, so the file is written out whole with them set, its text kept below."""
+    from calib_cli.settings import load_settings
+
+    run = tmp_path / "run"
+    r = calib("init", "--run", run, "--settings", ROOT / "stages/settings/paper.toml", "-s", "pb.alpha=0.1",
+              "-s", "target=33")
+    assert r.exit_code == 0, r.output
+    s = load_settings([run / "settings.toml"])
+    assert s["pb"]["alpha"] == 0.1 and s["target"] == 33 and s["bbd"] == load_settings(
+        [ROOT / "stages/settings/paper.toml"])["bbd"]
+    assert "# the settings file as given:" in (run / "settings.toml").read_text()
 
 
 def test_a_missing_pipeline_file_is_one_error_line(tmp_path):

@@ -50,16 +50,14 @@ def _add(name: str, fn, panel: str, short: str) -> None:
 
 def _init(run: RunOpt, settings: SettingsOpt = None, setting: SettingOpt = None, force: ForceOpt = False):
     """Create a run directory with its settings: RUN/settings.toml, a copy of --settings (else the
-    built-in defaults), with each -s KEY=VALUE written in front of it, e.g. -s heap.shear_modulus=1.5e8
-    for a run whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is
-    replaced only with --force; -s without --settings adds to it."""
+    built-in defaults), with each -s KEY=VALUE set in it, e.g. -s heap.shear_modulus=1.5e8 for a run
+    whose heaps are all simulated at 150 MPa. An existing, different RUN/settings.toml is replaced only
+    with --force, or where it is what init last copied from the same --settings file, since edited (a
+    pipeline's settings: its stages then rerun as their settings changed); -s without --settings adds to
+    it."""
     from ..stages.run_dir import init_run
 
-    r = init_run(run, settings, setting, force)
-    if r.wrote:
-        console.print(f"[green]✓[/] wrote {r.path}")
-    else:
-        console.print(f"[green]✓[/] {r.summary()}")
+    console.print(f"[green]✓[/] {init_run(run, settings, setting, force).summary()}")
 
 
 def _report(run: RunOpt):

@@ -90,7 +90,17 @@ class CalibCommand(TyperCommand):
         return super().format_help(ctx, formatter)
 
     def parse_args(self, ctx, args: list[str]) -> list[str]:
+        _refuse_empty_run(ctx, args)
         return super().parse_args(ctx, split_commas(self.params, args))
+
+
+def _refuse_empty_run(ctx, args: list[str]) -> None:
+    """An empty --run (a script's unset variable: --run "$RUN") would be read as the current directory and put
+    a run's files into whatever folder the command ran in: refused, as click would a bad value."""
+    for i, a in enumerate(args):
+        value = args[i + 1] if a == "--run" and i + 1 < len(args) else a[6:] if a.startswith("--run=") else None
+        if value is not None and not value.strip():
+            raise typer.BadParameter("is empty: give the run directory", ctx, param_hint="'--run'")
 
 
 class CalibGroup(TyperGroup):

@@ -376,6 +376,9 @@ def check_command(root, step: Step) -> None:
         cmd = sub
     if names == ["run"]:
         raise CalibError(f"{where}: a step cannot run another pipeline (include its file instead)")
+    if "--help" in args:  # click would print the help and exit 0 when the step runs: a pipeline that did nothing
+        raise CalibError(f"{where}: {shlex.join(['calib', *names])} is given --help, which runs nothing; take it "
+                         "out of the step's command")
     try:
         with cmd.make_context(" ".join(["calib", *names]), args):
             pass
@@ -492,17 +495,22 @@ def execute(plan: Plan, on_start: Callable[[int, Step], None] | None = None,
         raise StepFailed(f"{plan.pipeline.path}: step {step!r} reads {path}, which does not exist and which no "
                          f"earlier step writes (paths are relative to the working directory, {Path.cwd()})", result)
     root = plan.pipeline.root
-    for i, step in enumerate(plan.steps):
-        if on_start:
-            on_start(i, step)
-        try:
-            status, seconds, changed = run_step(root, step, plan.pipeline.env)
-        except KeyboardInterrupt:
-            raise PipelineInterrupted(step, result) from None
-        except CalibError as e:
-            raise StepFailed(f"{plan.pipeline.path}, {e} (the steps before it are done; rerun to resume)",
-                             result) from None
-        result.steps.append(StepResult(step, status, seconds, changed))
-        if on_done:
-            on_done(i, result.steps[-1])
+    from .. import artifacts as art  # pandas and pyarrow: not for `calib --help`
+
+    # the run directory is this pipeline's from its first step to its last: another command (a second pipeline
+    # with other variables) cannot slip in between two steps; each step takes the same lock again (re-entrant)
+    with art.run_lock(Path(plan.pipeline.run)):
+        for i, step in enumerate(plan.steps):
+            try:
+                if on_start:
+                    on_start(i, step)
+                status, seconds, changed = run_step(root, step, plan.pipeline.env)
+                result.steps.append(StepResult(step, status, seconds, changed))
+                if on_done:
+                    on_done(i, result.steps[-1])
+            except KeyboardInterrupt:  # in a step, or between two
+                raise PipelineInterrupted(step, result) from None
+            except CalibError as e:
+                done = "the steps before it are done; rerun to resume" if i else "nothing before it ran"
+                raise StepFailed(f"{plan.pipeline.path}, {e} ({done})", result) from None
     return result

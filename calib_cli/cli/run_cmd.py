@@ -45,10 +45,12 @@ def run_pipeline(
     try:
         result = execute(planned, on_start=start, on_done=done)
     except StepFailed as e:
-        console.print(escape(e.result.summary()), highlight=False, soft_wrap=True)
+        if e.result.steps:  # what finished before it; none: the one line says it all
+            console.print(escape(e.result.summary()), highlight=False, soft_wrap=True)
         raise
     except PipelineInterrupted as e:
-        console.print(escape(e.result.summary()), highlight=False, soft_wrap=True)
+        if e.result.steps:
+            console.print(escape(e.result.summary()), highlight=False, soft_wrap=True)
         err_console.print(f"[bold red]interrupted[/] in step {escape(e.step.name)!r}: finished stages and heaps are "
                           "kept; run the same command again to resume", highlight=False, soft_wrap=True)
         raise typer.Exit(130) from None
