@@ -58,7 +58,10 @@ def params_card(f: RunFiles) -> str:
                          _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post)])
         else:
             rows.append([esc(p), f"<b>{num(v)}</b>", "", _unit(p), "", ""])
-    body = rows_table(["parameter", "value", "near-optimal", "unit", "spread", ""], rows, "compact")
+    head = ["parameter", "value", "near-optimal", "unit", "spread", ""]
+    if not any(r[3] for r in rows):  # all dimensionless: the column would only widen the card past its edge
+        head, rows = head[:3] + head[4:], [r[:3] + r[4:] for r in rows]
+    body = rows_table(head, rows, "compact")
     tol = f.prov("invert/solution_set.parquet").get("tolerance")
     body += note(f"Near-optimal: surrogate within {num(tol, 3) if tol else 'the tolerance'}&deg; of the best fit; "
                  "spread as a share of the search range. A narrow spread is the surrogate's, not the data's: "
