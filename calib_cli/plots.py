@@ -158,8 +158,9 @@ def _distinct_variables(table, names):
     for v in names:
         if v not in table.columns or table[v].nunique() < 2:
             continue
-        twin = next((k for k in kept if abs(np.corrcoef(table[k].astype(float), table[v].astype(float))[0, 1]) > 1 - 1e-9
-                     and table[k].nunique() == table[v].nunique()), None)
+        x = table[v].astype(float)
+        twin = next((k for k in kept if table[k].nunique() == x.nunique()
+                     and abs(np.corrcoef(table[k].astype(float), x)[0, 1]) > 1 - 1e-9), None)
         kept.setdefault(twin or v, []).extend([v] if twin else [])
     return kept
 

@@ -257,6 +257,17 @@ def make_call(target):
     return lines[0][1:]
 
 
+def test_ctrl_c_between_two_steps_is_an_interrupted_pipeline_not_an_error(tmp_path, at_root):
+    from calib_cli.cli.pipeline import PipelineInterrupted
+
+    def stop(i, res):
+        raise KeyboardInterrupt
+
+    with pytest.raises(PipelineInterrupted) as e:
+        execute(plan(load_pipeline(write(tmp_path, GOOD), tmp_path / "run", root=ROOT_CMD)), on_done=stop)
+    assert e.value.step.name == "init" and (tmp_path / "run" / "settings.toml").is_file()
+
+
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
 @pytest.mark.parametrize("target", sorted(OLD_MAKEFILE))
 def test_shipped_pipeline_runs_what_the_makefile_ran(target, at_root):

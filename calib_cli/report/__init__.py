@@ -47,7 +47,8 @@ img{max-width:100%;border:1px solid #ddd}figure{margin:0}figcaption{font-size:12
 .figs{display:grid;grid-template-columns:repeat(2,minmax(0,1fr));gap:10px;margin:6px 0}
 .figs.three{grid-template-columns:repeat(3,minmax(0,1fr))}.figs.post{grid-template-columns:3fr 2fr}
 details{margin:4px 0}summary{cursor:pointer}details.raw{border-bottom:1px solid #eee;padding:2px 0}
-@media (max-width:1000px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}.figs.post{grid-template-columns:1fr}}"""
+@media (max-width:1000px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}
+.figs.post{grid-template-columns:1fr}}"""
 
 
 def first_screen(f: RunFiles) -> str:

@@ -10,8 +10,8 @@ from .html import RunFiles, esc, figure, img, note, table
 from .stages import _cols, figures, not_run, section
 
 #: stage folders in run order: their Parquet tables are listed raw at the end
-RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "calibrate", "compare", "diagnose", "posterior", "suggest",
-              "simulate"]
+RAW_STAGES = ["measure", "pb", "ascent", "bbd", "surrogate", "invert", "calibrate", "compare", "diagnose", "posterior",
+              "suggest", "simulate"]
 
 
 def measurement(f: RunFiles) -> str:
