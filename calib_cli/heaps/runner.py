@@ -14,6 +14,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -362,8 +363,13 @@ def _end_pool(pool: cf.ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
     for p in workers:
         p.kill()
+    # join() returns when a worker's pipe closes, which can come a moment before the kernel lets it be reaped:
+    # wait until each has an exit code, so none is left behind as a zombie that still reads as alive
+    deadline = time.monotonic() + 10
     for p in workers:
-        p.join(timeout=10)
+        p.join(timeout=max(deadline - time.monotonic(), 0))
+        while p.exitcode is None and time.monotonic() < deadline:
+            time.sleep(0.01)
 
 
 #: heaps a GPU batch holds at most: a step costs about the same from 1 to 256 `default` heaps on an H200
