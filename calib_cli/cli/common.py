@@ -189,7 +189,9 @@ def handle_errors(fn: Callable) -> Callable:
             err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:
-            err_console.print("[bold red]interrupted:[/] nothing partial was written to the run directory")
+            # a campaign keeps the heaps it finished: "nothing was written" would send a user to redo them
+            err_console.print("[bold red]interrupted:[/] nothing partial was written to the run directory (finished "
+                              "heaps and stages are kept; the same command resumes)")
             raise typer.Exit(130) from None
         except OSError as e:
             why = _UNWRITABLE.get(e.errno)
