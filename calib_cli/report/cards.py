@@ -31,11 +31,13 @@ def _ga_state(p: str, w: float, post) -> str:
 
 
 def _unit(name: str) -> str:
-    """A parameter's unit as its declaration gives it (calib_cli.parameters); empty where it has none."""
+    """A parameter's unit as its declaration gives it (calib_cli.parameters; a contact law's own value by its
+    effect), escaped; empty where it has none."""
     from ..parameters import QUANTITIES
 
     q = QUANTITIES.get(name)
-    return esc(q.unit) if q is not None else ""
+    unit = q.unit if q is not None else next((e.unit for e in EFFECTS.values() if e.parameter == name), "")
+    return esc("" if unit == "-" else unit)
 
 
 def params_card(f: RunFiles) -> str:
@@ -172,14 +174,13 @@ def ranking_card(f: RunFiles) -> str:
 def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
     word = effect_verdict(bf, upper, decided)
     return {"on": badge("called for", "fail"), "off": badge("favoured off", "pass"),
-            "open": badge("not decided", "warn"), "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
+            "open": badge("not decided", "warn"),
+            "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
 
 
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
-    units = {e.parameter: e.unit for e in EFFECTS.values()}
     rows = []
     for r, edge, off in zip(post.itertuples(index=False), edges(post), favoured_off(post)):
-        unit = units.get(r.parameter, "-")
         decided = bool(getattr(r, "decided", True))
         at_edge = badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge else ""
         state = (badge("undecided", "warn") + (" " + at_edge if at_edge else "") if not decided
@@ -188,7 +189,7 @@ def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
                  else badge(f"identified, {100 * r.rel_width:.0f} % of range", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
         rows.append([esc(r.parameter), num(r.median, 3), f"{num(r.q05, 3)} &ndash; {num(r.q95, 3)}",
-                     esc("" if unit == "-" else unit), state])
+                     _unit(r.parameter), state])
     return rows
 
 
@@ -222,8 +223,9 @@ def _rounds_note(f: RunFiles, rev) -> str:
         return ""
     last = r[r["round"] == r["round"].max()].iloc[0]
     why = str(last["stop"]).split(":")[0]
-    return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, {int(last['calibration_heaps'])} heaps "
-                f"simulated, the posterior on {int(last['heaps'])}; stopped by {esc(_STOPS.get(why, why))} "
+    return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, "
+                f"{int(last['calibration_heaps'])} heaps simulated, the posterior on {int(last['heaps'])}; "
+                f"stopped by {esc(_STOPS.get(why, why))} "
                 "(<a href='#posterior'>the intervals round by round</a>).", "prov")
 
 
@@ -233,9 +235,7 @@ def _point_note(f: RunFiles, rev) -> str:
     point = f.table("calibrate/point.parquet")
     if point is None or point.empty or f.prov("calibrate/point.parquet").get("model_revision") != rev:
         return ""
-    units = {e.parameter: e.unit for e in EFFECTS.values() if e.unit != "-"}
-    values = ", ".join(f"{esc(p)} {num(float(v), 3)}{' ' + esc(units[p]) if p in units else ''}"
-                       for p, v in point.iloc[0].items())
+    values = ", ".join(" ".join(filter(None, (esc(p), num(float(v), 3), _unit(p)))) for p, v in point.iloc[0].items())
     return note(f"One set to simulate with (the posterior's most probable draw, what <code>calib compare</code> "
                 f"simulates; <code>calibrate/point.parquet</code>): {values}.", "prov")
 
