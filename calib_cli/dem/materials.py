@@ -70,24 +70,26 @@ class _BuiltIn:
         for name in ("static_friction", "rolling_friction", "restitution", "surface_energy"):
             if not np.isfinite(getattr(self, name)):
                 raise CalibError(f"{what}: {name} must be finite (got {getattr(self, name)})")
-        checks = [
-            (self.static_friction >= 0, "static_friction must be >= 0", "static_friction"),
-            (self.rolling_friction >= 0, "rolling_friction must be >= 0", "rolling_friction"),
-            (0 < self.restitution <= 1, "restitution must lie in (0, 1]", "restitution"),
-            (self.surface_energy >= 0, "surface_energy must be >= 0", "surface_energy"),
-            (self.rolling_own_spin in (0.0, 1.0), "rolling_own_spin must be 0 or 1", "rolling_own_spin"),
-            (self.friction_net_force in (0.0, 1.0), "friction_net_force must be 0 or 1", "friction_net_force"),
-            (self.rolling_spring in (0.0, 1.0), "rolling_spring must be 0 or 1", "rolling_spring"),
-            (not (self.rolling_spring and self.rolling_own_spin), "rolling_spring and rolling_own_spin exclude "
-             "each other (two rolling laws)", None),
-            (self.caps_pulloff in (0.0, 1.0), "caps_pulloff must be 0 or 1", "caps_pulloff"),
-            (not (self.caps_pulloff and self.friction_net_force), "caps_pulloff and friction_net_force exclude "
-             "each other (two friction caps)", None),
-            *((why is None, why, p.name) for p, why in ((p, p.check(getattr(self, p.name))) for p in law_params())),
+        rules = [  # (the value's name, allowed, the rule a message states)
+            ("static_friction", self.static_friction >= 0, "must be >= 0"),
+            ("rolling_friction", self.rolling_friction >= 0, "must be >= 0"),
+            ("restitution", 0 < self.restitution <= 1, "must lie in (0, 1]"),
+            ("surface_energy", self.surface_energy >= 0, "must be >= 0"),
+            *((s, getattr(self, s) in (0.0, 1.0), "must be 0 or 1") for s in LAW_SWITCHES),
         ]
-        for ok, msg, name in checks:
+        for name, ok, rule in rules:
             if not ok:
-                raise CalibError(f"{what}: {msg}" + (f" (got {getattr(self, name):g})" if name else ""))
+                raise CalibError(f"{what}: {name} {rule} (got {getattr(self, name):g})")
+        for ok, why in ((not (self.rolling_spring and self.rolling_own_spin),
+                         "rolling_spring and rolling_own_spin exclude each other (two rolling laws)"),
+                        (not (self.caps_pulloff and self.friction_net_force),
+                         "caps_pulloff and friction_net_force exclude each other (two friction caps)")):
+            if not ok:
+                raise CalibError(f"{what}: {why}")
+        for p in law_params():
+            why = p.check(getattr(self, p.name))
+            if why is not None:
+                raise CalibError(f"{what}: {why} (got {getattr(self, p.name):g})")
 
 
 #: Contact parameters between two materials (EDEM's 'interaction' table): the built-in laws' values,
