@@ -24,6 +24,13 @@ weighs them, until the combined ratio reaches 1; and from the heaps at hand plus
 sure than its heaps allow.
 
     .venv/bin/python benchmarks/heap_floor.py sample_runs/hidden-effect sample_runs/control-lab
+
+``--warps sqrt,cbrt``: instead, per round, the angle's, the profile's and the combined ratio at the answer's draws,
+each process fitted on the round's heaps with surface energy as it is and through each warp (the input, its
+prior range and the draws mapped by it before scaling to [0, 1]): whether a surrogate that stretches the low
+surface energies, where the angle climbs fastest, is sure sooner (docs/method.md, "Calibrating in rounds").
+
+    .venv/bin/python benchmarks/heap_floor.py --warps sqrt,cbrt sample_runs/hidden-effect sample_runs/control-lab
 """
 from __future__ import annotations
 
@@ -194,8 +201,51 @@ def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
     return pd.DataFrame(out).round(2)
 
 
+WARPS = {"none": lambda x: x, "sqrt": np.sqrt, "cbrt": np.cbrt}
+
+
+def warped_refits(answer: Answer, warp: str, draws: int = 400) -> pd.DataFrame:
+    """Per round (as :func:`refits`), the angle's, the profile's and the combined ratio (1 / (1 + r) = the mean of
+    1 / (1 + r_j)) at the answer's draws, both processes fitted on the round's heaps with surface energy mapped by
+    ``warp`` (:data:`WARPS`), its prior range and the draws with it."""
+    from calib_cli.posterior.adaptive import _points
+    from calib_cli.posterior.calibrate import mean_variance
+    from calib_cli.posterior.evidence import model_surrogate
+    from calib_cli.posterior.profiles import FULLNESS, measured_fullness
+
+    _, model, conds, rows, bounds, final, hand, own, s = answer
+    f, p = WARPS[warp], "surface_energy"
+    rows = rows.assign(**{p: f(rows[p].clip(lower=0.0).to_numpy(float))})
+    bounds = {**bounds, p: tuple(float(f(np.float64(max(b, 0.0)))) for b in bounds[p])}
+    t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    j = final.parameters.index(p)
+    t[:, j] = f(np.clip(t[:, j], 0.0, None))
+    table, _ = measured_fullness(answer.run, conds)
+    out = []
+    for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
+        sub = rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
+        ratio = {}
+        for name, response, measured in (("angle", "repose_angle", conds), ("profile", FULLNESS, table)):
+            have = sub[np.isfinite(sub[response].to_numpy(float))]
+            gp = model_surrogate(have, model, 0, response=response, scale=bounds)
+            X = pd.DataFrame(_points(gp, t, gp.parameters, conds), columns=gp.inputs_)
+            v = mean_variance(measured["sd"], measured["n"], gp.noise_sd_)
+            ratio[name] = float(np.mean(gp.predict(X, return_std=True)[1].reshape(len(t), -1) ** 2 / v))
+        combined = 1.0 / np.mean([1.0 / (1.0 + r) for r in ratio.values()]) - 1.0
+        out.append({"warp": warp, "round": k, "heaps": len(sub), **ratio, "combined": combined})
+    return pd.DataFrame(out).round(2)
+
+
 def main() -> None:
-    for run in map(Path, sys.argv[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
+    args = sys.argv[1:]
+    if args[:1] == ["--warps"]:
+        warps, args = ["none", *args[1].split(",")], args[2:]
+        for run in map(Path, args or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
+            answer = _answer(run)
+            print(f"\n{run}: each round's ratios at the answer's draws, surface energy warped")
+            print(pd.concat([warped_refits(answer, w) for w in warps]).to_string(index=False))
+        return
+    for run in map(Path, args or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
         answer = _answer(run)  # one fit of the answer's process for the three tables
         table, learnt = floor(answer)
         print(f"\n{run}: {learnt} heaps of the model in the prior's box; n_c summed: {table['n_c'].sum():.0f}")
