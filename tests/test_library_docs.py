@@ -46,8 +46,22 @@ def test_the_paper_example_runs(tmp_path, monkeypatch, capsys):
                                                        "table5_ascent.csv").warnings() == []
     again = invert.invert(scope["run"])
     assert again.skipped and again.summary().equals(sol)
-    for name in ("identifiable", "n_near", "tolerance", "target_source", "warnings", "verdict"):
+    for name in ("identifiable", "n_near", "tolerance", "target_source", "warning_lines", "verdict"):
         assert getattr(again, name) == getattr(scope["solution"], name), name
+    # the same results read back from the files alone (stages.load), as a later notebook opens them
+    from calib_cli.stages.load import load
+
+    assert load(scope["run"], "bbd").warnings() == bbd.warnings()
+    assert load(scope["run"], "pb").summary().equals(pb.summary())
+    assert load(scope["run"], "invert").summary().equals(sol)
+    assert load(scope["run"], "invert").warnings() == scope["solution"].warnings()
+
+
+def test_the_reading_example_runs(tmp_path, monkeypatch, capsys):
+    scope = _run_in(tmp_path, monkeypatch, _code("Reading a finished run"))
+    assert scope["answer"].summary()["parameter"].tolist()[-1] == "surface_energy"
+    out = capsys.readouterr().out
+    assert "surface_energy" in out and "cohesion" in out
 
 
 @pytest.mark.slow

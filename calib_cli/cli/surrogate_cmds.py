@@ -110,7 +110,7 @@ def invert(
         console.print(df_table(r.per_condition, "per condition: measured target and predicted angle at the optimum"))
     console.print(df_table(r.ranges, f"Near-optimal set: {r.n_near} points within {r.tolerance:g} deg of the best "
                                      "fitness"))
-    for line in r.warnings:
+    for line in r.warnings():
         console.print(f"[yellow]warning:[/] {escape(line)}")
     refinement = r.refinement()
     if refinement is not None:

@@ -74,7 +74,14 @@ class AscentResult(Result):
 
     def warnings(self) -> list[str]:
         """What the analysis warns of: the best step at the end of the path."""
-        if self.analysis is None or not self.analysis.at_edge:
+        if self.analysis is not None:
+            at_edge = self.analysis.at_edge
+        elif self.stage is not None and (self.dir / "path.parquet").is_file():  # read back: the path it wrote
+            path = art.read_table(self.dir / "path.parquet")
+            at_edge = bool(path["best"].to_numpy()[[0, -1]].any())
+        else:
+            return []
+        if not at_edge:
             return []
         return ["the best step is at the end of the path; the optimum may lie outside it. Widen the screening "
                 "ranges or extend the path."]
@@ -94,9 +101,13 @@ class BBDResult(Result):
 
     def warnings(self) -> list[str]:
         """What the fit warns of: a significant lack of fit (at ``alpha``), adjusted and predicted R2 apart."""
-        if self.rsm is None:
+        if self.rsm is not None:
+            s = self.rsm.stats_
+        elif self.stage is not None and (self.dir / "fit.parquet").is_file():  # read back: the statistics it wrote
+            s = art.read_table(self.dir / "fit.parquet").iloc[0]
+        else:
             return []
-        s, out = self.rsm.stats_, []
+        out = []
         if s["lack_of_fit_p"] < self.alpha:
             out.append("lack of fit is significant: the quadratic model misses structure")
         if s["r2_adj"] - s["r2_pred"] > 0.2:

@@ -76,7 +76,8 @@ class InvertResult(Result):
     target_source: str = ""
     identifiable: bool = True
     validation: Optional[Validation] = None
-    warnings: list[str] = field(default_factory=list)
+    #: what the result warns of (:meth:`warnings`)
+    warning_lines: list[str] = field(default_factory=list)
     verdict: list[str] = field(default_factory=list)
 
     def __post_init__(self):
@@ -89,7 +90,7 @@ class InvertResult(Result):
             self.identifiable = bool((self.ranges["width_fraction"] <= IDENTIFIABLE_FRACTION).all())
             said = art.read_provenance(self.dir / "solution.parquet")
             self.target_source = str(said.get("target_source", ""))
-            self.warnings, self.verdict = list(said.get("warnings", [])), list(said.get("verdict", []))
+            self.warning_lines, self.verdict = list(said.get("warnings", [])), list(said.get("verdict", []))
             if (self.dir / "solution_set.parquet").is_file():
                 self.n_near = len(art.read_table(self.dir / "solution_set.parquet"))
                 self.tolerance = float(art.read_provenance(self.dir / "solution_set.parquet").get("tolerance", 0.0))
@@ -101,12 +102,21 @@ class InvertResult(Result):
     def refinement(self) -> Optional[pd.DataFrame]:
         """The refinement's rounds (parameters, simulated mean, z, prediction, bias), if it ran."""
         v = self.validation
-        if v is None or v.refinement is None:
+        if v is not None and v.refinement is not None:
+            table, several = v.refinement, len(v.conditions) > 1
+        elif v is None and (self.dir / "refinement.parquet").is_file():  # read back: the table it wrote
+            table = art.read_table(self.dir / "refinement.parquet")
+            several = "condition_id" in table.columns and table["condition_id"].nunique() > 1
+        else:
             return None
         params = solution_parameters(self.solution)
-        cols = ["round", *params, *(["condition_id"] if len(v.conditions) > 1 else []), "mean", "z", "predicted",
-                "bias"]
-        return v.refinement[cols].rename(columns={"mean": "simulated"})
+        cols = ["round", *params, *(["condition_id"] if several else []), "mean", "z", "predicted", "bias"]
+        return table[cols].rename(columns={"mean": "simulated"})
+
+    def warnings(self) -> list[str]:
+        """What the solution warns of: parameters not identifiable from the data, a solution at the edge of
+        the surrogate's range, a validation that misses (the lines the command prints)."""
+        return list(self.warning_lines)
 
 
 def _targets(run: Path, cfg: dict, target: Optional[float]) -> tuple[list[float], str]:
@@ -276,12 +286,12 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
     result = InvertResult(st, False, sol, per_cond, res.ranges, len(res.solution_set), float(iv["tolerance"]), tsource,
                           res.identifiable, val)
-    result.warnings = _warnings(result, prob, best_x)
+    result.warning_lines = _warnings(result, prob, best_x)
     result.verdict = _verdict(result, prob, float(iv["refine_z"]))
     with st.commit() as out:
         # the words kept with the solution: a rerun that finds the stage up to date reads them back
         out.table("solution.parquet", sol, targets=targets, target_source=tsource, refine_round=chosen,
-                  warnings=result.warnings, verdict=result.verdict)
+                  warnings=result.warning_lines, verdict=result.verdict)
         out.table("predicted_conditions.parquet", per_cond)
         out.table("history.parquet", hist)
         out.table("solution_set.parquet", res.solution_set, tolerance=float(iv["tolerance"]))

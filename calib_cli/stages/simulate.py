@@ -197,6 +197,8 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     cached heaps (each replaced only when its new result is complete). ``engine``: else the run's."""
     say = say or plain
     run = check_run_dir(run)
+    if repeats < 1:  # the command line's option refuses it; a call from Python gets the same line
+        raise CalibError(f"repeats must be at least 1 (got {repeats})")
     cfg = resolve_settings(run, None, None)
     engine = heap_engine(cfg, engine)
     precision = heap_precision(cfg, engine)  # before the engine's check: a mixed run refuses LAMMPS installed or not
