@@ -597,6 +597,23 @@ def test_the_command_prints_the_posterior_and_its_verdicts(done, tmp_path):
     assert r.exit_code == 2 and "error:" in r.output and "measure-angle" in r.output
 
 
+def test_calibrates_answer_is_not_replaced_without_force(tmp_path):
+    """posterior/ as `calib calibrate` left it (its lock names the summary's hash) is that calibration's answer:
+    another sampling with other settings would replace it, and the calibration would then sample it again,
+    each undoing the other. It asks for --force, in one line, and leaves the answer as it was."""
+    from calib_cli.cli import app
+
+    run = tmp_path / "he"
+    shutil.copytree(ROOT / "sample_runs" / "hidden-effect", run)
+    before = (run / "posterior" / "summary.parquet").read_bytes()
+    with pytest.raises(CalibError, match="holds the answer `calib calibrate` gave for model revision 1; give --force"):
+        posterior(run, walkers=8, steps=20, **QUIET)
+    r = CliRunner().invoke(app, ["calibrate-posterior", "--run", str(run)], env={"COLUMNS": "200"})
+    assert r.exit_code == 2 and "give --force" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert (run / "posterior" / "summary.parquet").read_bytes() == before
+    assert not (run / "posterior" / "design.parquet").exists()
+
+
 def test_a_design_over_the_posterior_region_for_simulate_heap(done, tmp_path):
     """--design N: N points that cut each 90 % interval into N slices, one point in each (a Latin
     hypercube), with run ids after every id the run's heaps use above 100 (an earlier round made by hand

@@ -167,7 +167,8 @@ def calibrate_posterior(
     Reads RUN/simulate/results.parquet, RUN/measure/conditions.parquet (for the profile, profiles.parquet
     and the heaps' side views) and RUN/model.toml. Writes RUN/posterior/summary.parquet,
     samples.parquet, surrogates.parquet (held-out RMSE of the GP, RSM and BP network) and corner.png
-    (with --design, design.parquet). Skipped when its inputs and options are unchanged.
+    (with --design, design.parquet). Skipped when its inputs and options are unchanged. Where
+    posterior/ holds `calib calibrate`'s answer, it is replaced only with --force.
     """
     from ..stages.posterior import posterior as posterior_stage
 

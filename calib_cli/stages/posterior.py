@@ -58,6 +58,14 @@ class PosteriorStageResult(Result):
         return out
 
 
+def _calibrate_answer(run: Path, revision: int) -> bool:
+    """Whether RUN/posterior/ is the answer of model ``revision``'s calibration in rounds (its lock names the
+    summary's hash): another sampling would replace it, and that calibration would then sample it again."""
+    summary = run / "posterior" / "summary.parquet"
+    lock = art.Stage(run, "calibrate", f"rev{revision}").read_lock()
+    return bool(lock) and summary.is_file() and lock.get("inputs", {}).get("answer") == art.file_hash(summary)
+
+
 @writes_run
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "settings",
               force: bool = False, say: Optional[Say] = None, design: int = 0,
@@ -101,6 +109,10 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                          **({"design": design} if design else {}), "scatter": scatter, **prof_set})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
+    if not force and _calibrate_answer(run, model.revision):
+        raise CalibError(f"{run / 'posterior'} holds the answer `calib calibrate` gave for model revision "
+                         f"{model.revision}; give --force to replace it with this sampling (a later `calib "
+                         "calibrate` would then sample its answer again)")
     note = extrapolation_note(rows, model, bounds) if prior != "heaps" else ""
     if note:
         say(note)
