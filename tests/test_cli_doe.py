@@ -303,3 +303,19 @@ def test_the_designs_warnings_are_the_results_own():
     w = BBDResult(None, rsm=bad, alpha=0.05).warnings()
     assert len(w) == 2 and "lack of fit" in w[0] and "0.2" in w[1]
     assert BBDResult(None, rsm=bad, alpha=0.005).warnings() == [w[1]]
+
+
+def test_a_command_that_makes_a_new_run_directory_says_so(tmp_path):
+    """A mistyped --run made a whole new run on the built-in settings without a word: the command that
+    makes it says so once it has run; init (which is for that), a rerun and a failure do not."""
+    r = CliRunner().invoke(app, ["pb", "design", "--run", str(tmp_path / "papr")], env={"COLUMNS": "200"})
+    said = " ".join(r.output.split())
+    assert r.exit_code == 0 and said.startswith(f"note: {tmp_path / 'papr'} was a new run directory, on the built-in "
+                                              f"settings (`calib init --run {tmp_path / 'papr'} --settings FILE` gives "
+                                              "it yours)"), r.output
+    r = CliRunner().invoke(app, ["pb", "design", "--run", str(tmp_path / "papr")])
+    assert r.exit_code == 0 and "new run directory" not in r.output
+    r = CliRunner().invoke(app, ["init", "--run", str(tmp_path / "i")])
+    assert r.exit_code == 0 and "new run directory" not in r.output
+    r = CliRunner().invoke(app, ["compare", "--run", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "new run directory" not in r.output and not (tmp_path / "x").exists()

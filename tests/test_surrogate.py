@@ -391,3 +391,22 @@ def test_invert_warns_when_the_solution_sits_on_the_edge_of_the_fitted_range(tmp
     r = runner.invoke(app, ["invert", "--run", str(run), "--target", "70", "--force"])
     assert r.exit_code == 0, r.output
     assert "at the high end of the range the surrogate was fitted on" in " ".join(r.output.split())
+
+
+def test_a_refinement_without_validation_heaps_names_where_it_was_asked(tmp_path):
+    """The sample calibration's settings ask for three corrections (invert.refine = 3): `invert` without
+    --validate names that setting, not an option the user did not give, and writes nothing."""
+    import shutil
+    from pathlib import Path
+
+    from calib_cli.errors import CalibError
+    from calib_cli.stages.invert import invert
+
+    run = tmp_path / "cal"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "sample_runs" / "calibration", run)
+    before = (run / "invert" / "solve.lock.json").read_bytes()
+    with pytest.raises(CalibError, match=r"the settings' invert.refine = 3 corrects .* --validate N too, or --refine 0"):
+        invert(run, say=lambda *a, **k: None)
+    with pytest.raises(CalibError, match=r"^--refine corrects"):
+        invert(run, refine=1, say=lambda *a, **k: None)
+    assert (run / "invert" / "solve.lock.json").read_bytes() == before

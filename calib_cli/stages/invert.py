@@ -259,7 +259,9 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     targets, tsource = _targets(run, cfg, target)
     n_refine = int(iv["refine"] if refine is None else refine)
     if n_refine and not validate:
-        raise CalibError("--refine corrects the inversion from validation heaps: give --validate N too")
+        given = "--refine" if refine is not None else f"the settings' invert.refine = {n_refine}"
+        raise CalibError(f"{given} corrects the inversion from validation heaps: give --validate N too, or "
+                         "--refine 0")
     inputs = {"model": run / MODELS_DIR / f"{name}.json"}
     if cond_path.is_file() and (target is None or (validate and not condition)):
         inputs["conditions"] = cond_path  # the targets, or the rig of the validation runs
