@@ -74,3 +74,14 @@ def test_loading_what_is_not_there_is_one_line(tmp_path):
         load(RUNS / "hidden-effect", "compare", revision=0)
     with pytest.raises(CalibError, match="no calibration of model revision 5"):
         load(RUNS / "hidden-effect", "calibrate", revision=5)
+
+
+def test_a_results_lines_are_plain_text_for_a_notebook():
+    """conclusion() and notes() read as text (the command line's rich markup, such as [bold], only on asking)."""
+    run = RUNS / "hidden-effect"
+    for r in (load(run, "diagnose"), load(run, "posterior"), load(run, "suggest")):
+        plain, marked = r.conclusion(), r.conclusion(markup=True)
+        assert len(plain) == len(marked) and any("[bold]" in line for line in marked)
+        assert not any("[bold]" in line or "[/]" in line for line in plain)
+    first = load(run, "diagnose")
+    assert first.conclusion()[0].startswith(f"{first.ranking['effect'].iloc[0]}: significant")

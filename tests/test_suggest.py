@@ -331,7 +331,8 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
 def test_each_candidate_effect_is_given_the_condition_that_best_separates_it(ranked):
     run, rig, r = ranked
     lines = r.per_effect()
-    assert len(lines) == 1 and lines[0].startswith("cohesion: best told apart at [bold]d4-5_D40_H75[/]")
+    assert len(lines) == 1 and lines[0].startswith("cohesion: best told apart at d4-5_D40_H75 (")
+    assert r.per_effect(markup=True)[0].startswith("cohesion: best told apart at [bold]d4-5_D40_H75[/]")
     assert "interpolated" in lines[0]
 
 

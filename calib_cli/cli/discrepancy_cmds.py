@@ -243,12 +243,12 @@ def show_history(r, out: Console = console) -> None:
 def show_ranking(r, out: Console = console) -> None:
     """diagnose's ranking of the missing effects and each one's evidence in words."""
     out.print(df_table(r.summary(), f"missing effects, ranked (model revision {r.revision})", width=out.width))
-    for line in r.conclusion():
+    for line in r.conclusion(markup=True):
         out.print(line)
 
 
 def show_suggestions(r, out: Console = console) -> None:
     """suggest-conditions' ranking and its reasons."""
     out.print(df_table(r.summary(), r.title(), width=out.width))
-    for line in r.conclusion():
+    for line in r.conclusion(markup=True):
         out.print(line)

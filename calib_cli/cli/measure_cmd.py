@@ -67,7 +67,7 @@ def measure_angle(
         return skipped(res.stage)
     console.print(df_table(res.angles[["image", "condition_id", "angle_left", "angle_right", "repose_angle", "status"]],
                            f"measure-angle -> {res.dir / 'angles.parquet'}"))
-    for note in res.notes():
+    for note in res.notes(markup=True):
         console.print(note)
     show_conditions(res)
     alike = floors_alike(res.conditions)

@@ -74,6 +74,6 @@ def simulate_heap(
 
         result = run_simulation(plan, workers, dask, on_done=on_done, on_progress=on_progress)
     console.print(df_table(result.summary(), f"simulate-heap -> {result.path}"))
-    for note in result.notes():
+    for note in result.notes(markup=True):
         console.print(note)
     result.check()

@@ -182,7 +182,7 @@ def calibrate_posterior(
     console.print(df_table(cv[cols], "held-out RMSE per pile (the angle's in deg)"))
     console.print(f"each surrogate trained without a fifth of the {cv['design_points'].iloc[0]} design points, "
                   f"{cv['folds'].iloc[0]} times; noise_sd is the piles' own scatter, the floor")
-    for line in r.conclusion():
+    for line in r.conclusion(markup=True):
         console.print(line)
     if design:
         d = r.stage.dir / "design.parquet"

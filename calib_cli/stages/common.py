@@ -93,6 +93,16 @@ def plain(message: str, err: bool = False) -> None:
     print(Text.from_markup(message).plain, file=sys.stderr if err else sys.stdout)
 
 
+def shown(lines: list[str], markup: bool) -> list[str]:
+    """A result's lines as the command line prints them (``markup``: rich markup kept for its console), else
+    as plain text, for a notebook."""
+    if markup:
+        return lines
+    from rich.text import Text
+
+    return [Text.from_markup(line).plain for line in lines]
+
+
 @dataclass
 class Result:
     """What a stage did: its :class:`~calib_cli.artifacts.Stage` (``.dir`` holds the artefacts) and

@@ -20,7 +20,7 @@ from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
 from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
-from .common import (Result, Say, check_run_dir, plain, resolve_settings, space_from_design, stage,
+from .common import (Result, Say, check_run_dir, plain, resolve_settings, shown, space_from_design, stage,
                      warn_other_modulus, writes_run)
 
 
@@ -46,8 +46,9 @@ class DiagnoseResult(Result):
     def summary(self) -> pd.DataFrame:
         return self.ranking[["effect", "score", "p_value", "explained_fraction", "signature_p"]]
 
-    def conclusion(self) -> list[str]:
-        """Each effect's evidence, and what to do when none is significant and resolved."""
+    def conclusion(self, markup: bool = False) -> list[str]:
+        """Each effect's evidence, and what to do when none is significant and resolved (``markup``: with the
+        command line's rich markup)."""
         r = self.ranking
         out = [f"[bold]{e}[/]: {ev}" for e, ev in zip(r["effect"], r["evidence"])]
         if (r["verdict"] == "unresolved").any() and not (r["verdict"] == "significant").any():
@@ -55,7 +56,7 @@ class DiagnoseResult(Result):
                        "signatures within the heaps' scatter; rerun with more --repeats before adding one.")
         elif not (r["p_value"] < self.bar).any():
             out.append("No missing effect is significant: the misfit is within what the measurement noise explains.")
-        return out
+        return shown(out, markup)
 
 
 def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFrame:

@@ -18,7 +18,7 @@ from ..errors import CalibError
 from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
 from ..parameters import ALLOW_EXTREME, check, extremes_allowed
-from .common import Result, Say, check_run_dir, plain, stage, writes_run
+from .common import Result, Say, check_run_dir, plain, shown, stage, writes_run
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 CONDITION_VARS = [*CONDITION_VARIABLES, "floor"]
@@ -238,8 +238,9 @@ class MeasureResult(Result):
             out = out.assign(left_out=[by.get(c, "") for c in out["condition_id"]])
         return out
 
-    def notes(self) -> list[str]:
-        """Images with a status or a message, and how many were left out of the statistics and why."""
+    def notes(self, markup: bool = False) -> list[str]:
+        """Images with a status or a message, and how many were left out of the statistics and why
+        (``markup``: with the command line's rich markup)."""
         t, out = self.angles, []
         for _, r in t[t["status"] != "ok"].iterrows():
             out.append(f"[yellow]{r['image']}[/]: {r['status']} - {r['message']}")
@@ -254,7 +255,7 @@ class MeasureResult(Result):
                                              "fitted)" if hint else ""))
         if kept:
             out.append(f"[yellow]{kept} image(s) flagged but counted[/] (--keep-flagged)")
-        return out
+        return shown(out, markup)
 
 
 @writes_run

@@ -19,7 +19,7 @@ from ..posterior.evidence import (PRIORS, RESPONSE, check_rows, evidence_lock, e
                                   model_rows, prior_bounds, settings_ranges, write_posterior)
 from ..posterior.calibrate import check_sampler
 from ..posterior.suggest import region_design
-from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
+from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 
 
 @dataclass
@@ -45,7 +45,9 @@ class PosteriorStageResult(Result):
         return self.table[["parameter", "median", "q05", "q95", "rel_width", "identified", "bf_off",
                            "autocorr_time", "chain_ok"]]
 
-    def conclusion(self) -> list[str]:
+    def conclusion(self, markup: bool = False) -> list[str]:
+        """Each parameter's verdict, the sampler's acceptance and whether its chains were long enough
+        (``markup``: with the command line's rich markup)."""
         t = self.table
         out = [f"[bold]{r.parameter}[/]: {r.verdict}" for r in t.itertuples()]
         acc = t["acceptance"].iloc[0]
@@ -55,7 +57,7 @@ class PosteriorStageResult(Result):
             out.append(f"[yellow]warning:[/] the chains are shorter than 50 autocorrelation times "
                        f"(longest {t['autocorr_time'].max():.0f} steps): the intervals are rough; rerun with "
                        "more --steps")
-        return out
+        return shown(out, markup)
 
 
 def _calibrate_answer(run: Path, revision: int) -> bool:

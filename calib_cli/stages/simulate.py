@@ -21,7 +21,7 @@ from ..measurements import CONDITIONS
 from ..heaps.inputs import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine,
                             heap_precision, heap_preset, heap_setup, make_condition, modulus_note, parse_params,
                             precision_note, table_conditions)
-from .common import Say, check_run_dir, plain, resolve_settings, writes_run
+from .common import Say, check_run_dir, plain, resolve_settings, shown, writes_run
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
 DRIFT_WARN = 2.0
@@ -91,8 +91,8 @@ class SimulateResult:
             raise CalibError("no run formed a heap; see the messages above")
         return self
 
-    def notes(self) -> list[str]:
-        """Creeping heaps and heaps that failed, as the command line prints them."""
+    def notes(self, markup: bool = False) -> list[str]:
+        """Creeping heaps and heaps that failed (``markup``: with the command line's rich markup)."""
         rows, out = self.rows, []
         creeping = rows[(rows["status"] == "ok") & (rows["angle_drift_deg_s"].abs() > DRIFT_WARN)]
         if len(creeping):
@@ -102,7 +102,7 @@ class SimulateResult:
                        "(docs/physics.md, 'Creep')")
         for _, r in rows[rows["status"] != "ok"].iterrows():
             out.append(f"[yellow]run {r['run_id']} repeat {r['repeat']}: {r['status']}[/] - {r['message']}")
-        return out
+        return shown(out, markup)
 
 
 def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[int, dict]], str, str]:
@@ -260,6 +260,6 @@ def simulate_heap(run: Path, params: Pairs = None, design: Optional[Path] = None
     RUN/simulate/results.parquet and RUN/simulate/runs/<hash>/ per heap. Raises if no heap formed."""
     check_dask(dask)
     result = run_simulation(plan_simulation(run, params, design, say=say, **options), workers, dask)
-    for note in result.notes():
+    for note in result.notes(markup=True):
         (say or plain)(note)
     return result.check()

@@ -21,7 +21,7 @@ from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import Evidence, Rig, any_ranked, best_per_effect, explain, parse_rig, rank_conditions
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
-from .common import Result, Say, check_run_dir, plain, resolve_settings, stage, writes_run
+from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
@@ -157,17 +157,19 @@ class SuggestResult(Result):
             return "the next conditions to measure, best first"
         return "the conditions the rig offers, in its order: none is ranked (the surrogate extrapolates at each)"
 
-    def conclusion(self) -> list[str]:
-        return [f"[bold]{r.condition_id}[/]: {r.reason}" for r in self.table.head(self.top).itertuples()] + \
-            self.per_effect() + list(self.notes)
+    def conclusion(self, markup: bool = False) -> list[str]:
+        """Why each of the top conditions ranks where it does, the condition that best tells each effect apart,
+        and the notes (``markup``: with the command line's rich markup)."""
+        return shown([f"[bold]{r.condition_id}[/]: {r.reason}" for r in self.table.head(self.top).itertuples()]
+                     + self.per_effect(markup=True) + list(self.notes), markup)
 
-    def per_effect(self) -> list[str]:
+    def per_effect(self, markup: bool = False) -> list[str]:
         """For each candidate effect, the condition that would best tell it apart (:func:`best_per_effect`):
         what to measure to settle that one effect."""
-        return [f"{e.replace('_', ' ')}: best told apart at [bold]{cid}[/] ({sep:.2g} chi-square units, "
+        return shown([f"{e.replace('_', ' ')}: best told apart at [bold]{cid}[/] ({sep:.2g} chi-square units, "
                 f"sensitivities {how})" + ("" if sep >= SEPARATES else ": below one unit, so no condition the rig "
                                            "offers is expected to settle it")
-                for e, cid, sep, how in best_per_effect(self.table)]
+                for e, cid, sep, how in best_per_effect(self.table)], markup)
 
 
 def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
