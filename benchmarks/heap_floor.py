@@ -76,6 +76,23 @@ def _answer(run: Path) -> Answer:
                   rows["run_hash"].isin(hand), own, pd.read_parquet(run / "posterior/samples.parquet"))
 
 
+def _draws(answer: Answer, draws: int) -> np.ndarray:
+    """``draws`` of the answer's posterior draws (its parameters' columns), the same ones for every table that
+    reads them at the answer."""
+    s = answer.samples
+    return s[answer.gp.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+
+
+def _round_heaps(rows: pd.DataFrame, hand: pd.Series, own: pd.Series, k: int) -> pd.DataFrame:
+    """The heaps round ``k`` of the calibration learnt from: those at hand when it began, and its rounds' up to k."""
+    return rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
+
+
+def _combined(ratios) -> float:
+    """The combined ratio the bar reads, from each response's: 1 / (1 + r) = the mean of 1 / (1 + r_j)."""
+    return 1.0 / float(np.mean([1.0 / (1.0 + x) for x in ratios])) - 1.0
+
+
 def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """The latent covariance (standardised units) at the scaled points Z given piles at the scaled points S, with
     ``gp``'s length scales, signal and scatter."""
@@ -145,10 +162,10 @@ def placed(answer: Answer, start_from: str, profile: Profile | None = None, firs
     from calib_cli.posterior.adaptive import _greedy, _points
     from calib_cli.posterior.calibrate import mean_variance
 
-    conds, rows, gp, hand, own, s = answer.conds, answer.rows, answer.gp, answer.hand, answer.own, answer.samples
+    conds, rows, gp, hand, own = answer.conds, answer.rows, answer.gp, answer.hand, answer.own
     pick = {"at hand": hand, "round 0": hand | (own & (rows["run_id"] < 2000)),
             "none": pd.Series(False, index=rows.index)}[start_from]
-    t = s[gp.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    t = _draws(answer, draws)
     C, X = len(conds), _points(gp, t, gp.parameters, conds)
     n = len(X)
     pairs = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_), pick)]
@@ -166,7 +183,7 @@ def placed(answer: Answer, start_from: str, profile: Profile | None = None, firs
 
     def ratio() -> float:
         r = [float(np.mean(np.diag(Pj)[:n].reshape(draws, C) / v)) for Pj, v in zip(P, vs)]
-        return 1.0 / float(np.mean([1.0 / (1.0 + x) for x in r])) - 1.0
+        return _combined(r)
     heaps = int(pick.sum()) + len(extra)
     path = [(heaps, ratio())]
     while path[-1][1] > 1.0 and heaps < most:
@@ -185,13 +202,13 @@ def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
     from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import model_surrogate
 
-    _, model, conds, rows, bounds, final, hand, own, s = answer
-    t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    _, model, conds, rows, bounds, final, hand, own, _ = answer
+    t = _draws(answer, draws)
     X = _points(final, t, final.parameters, conds)
     v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
     out = []
     for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
-        sub = rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
+        sub = _round_heaps(rows, hand, own, k)
         mine = model_surrogate(sub, model, 0, scale=bounds)
         var = final.y_sd_ ** 2 * np.diag(_given(final, final._scale(sub), final._scale(X)))
         out.append({"round": k, "heaps": len(sub),
@@ -213,17 +230,17 @@ def warped_refits(answer: Answer, warp: str, draws: int = 400) -> pd.DataFrame:
     from calib_cli.posterior.evidence import model_surrogate
     from calib_cli.posterior.profiles import FULLNESS, measured_fullness
 
-    _, model, conds, rows, bounds, final, hand, own, s = answer
+    _, model, conds, rows, bounds, final, hand, own, _ = answer
     f, p = WARPS[warp], "surface_energy"
     rows = rows.assign(**{p: f(rows[p].clip(lower=0.0).to_numpy(float))})
     bounds = {**bounds, p: tuple(float(f(np.float64(max(b, 0.0)))) for b in bounds[p])}
-    t = s[final.parameters].to_numpy(float)[np.random.default_rng(1).choice(len(s), draws, replace=False)]
+    t = _draws(answer, draws)
     j = final.parameters.index(p)
     t[:, j] = f(np.clip(t[:, j], 0.0, None))
     table, _ = measured_fullness(answer.run, conds)
     out = []
     for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
-        sub = rows[hand | (own & (rows["run_id"] < 1000 * (k + 2)))]
+        sub = _round_heaps(rows, hand, own, k)
         ratio = {}
         for name, response, measured in (("angle", "repose_angle", conds), ("profile", FULLNESS, table)):
             have = sub[np.isfinite(sub[response].to_numpy(float))]
@@ -231,8 +248,7 @@ def warped_refits(answer: Answer, warp: str, draws: int = 400) -> pd.DataFrame:
             X = pd.DataFrame(_points(gp, t, gp.parameters, conds), columns=gp.inputs_)
             v = mean_variance(measured["sd"], measured["n"], gp.noise_sd_)
             ratio[name] = float(np.mean(gp.predict(X, return_std=True)[1].reshape(len(t), -1) ** 2 / v))
-        combined = 1.0 / np.mean([1.0 / (1.0 + r) for r in ratio.values()]) - 1.0
-        out.append({"warp": warp, "round": k, "heaps": len(sub), **ratio, "combined": combined})
+        out.append({"warp": warp, "round": k, "heaps": len(sub), **ratio, "combined": _combined(ratio.values())})
     return pd.DataFrame(out).round(2)
 
 
