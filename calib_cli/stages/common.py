@@ -71,10 +71,11 @@ def writes_run(fn: Callable[..., R]) -> Callable[..., R]:
     @functools.wraps(fn)
     def locked(*args, **kwargs):
         run = check_run_dir(args[0] if args else kwargs["run"])
-        new = not run.exists() and fn.__name__ != "init_run" and kwargs.get("settings") is None
+        new = not run.exists() and kwargs.get("settings") is None
         with art.run_lock(run):
             result = fn(*args, **kwargs)
-        if new and run.is_dir():  # a mistyped --run would otherwise go on quietly, on settings nobody chose
+        # a mistyped --run would otherwise go on quietly, on settings nobody chose (init writes the run's own)
+        if new and run.is_dir() and not (run / SETTINGS_FILE).is_file():
             (kwargs.get("say") or plain)(f"note: {run} was a new run directory, on the built-in settings (`calib "
                                          f"init --run {run} --settings FILE` gives it yours)")
         return result
