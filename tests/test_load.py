@@ -53,6 +53,15 @@ def test_the_posterior_and_an_earlier_revision_read_back():
     assert load(RUNS / "hidden-effect", "calibrate").revision == 1
 
 
+def test_the_calibration_and_the_posterior_show_the_answer_alike():
+    """calibrate's result and calibrate-posterior's show the same columns of the answer, not the whole file."""
+    cal, post = load(RUNS / "hidden-effect", "calibrate").summary(), load(RUNS / "hidden-effect", "posterior").summary()
+    pd.testing.assert_frame_equal(cal, post)
+    assert list(cal.columns) == ["parameter", "median", "q05", "q95", "rel_width", "identified", "bf_off",
+                                 "bf_upper", "autocorr_time", "chain_ok", "verdict"]
+    assert cal.set_index("parameter").loc["surface_energy", "verdict"].startswith("identified")
+
+
 def test_what_a_result_warns_of_reads_back():
     """The warnings the command printed when the stage ran, from its files: the ascent's best step at the
     path's end and the surface's R2 gap on the sample calibration, the inversion's own lines."""

@@ -307,6 +307,19 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     return table
 
 
+#: the answer's columns a result's ``summary()`` shows (posterior/summary.parquet holds more: ranges, draws'
+#: effective size, the surrogate's ratio, the pressed edge)
+SUMMARY_COLUMNS = ("parameter", "median", "q05", "q95", "rel_width", "identified", "bf_off", "bf_upper",
+                   "autocorr_time", "chain_ok", "verdict")
+
+
+def summary_view(table: pd.DataFrame) -> pd.DataFrame:
+    """A posterior's summary table as a result's ``summary()`` shows it: per parameter its median, 90 %
+    interval, width over its range, verdicts, the chains' autocorrelation time and whether they are long
+    enough for it (the columns of :data:`SUMMARY_COLUMNS` the table has)."""
+    return table[[c for c in SUMMARY_COLUMNS if c in table.columns]]
+
+
 def edges(table: pd.DataFrame) -> pd.Series:
     """Each parameter's ``edge`` of a summary ("low", "high" or ""; "" throughout in one written before the
     column existed)."""

@@ -31,7 +31,8 @@ from ..posterior.adaptive import RULES, acquire, first_design, reference_round, 
 from ..posterior.calibrate import check_sampler, response_variances
 from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
                                   heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
-                                  profile_rows, second_response, settings_ranges, write_posterior)
+                                  profile_rows, second_response, settings_ranges, summary_view,
+                                  write_posterior)
 from ..posterior.gp import informative_conditions
 from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, heap_engine, heap_precision,
                             heap_preset, heap_setup, modulus_settings, precision_note, run_heap_settings)
@@ -128,9 +129,10 @@ class CalibrateResult(Result):
         return self.stage.run_dir / "posterior"
 
     def summary(self) -> pd.DataFrame | str:
-        """The answer: each parameter's median, 90 % interval and verdict (posterior/summary.parquet); for a step
-        of another model revision, what it did."""
-        return self.table if self.table is not None else super().summary()
+        """The answer: per parameter its median, 90 % interval, verdicts and the chains' length (the columns of
+        posterior/summary.parquet that ``calibrate-posterior``'s result shows too); for a step of another model
+        revision, what it did."""
+        return summary_view(self.table) if self.table is not None else super().summary()
 
     def per_round(self) -> pd.DataFrame:
         """A row per round: heaps, the interval of each parameter and the effects' Bayes factors."""

@@ -16,7 +16,7 @@ from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import MODEL_FILE, load_model
 from ..posterior.evidence import (PRIORS, RESPONSE, check_rows, evidence_lock, extrapolation_note, fit_posterior,
-                                  model_rows, prior_bounds, settings_ranges, write_posterior)
+                                  model_rows, prior_bounds, settings_ranges, summary_view, write_posterior)
 from ..posterior.calibrate import check_sampler
 from ..posterior.suggest import region_design
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
@@ -42,8 +42,7 @@ class PosteriorStageResult(Result):
     def summary(self) -> pd.DataFrame:
         """Per parameter: median, 90 % interval, its width over the prior range, the verdicts, and
         the chains' autocorrelation time and whether they are long enough for it."""
-        return self.table[["parameter", "median", "q05", "q95", "rel_width", "identified", "bf_off",
-                           "autocorr_time", "chain_ok"]]
+        return summary_view(self.table)
 
     def conclusion(self, markup: bool = False) -> list[str]:
         """Each parameter's verdict, the sampler's acceptance and whether its chains were long enough
