@@ -31,6 +31,20 @@ prior range and the draws mapped by it before scaling to [0, 1]): whether a surr
 surface energies, where the angle climbs fastest, is sure sooner (docs/method.md, "Calibrating in rounds").
 
     .venv/bin/python benchmarks/heap_floor.py --warps sqrt,cbrt sample_runs/hidden-effect sample_runs/control-lab
+
+``--trend``: the same table as ``--warps`` with a linear trend in both processes' latent kernel (s^2 Matern +
+c^2 (sigma_0^2 + x.x'), the trend's coefficients' uncertainty carried): whether a process that knows the responses
+rise near linearly over the factor table learns more per heap.
+
+    .venv/bin/python benchmarks/heap_floor.py --trend sample_runs/hidden-effect sample_runs/control-lab
+
+``--noise 0.6,0.7/0.5``: what heaps that each scatter less would do (e.g. measured from several side views,
+``benchmarks/heap_views.py``): every simulated pile's variance scaled by each factor f (``a/p``: the angle's by a,
+the fullness's by p), the lab's measured means as they are. Per round, the angle's, the profile's and the combined ratio at the answer's draws from the
+answer's processes conditioned on the round's heaps (their length scales and signal kept); then the oracle's
+heaps to a combined ratio of 1 from the heaps at hand plus the default round 0 of 72.
+
+    .venv/bin/python benchmarks/heap_floor.py --noise 0.7,0.5,0.7/0.5 sample_runs/hidden-effect sample_runs/control-lab
 """
 from __future__ import annotations
 
@@ -252,8 +266,110 @@ def warped_refits(answer: Answer, warp: str, draws: int = 400) -> pd.DataFrame:
     return pd.DataFrame(out).round(2)
 
 
+def _trend_surrogate():
+    """The library's Gaussian process with a linear trend added to its latent kernel (``--trend``)."""
+    import warnings
+
+    from sklearn.base import clone
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process.kernels import ConstantKernel, DotProduct
+    from threadpoolctl import threadpool_limits
+
+    from calib_cli.posterior.gp import GPSurrogate
+
+    class TrendGP(GPSurrogate):
+        def fit(self, X, y):
+            super().fit(X, y)  # inputs, scaling, scatter and the plain fit, then refitted with the trend
+            k0 = self.gp_.kernel
+            kernel = (k0.k1 + ConstantKernel(0.1, (1e-4, 1e2)) * DotProduct(1.0, (1e-2, 1e2))) + k0.k2
+            with warnings.catch_warnings(), threadpool_limits(1, user_api="blas"):
+                warnings.simplefilter("ignore", ConvergenceWarning)
+                self.gp_ = clone(self.gp_).set_params(kernel=kernel).fit(self.gp_.X_train_, self.gp_.y_train_)
+            k = self.gp_.kernel_
+            self.latent_, self.trend_ = k.k1, k.k1.k2
+            self.white_sd_ = float(np.sqrt(k.k2.noise_level)) * self.y_sd_
+            self.noise_sd_ = float(np.sqrt(np.mean(self.pile_sd(self.gp_.X_train_, scaled=True) ** 2)))
+            return self
+
+    return TrendGP
+
+
+class _Quieter:
+    """A fitted process whose piles scatter with ``f`` times its variance (the lab's means untouched)."""
+
+    def __init__(self, gp, f: float):
+        self._gp, self._f = gp, float(f)
+
+    def __getattr__(self, name):
+        return getattr(self._gp, name)
+
+    def pile_sd(self, X, scaled: bool = False) -> np.ndarray:
+        return np.sqrt(self._f) * self._gp.pile_sd(X, scaled)
+
+
+def quieter(answer: Answer, f: str, draws: int = 400) -> tuple[pd.DataFrame, int]:
+    """Per round (as :func:`refits`), the angle's, the profile's and the combined ratio at the answer's draws from
+    the answer's processes with every pile's variance scaled by ``f`` ("a" for both, "a/p" for the angle's and the
+    fullness's) conditioned on the round's heaps; and the oracle's heaps to a combined ratio of 1 from the heaps
+    at hand and the default round 0 (:func:`placed`)."""
+    from calib_cli.posterior.adaptive import _points
+
+    fa, fp = (float(x) for x in (f.split("/") * 2)[:2])
+    full = _profile(answer)
+    quiet = answer._replace(gp=_Quieter(answer.gp, fa))
+    prof = full._replace(gp=_Quieter(full.gp, fp))
+    rows, hand, own = answer.rows, answer.hand, answer.own
+    t = _draws(answer, draws)
+    out = []
+    for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
+        sub = _round_heaps(rows, hand, own, k)
+        ratio = {}
+        for name, g, v, have in (("angle", quiet.gp, mean_variance_of(answer), sub.index),
+                                 ("profile", prof.gp, prof.v, sub.index[full.has[sub.index]])):
+            X = _points(g, t, g.parameters, answer.conds)
+            var = g.y_sd_ ** 2 * np.diag(_given(g, g._scale(rows.loc[have, g.inputs_]), g._scale(X)))
+            ratio[name] = float(np.mean(var.reshape(len(t), -1) / v))
+        out.append({"f": f, "round": k, "heaps": len(sub), **ratio, "combined": _combined(ratio.values())})
+    _, path = placed(quiet, "at hand", prof, ROUND0[-1])
+    return pd.DataFrame(out).round(2), path[-1][0]
+
+
+def mean_variance_of(answer: Answer) -> np.ndarray:
+    """The measured mean angles' variances v_c, as the likelihood takes them."""
+    from calib_cli.posterior.calibrate import mean_variance
+
+    return mean_variance(answer.conds["sd"], answer.conds["n"], answer.gp.noise_sd_)
+
+
 def main() -> None:
     args = sys.argv[1:]
+    if args[:1] == ["--trend"]:
+        from calib_cli.posterior import evidence
+
+        for run in map(Path, args[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
+            answer = _answer(run)
+            plain = warped_refits(answer, "none").assign(warp="matern")
+            evidence.GPSurrogate, library = _trend_surrogate(), evidence.GPSurrogate
+            try:
+                trend = warped_refits(answer, "none").assign(warp="matern + linear")
+                sub = _round_heaps(answer.rows, answer.hand, answer.own, 3)
+                amp = evidence.model_surrogate(sub, answer.model, 0, scale=answer.bounds).trend_
+            finally:
+                evidence.GPSurrogate = library
+            print(f"\n{run}: each round's ratios at the answer's draws, without and with a linear trend "
+                  f"(the angle's trend after round 3: {amp})")
+            print(pd.concat([plain, trend]).rename(columns={"warp": "kernel"}).to_string(index=False))
+        return
+    if args[:1] == ["--noise"]:
+        factors, args = ["1", *args[1].split(",")], args[2:]
+        for run in map(Path, args or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
+            answer = _answer(run)
+            tables, oracle = zip(*(quieter(answer, f) for f in factors))
+            print(f"\n{run}: each round's ratios at the answer's draws, every pile's variance scaled by f")
+            print(pd.concat(tables).to_string(index=False))
+            print("the oracle's heaps to a combined ratio of 1 from those at hand and a round 0 of 72: "
+                  + ", ".join(f"f = {f}: {h}" for f, h in zip(factors, oracle)))
+        return
     if args[:1] == ["--warps"]:
         warps, args = ["none", *args[1].split(",")], args[2:]
         for run in map(Path, args or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
