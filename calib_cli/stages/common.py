@@ -11,10 +11,14 @@ without one they are printed as plain text.
 from __future__ import annotations
 
 import functools
+import inspect
+import os
 import sys
+import types
+import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Optional, Protocol, TypeVar
+from typing import Callable, Iterable, Optional, Protocol, TypeVar, Union
 
 import numpy as np
 import pandas as pd
@@ -63,11 +67,73 @@ def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwa
     return art.Stage(run, group, name, code=CODE_VERSIONS[version or group], **kwargs)
 
 
+#: what an argument of each simple annotation must be, and how a message names it
+_KINDS = {int: "an integer", float: "a number", bool: "True or False", str: "a string",
+          Path: "a path (str or Path)"}
+
+
+def _kind(hint) -> Optional[tuple[type, bool]]:
+    """The simple type an annotation asks for (:data:`_KINDS`) and whether None is allowed; None where the
+    annotation is anything else (a list, a callable, a union of types), which is not checked here."""
+    if hint in _KINDS:
+        return hint, False
+    if typing.get_origin(hint) in (Union, types.UnionType):
+        rest = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(rest) == 1 and rest[0] in _KINDS:
+            return rest[0], len(rest) < len(typing.get_args(hint))
+    return None
+
+
+def _fits(value, kind: type) -> bool:
+    if kind is bool:
+        return isinstance(value, (bool, np.bool_))
+    if isinstance(value, (bool, np.bool_)):
+        return False  # True is an int to Python, not a budget
+    if kind is int:
+        return isinstance(value, (int, np.integer))
+    if kind is float:
+        return isinstance(value, (int, float, np.integer, np.floating))  # NaN and range: the stage's own checks
+    if kind is Path:
+        return isinstance(value, (str, os.PathLike))
+    return isinstance(value, kind)
+
+
+def checked(fn: Callable[..., R]) -> Callable[..., R]:
+    """A library entry point whose arguments of a simple annotation (int, float, bool, str, Path, or one of
+    them or None) are checked before it runs: ``calibrate(run, budget="x")`` fails with one line naming the
+    argument, not with Python's error from deep inside the stage."""
+    sig, kinds = inspect.signature(fn), None
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        nonlocal kinds
+        if kinds is None:  # on the first call: the module's names exist only once it is imported
+            try:
+                hints = typing.get_type_hints(fn)
+            except Exception:  # an annotation this Python cannot resolve: nothing is checked, as before
+                hints = {}
+            kinds = {n: k for n, h in hints.items() if (k := _kind(h)) is not None}
+        try:
+            bound = sig.bind(*args, **kwargs)
+        except TypeError as e:
+            raise CalibError(f"{fn.__name__}: {e}") from None
+        for name, value in bound.arguments.items():
+            kind = kinds.get(name)
+            if kind and not (value is None and kind[1]) and not _fits(value, kind[0]):
+                raise CalibError(f"{fn.__name__}({name}={value!r}): {name} takes {_KINDS[kind[0]]}"
+                                 + (" or None" if kind[1] else ""))
+        return fn(*args, **kwargs)
+
+    return call
+
+
 def writes_run(fn: Callable[..., R]) -> Callable[..., R]:
     """A stage function that writes its run directory (its first argument) holds the run's lock
     (:func:`~calib_cli.artifacts.run_lock`) for its whole call: a second command on the same run
-    directory then fails at once instead of losing rows of the tables both rewrite."""
+    directory then fails at once instead of losing rows of the tables both rewrite. Its arguments are
+    :func:`checked` first."""
 
+    @checked
     @functools.wraps(fn)
     def locked(*args, **kwargs):
         run = check_run_dir(args[0] if args else kwargs["run"])

@@ -19,6 +19,7 @@ from ..heaps.inputs import (COND_VARS, RUN_ENGINES, build_requests, heap_preset,
 from ..heaps.inputs import Pairs, given_pairs as pairs
 from ..heaps.keys import RUNS
 from ..heaps.runner import run_campaign
+from .common import checked
 
 
 def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:
@@ -66,6 +67,7 @@ class LabResult:
         return f"{len(self.rows)} heaps ({ok} formed) in {self.n_conditions} conditions -> {self.out}"
 
 
+@checked
 def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: str = "5-6,6-8,8-10",
               cylinders: str = "50", fill_ratio: float = 1.0, fills: Optional[str] = None, repeats: int = 3,
               preset: str = "smoke", workers: int = 1, shear_modulus: Optional[float] = None,

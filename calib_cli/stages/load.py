@@ -15,7 +15,7 @@ from typing import NamedTuple, Optional
 
 from .. import artifacts as art
 from ..errors import CalibError
-from .common import Result
+from .common import Result, checked
 
 
 class _Kind(NamedTuple):
@@ -44,6 +44,7 @@ KINDS: dict[str, _Kind] = {
 }
 
 
+@checked
 def load(run, stage: str, revision: Optional[int] = None) -> Result:
     """The result ``stage`` (a key of :data:`KINDS`) wrote in ``run``, as its function returns it (its
     ``summary()``, ``warnings()`` and tables), read from the files alone; ``skipped`` is True, since nothing

@@ -20,6 +20,8 @@ import pandas as pd
 from ..heaps.index import load_results
 from ..surrogate.inversion import solution_parameters
 from ..errors import CalibError
+from .common import checked
+
 
 @dataclass
 class RunDiff:
@@ -178,6 +180,7 @@ def _is_run(p: Path) -> bool:
     return (p / "settings.toml").is_file() or any(p.glob("*/*.lock.json")) or any(p.glob("*.lock.json"))
 
 
+@checked
 def diff_runs(run: Path, reference: Path, rtol: float = 1e-6) -> RunDiff:
     """The headline numbers of ``run`` against ``reference``'s and, where they differ, why."""
     run, reference = Path(run), Path(reference)

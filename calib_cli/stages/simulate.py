@@ -21,7 +21,7 @@ from ..measurements import CONDITIONS
 from ..heaps.inputs import (Pairs, build_requests, check_engine, checked_condition, given_pairs, heap_engine,
                             heap_precision, heap_preset, heap_setup, make_condition, modulus_note, parse_params,
                             precision_note, table_conditions)
-from .common import Say, check_run_dir, plain, resolve_settings, shown, writes_run
+from .common import Say, check_run_dir, checked, plain, resolve_settings, shown, writes_run
 
 #: deg/s: measured heaps whose angle still changes faster than this are pointed out
 DRIFT_WARN = 2.0
@@ -184,6 +184,7 @@ def read_conditions_table(path: Path) -> pd.DataFrame:
     return ctab
 
 
+@checked
 def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = None, repeats: int = 1, seed: int = 0,
                     preset: Optional[str] = None, shear_modulus: Optional[float] = None, condition: Pairs = None,
                     conditions: Optional[Path] = None, engine: Optional[str] = None, mpi: int = 1,
@@ -243,6 +244,7 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     return Plan(run, requests, pre, force)
 
 
+@checked
 def run_simulation(plan: Plan, workers: int = 1, dask: Optional[str] = None, on_done: Optional[Callable] = None,
                    on_progress: Optional[Callable] = None) -> SimulateResult:
     """Run a :func:`plan_simulation`'s heaps (cached ones are read) on ``workers`` processes or a Dask

@@ -1,0 +1,55 @@
+"""A library call with an argument of the wrong type fails with one line naming it, before the stage runs."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import pytest
+
+from calib_cli.errors import CalibError
+from calib_cli.stages.calibrate import calibrate
+from calib_cli.stages.common import checked
+from calib_cli.stages.compare import compare
+from calib_cli.stages.load import load
+from calib_cli.stages.simulate import simulate_heap
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda run: calibrate(run, budget="x"), r"calibrate\(budget='x'\): budget takes an integer$"),
+    (lambda run: calibrate(run, budget=True), r"budget takes an integer$"),
+    (lambda run: calibrate(run, shear_modulus="stiff"), r"shear_modulus takes a number or None$"),
+    (lambda run: calibrate(run, shear_modulus=math.nan), r"shear modulus nan Pa .* is outside"),  # the stage's own
+    (lambda run: calibrate(run, bogus=1), r"calibrate: got an unexpected keyword argument 'bogus'"),
+    (lambda run: compare(run, repeats="2"), r"compare\(repeats='2'\): repeats takes an integer$"),
+    (lambda run: compare(run, preset=3), r"preset takes a string or None$"),
+    (lambda run: simulate_heap(run, repeats=1.5), r"plan_simulation\(repeats=1.5\): repeats takes an integer$"),
+    (lambda run: calibrate(42), r"calibrate\(run=42\): run takes a path"),
+])
+def test_a_wrong_type_is_one_line_and_touches_nothing(tmp_path, call, message):
+    run = tmp_path / "run"
+    with pytest.raises(CalibError, match=message):
+        call(run)
+    assert not run.exists()  # refused before the stage made its run directory or took its lock
+
+
+def test_the_types_a_user_means_pass():
+    @checked
+    def stage(run: Path, budget: int = 1, scale: float = 1.0, seed: Optional[int] = None, on: bool = False) -> tuple:
+        return run, budget, scale, seed, on
+
+    assert stage("a/b", np.int64(3), 2, None, np.bool_(True))[1:] == (3, 2, None, True)
+    assert stage(Path("a"), budget=4, scale=np.float32(0.5), seed=np.int32(7))[1:4] == (4, 0.5, 7)
+    with pytest.raises(CalibError, match=r"stage\(scale='1'\): scale takes a number$"):
+        stage("a", scale="1")
+    with pytest.raises(CalibError, match=r"stage\(on=1\): on takes True or False$"):
+        stage("a", on=1)
+
+
+def test_load_names_a_stage_by_its_name():
+    with pytest.raises(CalibError, match=r"load\(stage=3\): stage takes a string$"):
+        load(ROOT / "sample_runs" / "smoke", 3)
