@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from . import __version__
-from .errors import CalibError
+from .errors import CalibError, reason
 
 PROVENANCE_KEY = b"calib.provenance"
 LOCK_SUFFIX = ".lock.json"
@@ -269,7 +269,7 @@ def read_responses(path: Path, factors: Sequence[str], response: str,
     except CalibError:
         raise
     except Exception as e:
-        raise CalibError(f"responses file {path} could not be read ({type(e).__name__})") from None
+        raise CalibError(f"responses file {path} could not be read ({reason(e)})") from None
     df.columns = [str(c).strip() for c in df.columns]
     need = list(factors) + [response]
     missing = [c for c in need if c not in df.columns]
@@ -513,10 +513,9 @@ class Stage:
         return self.dir / f"{self.name}{LOCK_SUFFIX}"
 
     def read_lock(self) -> dict | None:
-        try:
-            return json.loads(self.lock_path.read_text())
-        except (OSError, ValueError):
-            return None
+        """The stage's lock, or None where it is missing or not a lock (not JSON, or JSON of another shape:
+        the stage is then out of date and recomputes, as for a missing lock)."""
+        return _read_lock_file(self.lock_path) or None
 
     @property
     def pending_path(self) -> Path:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import CalibError
+from .errors import CalibError, reason
 from .parameters import CONDITION_VARIABLES, check
 
 #: the columns a conditions table may have beside free ones (notes, dates): a column close to one of
@@ -29,7 +29,7 @@ def read_conditions_csv(path: Path, need: tuple[str, ...] = ("condition_id",), w
     try:
         df = pd.read_csv(path, comment="#", dtype={"condition_id": str, "image": str, "floor": str})
     except Exception as e:  # pandas raises several types for a file that is not CSV
-        raise CalibError(f"{what} {path} could not be read as CSV ({type(e).__name__})") from None
+        raise CalibError(f"{what} {path} could not be read as CSV ({reason(e)})") from None
     df.columns = [str(c).strip() for c in df.columns]
     _delimiter(df, path, what)
     missing = [c for c in need if c not in df.columns]

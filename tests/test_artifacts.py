@@ -69,6 +69,19 @@ def test_failed_stage_leaves_run_dir_unchanged(tmp_path):
     assert before == after
 
 
+@pytest.mark.parametrize("text", ["[1]", '"str"', "5", '{"outputs": 5}', "{not json"])
+def test_a_lock_of_another_shape_is_out_of_date_and_replaced(tmp_path, text):
+    """A lock edited into valid JSON of another shape reads as no lock: the stage recomputes (it crashed)."""
+    st = _stage(tmp_path, {"k": 1})
+    with st.commit() as out:
+        out.table("o.parquet", pd.DataFrame({"a": [1]}))
+    st.lock_path.write_text(text)
+    assert st.read_lock() is None and not st.up_to_date()
+    with st.commit() as out:
+        out.table("o.parquet", pd.DataFrame({"a": [1]}))
+    assert st.up_to_date()
+
+
 def test_stale_outputs_removed_and_lock_records_hashes(tmp_path):
     st = _stage(tmp_path, {"k": 1})
     with st.commit() as out:

@@ -37,6 +37,20 @@ def test_a_wrong_type_is_one_line_and_touches_nothing(tmp_path, call, message):
     assert not run.exists()  # refused before the stage made its run directory or took its lock
 
 
+@pytest.mark.parametrize("call, message", [
+    (lambda run: simulate_heap(run, seed=-1), r"plan_simulation: seed -1 is out of range \(0 to 4294967295\)$"),
+    (lambda run: compare(run, repeats=0), r"compare: repeats 0 is out of range \(1 to 1000\)$"),
+    (lambda run: compare(run, repeats=10 ** 20), r"repeats 100000000000000000000 is out of range"),
+    (lambda run: compare(run, workers=0), r"workers 0 is out of range"),
+    (lambda run: calibrate(run, seed=2 ** 32), r"seed 4294967296 is out of range"),
+])
+def test_a_count_or_seed_out_of_range_is_one_line_and_touches_nothing(tmp_path, call, message):
+    run = tmp_path / "run"
+    with pytest.raises(CalibError, match=message):
+        call(run)
+    assert not run.exists()
+
+
 def test_the_types_a_user_means_pass():
     @checked
     def stage(run: Path, budget: int = 1, scale: float = 1.0, seed: Optional[int] = None, on: bool = False) -> tuple:
@@ -53,3 +67,11 @@ def test_the_types_a_user_means_pass():
 def test_load_names_a_stage_by_its_name():
     with pytest.raises(CalibError, match=r"load\(stage=3\): stage takes a string$"):
         load(ROOT / "sample_runs" / "smoke", 3)
+
+
+def test_a_lab_with_an_unknown_hidden_effect_is_refused_before_any_heap(tmp_path):
+    from calib_cli.stages.lab import synth_lab
+
+    with pytest.raises(CalibError, match=r"unknown hidden effect 'bogus': none or one of .*cohesion"):
+        synth_lab(tmp_path / "lab", hidden="bogus")
+    assert not (tmp_path / "lab").exists()

@@ -1,6 +1,7 @@
 """Heap scenario, angle from coordinates, rendering, cached campaigns, simulate-heap CLI."""
 
 import math
+import re
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -664,3 +665,22 @@ def test_a_design_listing_one_point_twice_computes_it_once(tmp_path):
     rows = run_campaign([req, twin], tmp_path, workers=2)
     assert sorted(rows["run_id"]) == [1, 2] and rows["run_hash"].nunique() == 1
     assert [p.name for p in (tmp_path / "simulate" / "runs").iterdir() if not p.name.startswith(".")] == [req.hash]
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d.assign(repose_angle=d["repose_angle"].astype(str)), "repose_angle hold text where numbers belong"),
+    (lambda d: d.assign(static_friction="0.3"), "static_friction hold text where numbers belong"),
+])
+def test_a_results_index_edited_into_another_shape_is_one_line(tmp_path, edit, words):
+    import shutil
+
+    run = tmp_path / "run"
+    smoke = Path(__file__).resolve().parents[1] / "sample_runs" / "smoke"
+    shutil.copytree(smoke / "simulate", run / "simulate", ignore=shutil.ignore_patterns("runs"))
+    shutil.copy(smoke / "settings.toml", run / "settings.toml")
+    path = run / "simulate" / "results.parquet"
+    edit(pd.read_parquet(path)).to_parquet(path)
+    with pytest.raises(CalibError, match=r"simulation results .*" + re.escape(words)):
+        load_results(run)
+    r = runner.invoke(app, ["diff-runs", str(run), str(run)])
+    assert r.exit_code == 2 and words in " ".join(r.output.split()), r.output

@@ -107,6 +107,11 @@ def test_a_bad_rig_file_is_a_one_line_error(bad, words):
     assert words in str(e.value) and "\n" not in str(e.value)
 
 
+def test_a_rig_that_is_not_a_table_is_a_one_line_error():
+    with pytest.raises(CalibError, match=r"'rig' must be a table .*got 5$"):
+        parse_rig({"rig": 5})
+
+
 # ------------------------------------------------------------------ the stage and the command
 def _run_with_posterior(tmp_path_factory):
     """test_posterior's tiny run (fills 50 and 100 mm measured), its posterior, and diagnose's
@@ -174,6 +179,9 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
                    "lift_speed_mm_s = [50]\n")
     r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(bad)])
     assert r.exit_code == 2 and "measured already" in r.output
+    for opt in (["--set", "static_friction=abc"], ["--preset", "bogus"]):  # options of heaps it would not make
+        r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig), "--force", *opt])
+        assert r.exit_code == 2 and "choose the heaps --simulate makes" in " ".join(r.output.split()), r.output
     shutil.rmtree(mine / "posterior")
     r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig)])
     assert r.exit_code == 2 and "calibrate-posterior" in r.output

@@ -17,6 +17,9 @@ from ..errors import CalibError
 from .keys import RUNS, cache_source, heap_source, physics
 
 RESULTS = Path("simulate") / "results.parquet"
+#: the results rows' columns that hold numbers
+NUMERIC = ("run_id", "repeat", "seed", "repose_angle", "angle_coords", "angle_image", "angle_image_left",
+           "angle_image_right", "fullness", "heap_height_mm", "base_radius_mm", *PARAMETERS)
 
 
 def load_results(run_dir: Path) -> pd.DataFrame:
@@ -24,10 +27,21 @@ def load_results(run_dir: Path) -> pd.DataFrame:
     if not path.is_file():
         return pd.DataFrame()
     try:
-        return art.read_table(path, what="simulation results")
+        return _checked(art.read_table(path, what="simulation results"), path)
     except CalibError as e:  # the index is rebuilt from the heaps' folders: say how to get there
         raise CalibError(f"{e}; delete it and rerun: the index is rebuilt from the heaps kept in "
                          f"{Path(run_dir) / RUNS} (a heap whose folder is gone is simulated again)") from None
+
+
+def _checked(rows: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """The index as its writer left it: a table edited by hand to hold text where numbers belong is refused
+    here, not met as a TypeError in whichever stage reads it."""
+    from pandas.api.types import is_numeric_dtype
+
+    text = [c for c in NUMERIC if c in rows.columns and len(rows) and not is_numeric_dtype(rows[c])]
+    if text:
+        raise CalibError(f"simulation results {path}: column(s) {', '.join(text)} hold text where numbers belong")
+    return rows
 
 
 def current_sources(rows: pd.DataFrame) -> pd.Series:

@@ -78,6 +78,8 @@ def parse_rig(d: dict, where: str = "rig file") -> Rig:
     """A rig from its TOML table (docs/cli.md): ``particle_sizes_mm = [[4, 5], [5, 6]]``, lists of
     ``cylinder_diameter_mm``, ``fill_height_mm``, ``lift_speed_mm_s``, and ``piles``."""
     rig = d.get("rig", d)
+    if not isinstance(rig, dict):
+        raise CalibError(f"{where}: 'rig' must be a table ([rig] with particle_sizes_mm, ...), got {rig!r}")
     unknown = sorted(set(rig) - {*RIG_VARIABLES, "particle_sizes_mm", "piles"})
     if unknown:
         raise CalibError(f"{where}: unknown key(s) {', '.join(unknown)}; a rig lists particle_sizes_mm, "

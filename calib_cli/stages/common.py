@@ -72,6 +72,14 @@ _KINDS = {int: "an integer", float: "a number", bool: "True or False", str: "a s
           Path: "a path (str or Path)"}
 
 
+#: the range of the library's count and seed arguments, by name (where the argument is an integer): the
+#: command line's options take the same (a seed is numpy's, a count beyond these runs out of memory or time)
+ARG_RANGES = {"seed": (0, 2 ** 32 - 1), "repeats": (1, 1000), "workers": (1, 1024), "budget": (1, 100_000),
+              "first": (1, 100_000), "batch": (1, 100_000), "walkers": (2, 10_000), "steps": (10, 10_000_000),
+              "design": (0, 1_000_000), "validate": (0, 1000), "refine": (0, 100), "top": (1, 10_000),
+              "piles": (1, 10_000), "at_revision": (0, 1_000_000), "revision": (0, 1_000_000)}
+
+
 def _kind(hint) -> Optional[tuple[type, bool]]:
     """The simple type an annotation asks for (:data:`_KINDS`) and whether None is allowed; None where the
     annotation is anything else (a list, a callable, a union of types), which is not checked here."""
@@ -100,8 +108,9 @@ def _fits(value, kind: type) -> bool:
 
 def checked(fn: Callable[..., R]) -> Callable[..., R]:
     """A library entry point whose arguments of a simple annotation (int, float, bool, str, Path, or one of
-    them or None) are checked before it runs: ``calibrate(run, budget="x")`` fails with one line naming the
-    argument, not with Python's error from deep inside the stage."""
+    them or None) are checked before it runs, and its integer counts and seeds against :data:`ARG_RANGES`:
+    ``calibrate(run, budget="x")`` fails with one line naming the argument, not with Python's error from
+    deep inside the stage."""
     sig, kinds = inspect.signature(fn), None
 
     @functools.wraps(fn)
@@ -119,9 +128,14 @@ def checked(fn: Callable[..., R]) -> Callable[..., R]:
             raise CalibError(f"{fn.__name__}: {e}") from None
         for name, value in bound.arguments.items():
             kind = kinds.get(name)
-            if kind and not (value is None and kind[1]) and not _fits(value, kind[0]):
+            if not kind or (value is None and kind[1]):
+                continue
+            if not _fits(value, kind[0]):
                 raise CalibError(f"{fn.__name__}({name}={value!r}): {name} takes {_KINDS[kind[0]]}"
                                  + (" or None" if kind[1] else ""))
+            lo, hi = ARG_RANGES.get(name, (None, None)) if kind[0] is int else (None, None)
+            if lo is not None and not lo <= value <= hi:
+                raise CalibError(f"{fn.__name__}: {name} {value} is out of range ({lo} to {hi})")
         return fn(*args, **kwargs)
 
     return call

@@ -19,6 +19,7 @@ from ..heaps.inputs import (COND_VARS, RUN_ENGINES, build_requests, heap_preset,
 from ..heaps.inputs import Pairs, given_pairs as pairs
 from ..heaps.keys import RUNS
 from ..heaps.runner import run_campaign
+from ..model import EFFECTS
 from .common import checked
 
 
@@ -82,6 +83,8 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
 
     from ..dem.render import render_side_view
 
+    if hidden != "none" and hidden not in EFFECTS:  # a label truth.toml keeps: a typo would mislabel the lab
+        raise CalibError(f"unknown hidden effect {hidden!r}: none or one of {', '.join(EFFECTS)}")
     truth = parse_params(pairs(set_, "--set")) if set_ else {}
     pre = heap_preset(preset, shear_modulus)
     floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]

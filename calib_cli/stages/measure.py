@@ -14,7 +14,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..conditions import read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
-from ..errors import CalibError
+from ..errors import CalibError, reason
 from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
 from ..imaging.stats import STAT_COLUMNS, describe
 from ..parameters import ALLOW_EXTREME, check, extremes_allowed
@@ -35,7 +35,7 @@ def _read_conditions(path: Path) -> pd.DataFrame:
     else:
         df = read_conditions_csv(path, need=("image", "condition_id"))
     if df["image"].duplicated().any():
-        raise CalibError(f"conditions file {path} lists image {df['image'][df['image'].duplicated()].iloc[0]!r} twice")
+        raise CalibError(f"conditions file {path} lists image {str(df['image'][df['image'].duplicated()].iloc[0])!r} twice")
     df["image"] = df["image"].astype(str)
     df["condition_id"] = df["condition_id"].astype(str)
     pathlike = df["image"][df["image"].map(lambda n: Path(n).name != n or n in ("", ".", ".."))]
@@ -94,7 +94,7 @@ def _read_angles(path: Path) -> pd.DataFrame:
     try:
         raw = pd.read_csv(path, comment="#")
     except Exception as e:
-        raise CalibError(f"angles file {path} could not be read ({type(e).__name__})") from None
+        raise CalibError(f"angles file {path} could not be read ({reason(e)})") from None
     if "repose_angle" not in raw.columns:
         raise CalibError(f"angles file {path} lacks column repose_angle")
     vals = pd.to_numeric(raw["repose_angle"], errors="coerce")
@@ -112,7 +112,7 @@ def _read_angles(path: Path) -> pd.DataFrame:
     for v in vals:
         check("repose_angle", v, f"angles file {path}")
     if "image" in raw.columns and raw["image"].duplicated().any():
-        raise CalibError(f"angles file {path} lists image {raw['image'][raw['image'].duplicated()].iloc[0]!r} twice")
+        raise CalibError(f"angles file {path} lists image {str(raw['image'][raw['image'].duplicated()].iloc[0])!r} twice")
     return raw.assign(repose_angle=vals.astype(float))
 
 

@@ -345,6 +345,10 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     piles = int(piles or the_rig.piles)
     if piles < 1 or top < 1 or repeats < 1:
         raise CalibError("--piles, --top and --repeats must be at least 1")
+    simulate = [simulate] if isinstance(simulate, str) else list(simulate)  # one name, not its letters
+    if not simulate and (set_ or preset or shear_modulus is not None):
+        raise CalibError("--set, --preset and --shear-modulus choose the heaps --simulate makes: name the "
+                         "candidates to simulate (--simulate EFFECT), or leave them out")
     model = load_model(run)
     measured = measured_conditions(run)
     if measured.empty:
