@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import CalibError, reason
-from .parameters import CONDITION_VARIABLES, check
+from .parameters import CONDITION_VARIABLES, check, check_rig
 
 #: the columns a conditions table may have beside free ones (notes, dates): a column close to one of
 #: these but not one is a typo, whose values would silently be dropped
@@ -49,7 +49,19 @@ def read_conditions_csv(path: Path, need: tuple[str, ...] = ("condition_id",), w
         if c in df.columns:
             df[c] = _numbers(df, c, path, what)
     _one_value_each(df, path, what)
+    _rigs(df, path, what)
     return df
+
+
+def _rigs(df: pd.DataFrame, path: Path, what: str) -> None:
+    """Each condition's sizes against each other, as a simulated heap's are (8 mm grains in a 5 mm cylinder
+    are a typo, whichever column holds it)."""
+    if not {"particle_d_min_mm", "particle_d_max_mm"} <= set(df.columns):
+        return
+    first = df.drop_duplicates("condition_id")
+    for i, r in first.iterrows():
+        check_rig(r["particle_d_min_mm"], r["particle_d_max_mm"], r.get("cylinder_diameter_mm"), r.get("fill_height_mm"),
+                  f"{what} {path}, condition {r['condition_id']} on line {int(i) + 2}")
 
 
 def _delimiter(df: pd.DataFrame, path: Path, what: str) -> None:

@@ -126,6 +126,19 @@ def extremes_allowed() -> bool:
     return os.environ.get(ALLOW_EXTREME, "") not in ("", "0")
 
 
+def check_rig(d_min: float, d_max: float, cylinder: float | None = None, fill: float | None = None,
+              where: str = "") -> None:
+    """A rig's sizes against each other (each alone is :func:`check`'s): 0 < d_min <= d_max, a cylinder at
+    least 4 and a fill at least 2 of the largest grains (None: not given, not checked)."""
+    at = f" ({where})" if where else ""
+    if not 0 < d_min <= d_max:
+        raise CalibError(f"particle sizes must satisfy 0 < d_min <= d_max, got {d_min}, {d_max} mm{at}")
+    if cylinder is not None and not cylinder >= 4 * d_max:
+        raise CalibError(f"cylinder diameter {cylinder} mm must be at least 4 particle diameters{at}")
+    if fill is not None and not fill >= 2 * d_max:
+        raise CalibError(f"fill height {fill} mm must be at least 2 particle diameters{at}")
+
+
 def check(name: str, value, where: str = "") -> float:
     """``value`` of quantity ``name`` as a float, or a one-line :class:`CalibError`: not a number,
     outside what the model accepts, or (unless ``CALIB_ALLOW_EXTREME=1``) outside what a real material

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Optional
 
@@ -75,3 +76,19 @@ def test_a_lab_with_an_unknown_hidden_effect_is_refused_before_any_heap(tmp_path
     with pytest.raises(CalibError, match=r"unknown hidden effect 'bogus': none or one of .*cohesion"):
         synth_lab(tmp_path / "lab", hidden="bogus")
     assert not (tmp_path / "lab").exists()
+
+
+@pytest.mark.parametrize("row, words", [
+    ("8,6,40,50", "0 < d_min <= d_max, got 8, 6 mm"),
+    ("4,8,5,50", "cylinder diameter 5 mm must be at least 4 particle diameters"),
+    ("4,5,40,6", "fill height 6 mm must be at least 2 particle diameters"),
+])
+def test_a_conditions_file_whose_sizes_disagree_is_one_line(tmp_path, row, words):
+    """The sizes of one condition checked against each other, as a simulated heap's are."""
+    from calib_cli.conditions import read_conditions_csv
+
+    p = tmp_path / "conditions.csv"
+    p.write_text("image,condition_id,particle_d_min_mm,particle_d_max_mm,cylinder_diameter_mm,fill_height_mm\n"
+                 f"a.png,A,{row}\n")
+    with pytest.raises(CalibError, match=re.escape(words) + r".*condition A on line 2"):
+        read_conditions_csv(p)

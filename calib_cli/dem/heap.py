@@ -22,7 +22,7 @@ from . import KERNEL_VERSION
 from ..profile import line_fit
 from .angle import CoordAngle, no_angle, repose_angle_coords
 from .laws import ContactModel, law_params
-from ..parameters import PARAMETERS as DECLARED
+from ..parameters import PARAMETERS as DECLARED, check_rig
 from .materials import LAW_SWITCHES, Interaction, Material, contact_model
 from .system import Particles, System, UnstableError, Walls
 
@@ -78,13 +78,7 @@ class HeapCondition:
         infinite = [k for k in CONDITION_VARIABLES[:5] if math.isinf(getattr(self, k))]
         if infinite:  # every comparison below lets inf through; an infinite rig never finishes filling
             raise CalibError(f"heap condition {infinite[0]} must be a finite number, got {getattr(self, infinite[0])}")
-        if not 0 < self.particle_d_min_mm <= self.particle_d_max_mm:
-            raise CalibError(f"particle sizes must satisfy 0 < d_min <= d_max, got {self.particle_d_min_mm}, "
-                             f"{self.particle_d_max_mm} mm")
-        if not self.cylinder_diameter_mm >= 4 * self.particle_d_max_mm:
-            raise CalibError(f"cylinder diameter {self.cylinder_diameter_mm} mm must be at least 4 particle diameters")
-        if not self.fill_height_mm >= 2 * self.particle_d_max_mm:
-            raise CalibError(f"fill height {self.fill_height_mm} mm must be at least 2 particle diameters")
+        check_rig(self.particle_d_min_mm, self.particle_d_max_mm, self.cylinder_diameter_mm, self.fill_height_mm)
         if not self.lift_speed_mm_s > 0:
             raise CalibError(f"lift speed must be positive, got {self.lift_speed_mm_s} mm/s")
         if self.floor_values():
