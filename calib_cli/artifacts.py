@@ -288,6 +288,11 @@ def read_responses(path: Path, factors: Sequence[str], response: str,
         out[c] = vals.astype(float)
     if len(out) == 0:
         raise CalibError(f"responses file {path} has no rows")
+    from .parameters import QUANTITIES, check
+
+    for c in (c for c in factors if c in QUANTITIES):  # a factor's value as --set would take it
+        for i, v in enumerate(out[c]):
+            check(c, v, f"responses file {path}, row {i + 1}")
     if response in ANGLES:  # a repose angle outside (0, 90) deg is a typo or another quantity's column
         off = np.flatnonzero(~((out[response] > 0) & (out[response] < 90)).to_numpy())
         if len(off):

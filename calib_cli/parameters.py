@@ -23,6 +23,8 @@ from .errors import CalibError
 PRESET_NAMES = ("smoke", "default", "paper")
 #: what a heap's state arrays store (calib_cli.dem.system.PRECISIONS holds them; here for the same reason)
 PRECISION_NAMES = ("double", "mixed")
+#: the engines a heap runs on (calib_cli.heaps.inputs.RUN_ENGINES and lammps; here for the same reason)
+ENGINE_NAMES = ("builtin", "gpu", "lammps")
 #: set to 1 to accept a value outside the plausible range (inside the accepted one)
 ALLOW_EXTREME = "CALIB_ALLOW_EXTREME"
 

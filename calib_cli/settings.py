@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from .errors import CalibError
-from .parameters import PRECISION_NAMES, PRESET_NAMES, QUANTITIES, check
+from .parameters import ENGINE_NAMES, PRECISION_NAMES, PRESET_NAMES, QUANTITIES, check
 from .space import Factor, ParameterSpace
 
 DEFAULTS: dict[str, Any] = {
@@ -202,6 +202,8 @@ def _check_declared(key: str, v: Any, where: str) -> None:
         check(name, v, f"setting {key}{where}")
     elif name and _is_number(v):
         _check_law_value(name, v, f"setting {key}{where}")
+    if key == "heap.engine" and v not in ENGINE_NAMES:
+        raise CalibError(f"setting heap.engine = {v!r}{where} must be one of {', '.join(ENGINE_NAMES)}")
     if key == "heap.precision" and v not in PRECISION_NAMES:
         raise CalibError(f"setting heap.precision = {v!r}{where} must be one of {', '.join(PRECISION_NAMES)}")
     if key == "heap.preset" and v not in PRESET_NAMES:

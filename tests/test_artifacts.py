@@ -107,6 +107,9 @@ def test_read_responses_validation(tmp_path):
         p.write_text(f"a,repose_angle\n1,30\n2,{bad}\n")
         with pytest.raises(CalibError, match=r"must lie in \(0, 90\) deg \(row 2"):
             art.read_responses(p, ["a"], "repose_angle")
+    p.write_text("static_friction,repose_angle\n0.4,30\n-3,31\n")  # a factor's value as --set takes it
+    with pytest.raises(CalibError, match=r"static_friction = -3 \(responses file .*, row 2\) is outside"):
+        art.read_responses(p, ["static_friction"], "repose_angle")
     p.write_text("a,angle\n1,30\n")
     with pytest.raises(CalibError, match="lacks column.*repose_angle"):
         art.read_responses(p, ["a"], "repose_angle")

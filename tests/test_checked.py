@@ -92,3 +92,23 @@ def test_a_conditions_file_whose_sizes_disagree_is_one_line(tmp_path, row, words
                  f"a.png,A,{row}\n")
     with pytest.raises(CalibError, match=re.escape(words) + r".*condition A on line 2"):
         read_conditions_csv(p)
+
+
+@pytest.mark.parametrize("rtol", [-1.0, math.inf, math.nan])
+def test_a_tolerance_that_compares_nothing_is_one_line(rtol):
+    from calib_cli.stages.rundiff import diff_runs
+
+    smoke = ROOT / "sample_runs" / "smoke"
+    with pytest.raises(CalibError, match=r"--rtol must be a finite number of at least 0"):
+        diff_runs(smoke, smoke, rtol)
+
+
+def test_an_ascent_target_beyond_any_angle_is_one_line(tmp_path):
+    import shutil
+
+    from calib_cli.stages.doe import ascent_analyze
+
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "sample_runs" / "calibration", run)
+    with pytest.raises(CalibError, match=r"repose_angle = 1e\+09 deg \(--target\) is outside"):
+        ascent_analyze(run, target=1e9, force=True)

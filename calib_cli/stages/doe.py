@@ -17,6 +17,7 @@ from ..doe import ascent as ascent_mod
 from ..doe import bbd as bbd_mod
 from ..doe import pb as pb_mod
 from ..errors import CalibError
+from ..parameters import check
 from ..settings import factor_space
 from ..space import ParameterSpace
 from .common import (Result, Say, check_run_dir, plain, resolve_settings, simulated_responses, space_from_design,
@@ -215,7 +216,7 @@ def _ascent_target(run: Path, cfg: dict, explicit: Optional[float] = None) -> tu
     settings target. Returns it with the input file it came from, if any (for the stage lock)."""
     a = cfg["ascent"]
     if explicit is not None:
-        return float(explicit), {}
+        return check("repose_angle", explicit, "--target"), {}
     if a["target"] is not None:
         return float(a["target"]), {}
     cond = run / "measure" / "conditions.parquet"

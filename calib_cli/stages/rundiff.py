@@ -184,6 +184,8 @@ def _is_run(p: Path) -> bool:
 def diff_runs(run: Path, reference: Path, rtol: float = 1e-6) -> RunDiff:
     """The headline numbers of ``run`` against ``reference``'s and, where they differ, why."""
     run, reference = Path(run), Path(reference)
+    if not (np.isfinite(rtol) and rtol >= 0):  # a negative one calls every number different, inf none
+        raise CalibError(f"--rtol must be a finite number of at least 0, got {rtol:g}")
     for p in (run, reference):
         if not p.is_dir():
             raise CalibError(f"no run directory {p}")
