@@ -114,8 +114,15 @@ def load_model(run: Path) -> Model:
     if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
         raise CalibError(f"{p} is not a valid model file: it needs effects = [\"name\", ...] (`calib model add` "
                          f"writes it), got {effects!r}")
+    revision = d.get("revision", 1)
+    if isinstance(revision, bool) or not isinstance(revision, int) or revision < 0:  # 1.5 is no revision
+        raise CalibError(f"{p} is not a valid model file: revision must be a whole number of at least 0, got "
+                         f"{revision!r}")
+    if not effects or len(set(effects)) < len(effects):
+        raise CalibError(f"{p} is not a valid model file: effects must name each effect once, got {effects!r} "
+                         "(`calib model add` and `model remove` write it)")
     try:
-        return Model(tuple(effects), int(d.get("revision", 1)), str(d.get("note", "")))
+        return Model(tuple(effects), revision, str(d.get("note", "")))
     except (TypeError, ValueError) as e:
         raise CalibError(f"{p} is not a valid model file ({e})") from None
 

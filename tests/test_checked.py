@@ -112,3 +112,43 @@ def test_an_ascent_target_beyond_any_angle_is_one_line(tmp_path):
     shutil.copytree(ROOT / "sample_runs" / "calibration", run)
     with pytest.raises(CalibError, match=r"repose_angle = 1e\+09 deg \(--target\) is outside"):
         ascent_analyze(run, target=1e9, force=True)
+
+
+@pytest.mark.parametrize("text, words", [
+    ('revision = 1.5\neffects = ["sliding_friction"]\n', "revision must be a whole number of at least 0, got 1.5"),
+    ('revision = -3\neffects = ["sliding_friction"]\n', "revision must be a whole number of at least 0, got -3"),
+    ("revision = 1\neffects = []\n", "effects must name each effect once, got []"),
+    ('revision = 1\neffects = ["restitution", "restitution"]\n', "effects must name each effect once"),
+])
+def test_a_model_file_edited_out_of_shape_is_one_line(tmp_path, text, words):
+    from calib_cli.model import load_model
+
+    (tmp_path / "model.toml").write_text(text)
+    with pytest.raises(CalibError, match=re.escape(words)):
+        load_model(tmp_path)
+
+
+def test_the_models_last_effect_is_not_removed(tmp_path):
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+
+    run = tmp_path / "run"
+    assert CliRunner().invoke(app, ["init", "--run", str(run)]).exit_code == 0
+    (run / "model.toml").write_text('revision = 1\neffects = ["sliding_friction"]\n')
+    r = CliRunner().invoke(app, ["model", "remove", "sliding_friction", "--run", str(run)])
+    assert r.exit_code == 2 and "the model's only effect" in r.output, r.output
+    assert "sliding_friction" in (run / "model.toml").read_text()
+
+
+def test_an_angles_file_row_without_its_condition_is_one_line(tmp_path):
+    from calib_cli.stages.measure import measure_angle
+    from calib_cli.stages.run_dir import init_run
+
+    run = tmp_path / "run"
+    init_run(run)
+    p = tmp_path / "angles.csv"
+    p.write_text("image,repose_angle,condition_id\n1,30,\n2,31,A\n")
+    with pytest.raises(CalibError, match=r"condition_id is empty on line\(s\) 2: every row needs its condition"):
+        measure_angle(run, angles=p)
+    assert not (run / "measure").exists()

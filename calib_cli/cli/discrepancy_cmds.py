@@ -90,6 +90,8 @@ def model_remove(effect: EffectArg, run: RunOpt):
     m = load_model(run)
     if effect not in m.effects:
         raise CalibError(f"{effect} is not in the model ({', '.join(m.effects)})")
+    if len(m.effects) == 1:
+        raise CalibError(f"{effect} is the model's only effect: a model needs one (add another first)")
     new = save_model(run, Model(tuple(e for e in m.effects if e != effect), m.revision, f"removed {effect}"))
     _show(new)
 

@@ -113,6 +113,13 @@ def _read_angles(path: Path) -> pd.DataFrame:
         check("repose_angle", v, f"angles file {path}")
     if "image" in raw.columns and raw["image"].duplicated().any():
         raise CalibError(f"angles file {path} lists image {str(raw['image'][raw['image'].duplicated()].iloc[0])!r} twice")
+    if "condition_id" in raw.columns:  # a blank one would be a condition "nan" of its own, or no condition at all
+        ids = raw["condition_id"].astype("string").str.strip()
+        blank = np.flatnonzero((ids.isna() | (ids == "")).to_numpy())
+        if len(blank):
+            raise CalibError(f"angles file {path}: condition_id is empty on line(s) "
+                             f"{', '.join(str(i + 2) for i in blank[:5])}: every row needs its condition")
+        raw = raw.assign(condition_id=ids.astype(str))
     return raw.assign(repose_angle=vals.astype(float))
 
 
