@@ -386,6 +386,8 @@ def run_lock(run: Path, wait: bool = False):
             _HELD[key][1] -= 1
         return
     created = not run.exists()
+    # the folders mkdir makes above the run too: a failed first command leaves none of them behind
+    made = [d for d in (run, *run.parents) if not d.exists()]
     try:
         run.mkdir(parents=True, exist_ok=True)
         fd = os.open(run / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
@@ -408,7 +410,8 @@ def run_lock(run: Path, wait: bool = False):
         if created and [p.name for p in run.iterdir()] == [RUN_LOCK]:
             with contextlib.suppress(OSError):
                 (run / RUN_LOCK).unlink()
-                run.rmdir()
+                for d in made:  # the run, then each parent it needed, while they are empty
+                    d.rmdir()
         raise
     finally:
         del _HELD[key]

@@ -152,3 +152,16 @@ def test_an_angles_file_row_without_its_condition_is_one_line(tmp_path):
     with pytest.raises(CalibError, match=r"condition_id is empty on line\(s\) 2: every row needs its condition"):
         measure_angle(run, angles=p)
     assert not (run / "measure").exists()
+
+
+def test_a_design_over_a_factor_no_heap_takes_is_not_simulated(tmp_path):
+    """A settings factor that is no simulated heap's parameter would sit at its default in every heap."""
+    from calib_cli.stages.doe import pb_design
+    from calib_cli.stages.run_dir import init_run
+
+    run = tmp_path / "run"
+    init_run(run, setting=["factors.bogus.low=0", "factors.bogus.high=1", 'pb.factors=["static_friction","bogus"]'])
+    pb_design(run)
+    with pytest.raises(CalibError, match=r"factor\(s\) bogus are not parameters a simulated heap takes"):
+        simulate_heap(run, design=run / "pb" / "design.parquet", preset="smoke")
+    assert not (run / "simulate").exists()

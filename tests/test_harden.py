@@ -281,6 +281,9 @@ def test_the_run_lock_is_reentrant_and_leaves_no_run_dir_behind_a_failed_command
     with pytest.raises(CalibError):
         pb_design(tmp_path / "new", setting=["pb.alpha=abc"])
     assert not (tmp_path / "new").exists()
+    with pytest.raises(CalibError):  # nor the folders it made above the run
+        pb_design(tmp_path / "a" / "b" / "run", setting=["pb.alpha=abc"])
+    assert not (tmp_path / "a").exists()
 
 
 def test_the_simulation_index_is_merged_with_what_is_on_disk(tmp_path, monkeypatch):

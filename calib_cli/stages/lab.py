@@ -87,6 +87,7 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
         raise CalibError(f"unknown hidden effect {hidden!r}: none or one of {', '.join(EFFECTS)}")
     truth = parse_params(pairs(set_, "--set")) if set_ else {}
     pre = heap_preset(preset, shear_modulus)
+    floor = [floor] if isinstance(floor, str) else floor  # one floor, not its letters
     floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]
     conds = _lab_conditions(floors, sizes, cylinders, fills, fill_ratio, bool(floor))
     if engine not in (*RUN_ENGINES, "lammps"):
