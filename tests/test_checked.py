@@ -165,3 +165,14 @@ def test_a_design_over_a_factor_no_heap_takes_is_not_simulated(tmp_path):
     with pytest.raises(CalibError, match=r"factor\(s\) bogus are not parameters a simulated heap takes"):
         simulate_heap(run, design=run / "pb" / "design.parquet", preset="smoke")
     assert not (run / "simulate").exists()
+
+
+def test_an_inversions_condition_without_validation_heaps_is_one_line(tmp_path):
+    import shutil
+
+    from calib_cli.stages.invert import invert
+
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "sample_runs" / "smoke", run)
+    with pytest.raises(CalibError, match=r"--condition sets the rig of the --validate heaps"):
+        invert(run, condition=["fill_height_mm=80"], force=True)

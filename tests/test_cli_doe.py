@@ -220,6 +220,11 @@ def test_console_entry_point_exit_codes(tmp_path):
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and word in lines[0], r.stderr
         assert "--help)" in lines[0]
+    # the hint names the command, however the program was started (here python -m calib_cli)
+    for args, hint in [(("diagnose", "--alpha", "2"), "(calib diagnose --help)"),
+                       (("measure-angle", "--band", "0.5"), "(calib measure-angle --help)"),
+                       (("model", "add", "--bogus"), "(calib model add --help)")]:
+        assert hint in run(*args).stderr, args
     assert run().returncode == 2 and "Usage" in run().stdout + run().stderr  # no command: the help
 
 

@@ -158,6 +158,17 @@ def main() -> None:
 
 def _command(e) -> str:
     """The command a usage error is about, for its --help hint ("compare ", "model add "; "" for calib's own)."""
-    ctx = getattr(e, "ctx", None)
-    path = ctx.command_path.split()[1:] if ctx is not None and ctx.command_path else []
+    ctx, path = getattr(e, "ctx", None), []
+    while ctx is not None and ctx.parent is not None:  # the names below the root, whatever the program is called
+        path.insert(0, ctx.info_name)
+        ctx = ctx.parent
+    if not path:  # some errors carry no context (an option missing its values): the command line names it
+        names, group = set(getattr(command_root(), "commands", {})), command_root()
+        for arg in sys.argv[1:]:
+            if arg in names:
+                path.append(arg)
+                group = group.commands[arg]
+                names = set(getattr(group, "commands", {}))
+            elif path or not arg.startswith("-"):
+                break
     return "".join(f"{p} " for p in path)

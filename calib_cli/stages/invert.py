@@ -258,6 +258,8 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     cond_path = run / "measure" / "conditions.parquet"
     targets, tsource = _targets(run, cfg, target)
     n_refine = int(iv["refine"] if refine is None else refine)
+    if condition and not validate:  # the rig of heaps it would not simulate: ignored, it read as taken
+        raise CalibError("--condition sets the rig of the --validate heaps: give --validate N too, or leave it out")
     if n_refine and not validate:
         given = "--refine" if refine is not None else f"the settings' invert.refine = {n_refine}"
         raise CalibError(f"{given} corrects the inversion from validation heaps: give --validate N too, or "
