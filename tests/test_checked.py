@@ -176,3 +176,15 @@ def test_an_inversions_condition_without_validation_heaps_is_one_line(tmp_path):
     shutil.copytree(ROOT / "sample_runs" / "smoke", run)
     with pytest.raises(CalibError, match=r"--condition sets the rig of the --validate heaps"):
         invert(run, condition=["fill_height_mm=80"], force=True)
+
+
+def test_an_angles_files_rig_columns_are_named_as_not_read(tmp_path):
+    from calib_cli.stages.measure import measure_angle
+    from calib_cli.stages.run_dir import init_run
+
+    run, said = tmp_path / "run", []
+    init_run(run)
+    p = tmp_path / "angles.csv"
+    p.write_text("image,repose_angle,condition_id,cylinder_diameter_mm\n1,30,A,40\n2,31,A,40\n")
+    measure_angle(run, angles=p, say=lambda m, err=False: said.append(m))
+    assert any("rig column(s) cylinder_diameter_mm, which are not read" in m for m in said), said

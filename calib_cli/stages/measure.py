@@ -293,6 +293,10 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     if angles is not None:
         table = _angles_table(angles, cmap, cond)
         inputs = {"angles": angles}
+        rig = [c for c in _read_angles(angles).columns if c in CONDITION_VARIABLES]
+        if rig:  # a rig comes from the conditions table: these would go unseen by every later stage
+            say(f"note: {angles} has rig column(s) {', '.join(rig)}, which are not read: give each condition's "
+                "rig in a --conditions table (image, condition_id and the rig's columns)")
     else:
         files = _photos(images)
         inputs = {f"image:{n}": p for n, p in files.items()}
