@@ -23,8 +23,9 @@ from .errors import CalibError
 PRESET_NAMES = ("smoke", "default", "paper")
 #: what a heap's state arrays store (calib_cli.dem.system.PRECISIONS holds them; here for the same reason)
 PRECISION_NAMES = ("double", "mixed")
-#: the engines a heap runs on (calib_cli.heaps.inputs.RUN_ENGINES and lammps; here for the same reason)
-ENGINE_NAMES = ("builtin", "gpu", "lammps")
+#: the engines a run's settings may name (calib_cli.heaps.inputs.RUN_ENGINES; here for the same reason; LAMMPS
+#: is a command's --engine alone)
+ENGINE_NAMES = ("builtin", "gpu")
 #: set to 1 to accept a value outside the plausible range (inside the accepted one)
 ALLOW_EXTREME = "CALIB_ALLOW_EXTREME"
 

@@ -39,8 +39,8 @@ def test_a_wrong_type_is_one_line_and_touches_nothing(tmp_path, call, message):
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda run: simulate_heap(run, seed=-1), r"plan_simulation: seed -1 is out of range \(0 to 4294967295\)$"),
-    (lambda run: compare(run, repeats=0), r"compare: repeats 0 is out of range \(1 to 1000\)$"),
+    (lambda run: simulate_heap(run, seed=-1), r"^seed -1 is out of range \(0 to 4294967295\)$"),
+    (lambda run: compare(run, repeats=0), r"^repeats 0 is out of range \(1 to 1000\)$"),
     (lambda run: compare(run, repeats=10 ** 20), r"repeats 100000000000000000000 is out of range"),
     (lambda run: compare(run, workers=0), r"workers 0 is out of range"),
     (lambda run: calibrate(run, seed=2 ** 32), r"seed 4294967296 is out of range"),

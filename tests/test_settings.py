@@ -30,7 +30,7 @@ def test_overrides_parse_types():
 @pytest.mark.parametrize("bad", ["pb.alfa=0.1", "nonsense=1", "pb.alpha=2", "ascent.method=zigzag",
                                  "ascent.steps=2", "factors.restitution.low=0.9", "noequals", "heap.modulus=1e8",
                                  "heap.shear_modulus='stiff'", "heap.shear_modulus=true", "heap.preset=3", "heap=5",
-                                 "heap.precision='single'", "heap.precision=32", "heap.engine='bogus'", "heap.engine=gpu2",
+                                 "heap.precision='single'", "heap.precision=32", "heap.engine='bogus'", "heap.engine=gpu2", "heap.engine='lammps'",
                                  "pb=1"])
 def test_bad_settings_are_one_line_errors(bad):
     with pytest.raises(CalibError) as e:

@@ -135,7 +135,7 @@ def checked(fn: Callable[..., R]) -> Callable[..., R]:
                                  + (" or None" if kind[1] else ""))
             lo, hi = ARG_RANGES.get(name, (None, None)) if kind[0] is int else (None, None)
             if lo is not None and not lo <= value <= hi:
-                raise CalibError(f"{fn.__name__}: {name} {value} is out of range ({lo} to {hi})")
+                raise CalibError(f"{name} {value} is out of range ({lo} to {hi})")  # reads as --name too
         return fn(*args, **kwargs)
 
     return call
