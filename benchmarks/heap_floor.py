@@ -40,11 +40,12 @@ rise near linearly over the factor table learns more per heap.
 
 ``--noise 0.6,0.7/0.5``: what heaps that each scatter less would do (e.g. measured from several side views,
 ``benchmarks/heap_views.py``): every simulated pile's variance scaled by each factor f (``a/p``: the angle's by a,
-the fullness's by p), the lab's measured means as they are. Per round, the angle's, the profile's and the combined ratio at the answer's draws from the
-answer's processes conditioned on the round's heaps (their length scales and signal kept); then the oracle's
-heaps to a combined ratio of 1 from the heaps at hand plus the default round 0 of 72.
+the fullness's by p), the lab's measured means as they are. Per round, the angle's, the profile's and the
+combined ratio at the answer's draws from the answer's processes conditioned on the round's heaps (their length
+scales and signal kept); then the oracle's heaps to a combined ratio of 1 from the heaps at hand plus the default
+round 0 of 72.
 
-    .venv/bin/python benchmarks/heap_floor.py --noise 0.7,0.5,0.7/0.5 sample_runs/hidden-effect sample_runs/control-lab
+    .venv/bin/python benchmarks/heap_floor.py --noise 0.7/0.5,0.6 sample_runs/hidden-effect sample_runs/control-lab
 """
 from __future__ import annotations
 

@@ -114,7 +114,8 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
         df = art.read_table(design, what="design")
         cols = [c for c in df.columns if c in PARAMETERS]
         # a factor the settings declare that no heap takes would be left at its default in every heap, unseen
-        foreign = [c for c in df.columns if c in resolve_settings(run, None, None)["factors"] and c not in PARAMETERS]
+        declared = resolve_settings(run, None, None)["factors"]
+        foreign = [c for c in df.columns if c in declared and c not in PARAMETERS]
         if foreign:
             raise CalibError(f"design {design}: factor(s) {', '.join(foreign)} are not parameters a simulated heap "
                              f"takes ({', '.join(PARAMETERS)}); a design over them needs responses measured "
