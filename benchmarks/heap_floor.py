@@ -121,7 +121,6 @@ def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
 def floor(answer: Answer, draws: int = 256) -> tuple[pd.DataFrame, int]:
     """The per-condition table of the module's docstring and the model's heaps in the prior's box."""
     from calib_cli.posterior.adaptive import _points
-    from calib_cli.posterior.calibrate import mean_variance
 
     conds, gp, s = answer.conds, answer.gp, answer.samples
     t = s[gp.parameters].to_numpy(float)[np.random.default_rng(0).choice(len(s), min(draws, len(s)), replace=False)]
@@ -129,7 +128,7 @@ def floor(answer: Answer, draws: int = 256) -> tuple[pd.DataFrame, int]:
     X = _points(gp, t, gp.parameters, conds)
     pile = gp.pile_sd(X).reshape(len(t), C) ** 2
     latent = gp.predict(X, return_std=True)[1].reshape(len(t), C) ** 2
-    v = mean_variance(conds["sd"], conds["n"], gp.noise_sd_)
+    v = mean_variance_of(answer)
     return pd.DataFrame({"condition": conds["condition_id"], "lab sd": conds["sd"].round(2), "piles": conds["n"],
                          "v_c": v.round(2), "pile variance": pile.mean(0).round(1),
                          "surrogate variance now": latent.mean(0).round(2),
@@ -175,7 +174,6 @@ def placed(answer: Answer, start_from: str, profile: Profile | None = None, firs
     the ratio the combined one the bar reads (1 / (1 + r) = the mean of 1 / (1 + r_j)). ``first``: a
     space-filling round 0 of this many piles (:func:`first_round`) added to the start."""
     from calib_cli.posterior.adaptive import _greedy, _points
-    from calib_cli.posterior.calibrate import mean_variance
 
     conds, rows, gp, hand, own = answer.conds, answer.rows, answer.gp, answer.hand, answer.own
     pick = {"at hand": hand, "round 0": hand | (own & (rows["run_id"] < 2000)),
@@ -183,7 +181,7 @@ def placed(answer: Answer, start_from: str, profile: Profile | None = None, firs
     t = _draws(answer, draws)
     C, X = len(conds), _points(gp, t, gp.parameters, conds)
     n = len(X)
-    pairs = [(gp, mean_variance(conds["sd"], conds["n"], gp.noise_sd_), pick)]
+    pairs = [(gp, mean_variance_of(answer), pick)]
     if profile is not None:
         pairs.append((profile.gp, profile.v, pick & profile.has))
     extra = first_round(answer, first, repeats) if first else rows.iloc[:0]
@@ -214,13 +212,12 @@ def refits(answer: Answer, draws: int = 400) -> pd.DataFrame:
     (its length scales, signal and scatter, learnt from every heap) conditioned on the same heaps (``answer's
     fit``): where the two agree, a round's heaps, not its length scales, set how sure it is."""
     from calib_cli.posterior.adaptive import _points
-    from calib_cli.posterior.calibrate import mean_variance
     from calib_cli.posterior.evidence import model_surrogate
 
     _, model, conds, rows, bounds, final, hand, own, _ = answer
     t = _draws(answer, draws)
     X = _points(final, t, final.parameters, conds)
-    v = mean_variance(conds["sd"], conds["n"], final.noise_sd_)
+    v = mean_variance_of(answer)
     out = []
     for k in range(int(rows.loc[own, "run_id"].max()) // 1000):
         sub = _round_heaps(rows, hand, own, k)
@@ -308,15 +305,14 @@ class _Quieter:
         return np.sqrt(self._f) * self._gp.pile_sd(X, scaled)
 
 
-def quieter(answer: Answer, f: str, draws: int = 400) -> tuple[pd.DataFrame, int]:
+def quieter(answer: Answer, full: Profile, f: str, draws: int = 400) -> tuple[pd.DataFrame, int]:
     """Per round (as :func:`refits`), the angle's, the profile's and the combined ratio at the answer's draws from
     the answer's processes with every pile's variance scaled by ``f`` ("a" for both, "a/p" for the angle's and the
     fullness's) conditioned on the round's heaps; and the oracle's heaps to a combined ratio of 1 from the heaps
-    at hand and the default round 0 (:func:`placed`)."""
+    at hand and the default round 0 (:func:`placed`). ``full``: the answer's fullness (:func:`_profile`)."""
     from calib_cli.posterior.adaptive import _points
 
     fa, fp = (float(x) for x in (f.split("/") * 2)[:2])
-    full = _profile(answer)
     quiet = answer._replace(gp=_Quieter(answer.gp, fa))
     prof = full._replace(gp=_Quieter(full.gp, fp))
     rows, hand, own = answer.rows, answer.hand, answer.own
@@ -365,7 +361,8 @@ def main() -> None:
         factors, args = ["1", *args[1].split(",")], args[2:]
         for run in map(Path, args or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
             answer = _answer(run)
-            tables, oracle = zip(*(quieter(answer, f) for f in factors))
+            full = _profile(answer)  # fitted once for every scaling
+            tables, oracle = zip(*(quieter(answer, full, f) for f in factors))
             print(f"\n{run}: each round's ratios at the answer's draws, every pile's variance scaled by f")
             print(pd.concat(tables).to_string(index=False))
             print("the oracle's heaps to a combined ratio of 1 from those at hand and a round 0 of 72: "

@@ -39,12 +39,7 @@ def read_conditions_csv(path: Path, need: tuple[str, ...] = ("condition_id",), w
     _typos(df, path, what)
     if df.empty:
         raise CalibError(f"{what} {path} has no rows")
-    ids = df["condition_id"].astype("string").str.strip()
-    if ids.isna().any() or (ids == "").any():
-        rows = np.flatnonzero(ids.isna() | (ids == "")) + 2  # the header is line 1
-        raise CalibError(f"{what} {path}: condition_id is empty on line(s) {', '.join(map(str, rows[:5]))}: "
-                         "every row needs its condition")
-    df["condition_id"] = ids.astype(str)
+    df["condition_id"] = condition_ids(df, path, what)
     for c in CONDITION_VARIABLES:
         if c in df.columns:
             df[c] = _numbers(df, c, path, what)
@@ -62,6 +57,16 @@ def _rigs(df: pd.DataFrame, path: Path, what: str) -> None:
     for i, r in first.iterrows():
         check_rig(r["particle_d_min_mm"], r["particle_d_max_mm"], r.get("cylinder_diameter_mm"), r.get("fill_height_mm"),
                   f"{what} {path}, condition {r['condition_id']} on line {int(i) + 2}")
+
+
+def condition_ids(df: pd.DataFrame, path: Path, what: str) -> pd.Series:
+    """A table's condition_id column as text, stripped; one line naming the rows where it is empty."""
+    ids = df["condition_id"].astype("string").str.strip()
+    if ids.isna().any() or (ids == "").any():
+        rows = np.flatnonzero(ids.isna() | (ids == "")) + 2  # the header is line 1
+        raise CalibError(f"{what} {path}: condition_id is empty on line(s) {', '.join(map(str, rows[:5]))}: "
+                         "every row needs its condition")
+    return ids.astype(str)
 
 
 def _delimiter(df: pd.DataFrame, path: Path, what: str) -> None:

@@ -163,7 +163,8 @@ def _command(e) -> str:
         path.insert(0, ctx.info_name)
         ctx = ctx.parent
     if not path:  # some errors carry no context (an option missing its values): the command line names it
-        names, group = set(getattr(command_root(), "commands", {})), command_root()
+        group = command_root()
+        names = set(getattr(group, "commands", {}))
         for arg in sys.argv[1:]:
             if arg in names:
                 path.append(arg)

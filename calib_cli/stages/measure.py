@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..conditions import read_conditions_csv
+from ..conditions import condition_ids, read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES
 from ..errors import CalibError, reason
 from ..imaging.measure import FLAGS, ShapeLimits, measure_image, overlay, read_image
@@ -114,12 +114,7 @@ def _read_angles(path: Path) -> pd.DataFrame:
     if "image" in raw.columns and raw["image"].duplicated().any():
         raise CalibError(f"angles file {path} lists image {str(raw['image'][raw['image'].duplicated()].iloc[0])!r} twice")
     if "condition_id" in raw.columns:  # a blank one would be a condition "nan" of its own, or no condition at all
-        ids = raw["condition_id"].astype("string").str.strip()
-        blank = np.flatnonzero((ids.isna() | (ids == "")).to_numpy())
-        if len(blank):
-            raise CalibError(f"angles file {path}: condition_id is empty on line(s) "
-                             f"{', '.join(str(i + 2) for i in blank[:5])}: every row needs its condition")
-        raw = raw.assign(condition_id=ids.astype(str))
+        raw = raw.assign(condition_id=condition_ids(raw, path, "angles file"))
     return raw.assign(repose_angle=vals.astype(float))
 
 
@@ -128,9 +123,13 @@ def _condition_ids(names: list[str], cmap: dict, no_table: bool) -> list[str]:
     return [cmap.get(n, DEFAULT_CONDITION if no_table else "unassigned") for n in names]
 
 
-def _angles_table(path: Path, cmap: dict, cond: pd.DataFrame | None) -> pd.DataFrame:
+def _angles_table(path: Path, cmap: dict, cond: pd.DataFrame | None, say: Say) -> pd.DataFrame:
     """The angles file as an angles table; a conditions table joins on its image column, as for photos."""
     raw = _read_angles(path)
+    rig = [c for c in raw.columns if c in CONDITION_VARIABLES]
+    if rig:  # a rig comes from the conditions table: these would go unseen by every later stage
+        say(f"note: {path} has rig column(s) {', '.join(rig)}, which are not read: give each condition's "
+            "rig in a --conditions table (image, condition_id and the rig's columns)")
     names = raw["image"].astype(str).tolist() if "image" in raw.columns else [str(i + 1) for i in range(len(raw))]
     if cond is None:
         cid = raw["condition_id"].astype(str).tolist() if "condition_id" in raw.columns else DEFAULT_CONDITION
@@ -291,12 +290,8 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
     files, table = {}, None
     if angles is not None:
-        table = _angles_table(angles, cmap, cond)
+        table = _angles_table(angles, cmap, cond, say)
         inputs = {"angles": angles}
-        rig = [c for c in _read_angles(angles).columns if c in CONDITION_VARIABLES]
-        if rig:  # a rig comes from the conditions table: these would go unseen by every later stage
-            say(f"note: {angles} has rig column(s) {', '.join(rig)}, which are not read: give each condition's "
-                "rig in a --conditions table (image, condition_id and the rig's columns)")
     else:
         files = _photos(images)
         inputs = {f"image:{n}": p for n, p in files.items()}
