@@ -113,7 +113,7 @@ def _given(gp, S: np.ndarray, Z: np.ndarray) -> np.ndarray:
     ``gp``'s length scales, signal and scatter."""
     if not len(S):
         return gp.latent_(Z)
-    L = np.linalg.cholesky(gp.latent_(S) + np.diag(gp.pile_sd(S, scaled=True) ** 2 / gp.y_sd_ ** 2))
+    L = np.linalg.cholesky(gp.latent_(S) + np.diag(gp.heap_sd(S, scaled=True) ** 2 / gp.y_sd_ ** 2))
     A = np.linalg.solve(L, gp.latent_(S, Z))
     return gp.latent_(Z) - A.T @ A
 
@@ -191,7 +191,7 @@ def placed(answer: Answer, start_from: str, profile: Profile | None = None, firs
         S = pd.concat([rows.loc[start, g.inputs_], extra[g.inputs_]], ignore_index=True)
         P.append(g.y_sd_ ** 2 * _given(g, g._scale(S), Z))
         w.append(np.r_[np.tile(1 / v, draws) / n, np.tile(1 / v, candidates)])
-        tau2.append(g.pile_sd(Z[n:], scaled=True) ** 2 / repeats)
+        tau2.append(g.heap_sd(Z[n:], scaled=True) ** 2 / repeats)
         vs.append(v)
 
     def ratio() -> float:
@@ -276,8 +276,8 @@ def _trend_surrogate():
     from calib_cli.posterior.gp import GPSurrogate
 
     class TrendGP(GPSurrogate):
-        def fit(self, X, y):
-            super().fit(X, y)  # inputs, scaling, scatter and the plain fit, then refitted with the trend
+        def fit(self, X, y, views=None):
+            super().fit(X, y, views)  # inputs, scaling, scatter and the plain fit, then refitted with the trend
             k0 = self.gp_.kernel
             kernel = (k0.k1 + ConstantKernel(0.1, (1e-4, 1e2)) * DotProduct(1.0, (1e-2, 1e2))) + k0.k2
             with warnings.catch_warnings(), threadpool_limits(1, user_api="blas"):
@@ -301,8 +301,8 @@ class _Quieter:
     def __getattr__(self, name):
         return getattr(self._gp, name)
 
-    def pile_sd(self, X, scaled: bool = False) -> np.ndarray:
-        return np.sqrt(self._f) * self._gp.pile_sd(X, scaled)
+    def heap_sd(self, X, scaled: bool = False) -> np.ndarray:
+        return np.sqrt(self._f) * self._gp.heap_sd(X, scaled)
 
 
 def quieter(answer: Answer, full: Profile, f: str, draws: int = 400) -> tuple[pd.DataFrame, int]:

@@ -82,6 +82,21 @@ def test_render_side_view_silhouette():
     assert v.image[v.floor_row + 2].max() < 128  # the floor strip
 
 
+def test_side_views_go_round_the_heap_over_half_a_turn():
+    """View 0 is the side view the results row always had; view k sees the grains turned by k * 45 deg about
+    the cylinder's axis: a wall of grains along x fills view 0's width and is end-on in view 2."""
+    from calib_cli.dem.render import SIDE_VIEWS, side_views, turned
+
+    x = np.linspace(-0.02, 0.02, 41)
+    pos, rad = np.column_stack([x, np.zeros_like(x), np.full_like(x, 0.002)]), np.full(41, 0.001)
+    views = side_views(pos, rad)
+    assert len(views) == SIDE_VIEWS == 4
+    assert np.array_equal(views[0].image, render_side_view(pos, rad).image)
+    assert np.allclose(turned(pos, np.pi / 2)[:, :2], np.column_stack([np.zeros_like(x), x]), atol=1e-15)
+    width = [int((v.image[: v.floor_row] < 128).any(axis=0).sum()) for v in views]
+    assert width[0] > 10 * width[2] and width[0] > width[1] > width[2], width
+
+
 def test_tiny_heap_runs_and_is_deterministic():
     # at mu_s 0.5 / mu_r 0.3 this 4-grain-high fill stands as a "column" for some seeds (height
     # 0.8 of the fill, base inside 1.5 cylinder radii): a border case; at 0.3 / 0.1 seeds 0-5 all
@@ -172,6 +187,7 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
     assert rows.iloc[0]["wall_s"] == res.iloc[0]["wall_s"]
     for sub in ("state.parquet", "side.png", "particles.vtp", "result.json"):
         assert (tmp_path / "simulate" / "runs" / rows.iloc[1]["run_hash"] / sub).is_file()
+
     # rerunning finished runs (the first alone, then both) leaves the index as it was, byte for byte:
     # the stages that read it stay up to date
     index = tmp_path / "simulate" / "results.parquet"
@@ -185,6 +201,28 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
 
     assert rows.iloc[1]["host"] == host()
     assert f"numpy {np.__version__}" in host() and f"numba {numba.__version__}" in host()
+
+
+def test_a_heaps_row_holds_its_side_views_means_and_a_heap_that_blew_up_none(tmp_path):
+    """The row's angle_views and fullness_views are the means over the heap's side views rendered from its
+    final grains (view 0 the row's own angle_image), measured as the photographs are; a heap without a
+    measured view records 0 views and no means."""
+    from calib_cli.dem.render import side_views
+    from calib_cli.heaps.runner import _views_means
+    from calib_cli.imaging.measure import measure_image
+    from calib_cli.profile import fullness
+
+    req = Request({"static_friction": 0.3, "rolling_friction": 0.1, "restitution": 0.3}, TINY, TINY_NUM, 0, "tiny", "", 1)
+    row = run_campaign([req], tmp_path).iloc[0]
+    assert row["status"] == "ok" and row["side_views"] == 4
+    st = pd.read_parquet(tmp_path / "simulate" / "runs" / row["run_hash"] / "state.parquet")
+    m = [measure_image(v.image, limits=None) for v in side_views(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy())]
+    assert m[0].repose_angle == row["angle_image"]
+    assert row["angle_views"] == pytest.approx(np.mean([x.repose_angle for x in m]), abs=1e-12)
+    assert row["fullness_views"] == pytest.approx(np.mean([fullness(x.profile_s, x.profile_h) for x in m]), abs=1e-12)
+    assert len({round(x.repose_angle, 6) for x in m}) > 1  # the views differ: other flanks
+    none = _views_means([])
+    assert none["side_views"] == 0 and np.isnan(none["angle_views"]) and np.isnan(none["fullness_views"])
 
 
 def test_a_heap_whose_row_is_indexed_needs_no_folder_where_rows_suffice(tmp_path, monkeypatch):

@@ -91,6 +91,56 @@ def test_a_scatter_that_grows_over_an_input_is_modelled_and_one_that_does_not_is
     assert flat.pile_sd(X) == pytest.approx([flat.noise_sd_] * 2)
 
 
+def _viewed(seed: int, points: int = 30, repeats: int = 2, heap_sd: float = 1.2, view_sd: float = 1.6,
+            views: int = 4) -> pd.DataFrame:
+    """Piles whose one view scatters by sqrt(heap_sd^2 + view_sd^2) about the mean angle, and whose
+    ``views`` side views' mean by sqrt(heap_sd^2 + view_sd^2 / views): the heap's own scatter, and which
+    flanks a view caught, independent from view to view."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for a, b in zip(rng.random(points), 2 * rng.random(points)):
+        for h in HEIGHTS:
+            for _ in range(repeats):
+                f = _smooth(a, b, h) + rng.normal(0, heap_sd)
+                seen = f + rng.normal(0, view_sd, views)
+                rows.append({"a": a, "b": b, "fill_height_mm": h, "repose_angle": seen[0],
+                             "angle_views": seen.mean(), "side_views": views})
+    return pd.DataFrame(rows)
+
+
+def test_the_surrogate_learns_a_heap_from_its_side_views_and_keeps_a_photograph_s_scatter():
+    """Four views a heap (a third of one view's variance is which flanks it caught): the process learns the
+    mean angle closer than from one view, its noise is a views' mean's, and pile_sd stays one view's (a
+    photograph's, against which the lab's scatter is evidence); rows simulated before views were recorded
+    keep the fit on one view, as it was."""
+    from calib_cli.posterior.gp import view_share, views_of
+
+    rows = _viewed(5)
+    one_sd, views_sd = np.hypot(1.2, 1.6), np.hypot(1.2, 0.8)
+    def fit(v):
+        return GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"], v)
+
+    plain, viewed = fit(None), fit(views_of(rows, "repose_angle"))
+    assert plain.view_share_ == 1.0 and viewed.view_share_ == pytest.approx((views_sd / one_sd) ** 2, abs=0.12)
+    assert plain.noise_sd_ == pytest.approx(one_sd, rel=0.15) and viewed.noise_sd_ == pytest.approx(one_sd, rel=0.15)
+    assert viewed.heap_sd(rows[viewed.inputs_].iloc[:1])[0] == pytest.approx(views_sd, rel=0.15)
+    assert plain.heap_sd(rows[plain.inputs_].iloc[:1]) == pytest.approx(plain.pile_sd(rows[plain.inputs_].iloc[:1]))
+    X = pd.DataFrame({"a": np.linspace(0.05, 0.95, 40), "b": np.linspace(1.9, 0.1, 40), "fill_height_mm": 75.0})
+    truth = _smooth(X["a"], X["b"], 75.0).to_numpy()
+    errs = [np.sqrt(np.mean((g.predict(X) - truth) ** 2)) for g in (plain, viewed)]
+    sds = [np.mean(g.predict(X, return_std=True)[1]) for g in (plain, viewed)]
+    assert errs[1] < errs[0] and sds[1] < sds[0], (errs, sds)
+    # a row without its views (simulated before they were recorded): the whole fit stays on one view
+    old = rows.assign(side_views=rows["side_views"].where(rows.index > 0))
+    assert np.isnan(views_of(old, "repose_angle")[0])
+    again = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(old, old["repose_angle"], views_of(old, "repose_angle"))
+    assert again.view_share_ == 1.0 and np.array_equal(again.predict(X), plain.predict(X))
+    # a row whose views all failed keeps its one view; too few repeated groups to tell the share: one view
+    failed = rows.assign(side_views=np.where(rows.index == 0, 0, rows["side_views"]), angle_views=np.nan)
+    assert views_of(failed, "repose_angle")[0] == rows.at[0, "repose_angle"]
+    assert view_share(np.arange(12.0)[:, None], rows["repose_angle"][:12].to_numpy(), rows["angle_views"][:12].to_numpy()) == 1.0
+
+
 def test_the_joint_prediction_is_scikit_learns_covariance_without_the_piles_scatter(gp):
     X = np.random.default_rng(0).random((4, 3, 3)) * [1, 2, 50] + [0, 0, 50]
     mean, cov = gp.predict_joint(X)

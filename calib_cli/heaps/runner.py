@@ -26,7 +26,7 @@ from .. import artifacts as art
 from ..errors import CalibError
 from ..dem import KERNEL_VERSION
 from ..dem.heap import HeapTest, Numerics, condition_dict, resume, run_heap
-from ..dem.render import render_side_view
+from ..dem.render import side_views
 from ..imaging.measure import measure_image
 from ..profile import fullness
 from .index import append_index, load_results
@@ -37,9 +37,20 @@ from .keys import RUNS, Request, host
 REUSE_ENV = "CALIB_REUSE"
 
 
-def _row(req: Request, res, img) -> dict:
+def _views_means(imgs: list) -> dict:
+    """The mean angle and fullness over the side views that measured a heap (``side_views`` of them): a
+    surrogate learns a heap's mean from them with less of the scatter that which flanks one view caught
+    adds (the lab's photographs stay one view a pile)."""
+    ok = [m for m in imgs if m is not None and m.status == "ok"]
+    return {"angle_views": float(np.mean([m.repose_angle for m in ok])) if ok else np.nan,
+            "fullness_views": float(np.mean([fullness(m.profile_s, m.profile_h) for m in ok])) if ok else np.nan,
+            "side_views": len(ok)}
+
+
+def _row(req: Request, res, img, views: list | None = None) -> dict:
     """The results row. The primary angle is the rendered side view's (``img``; None for a run that blew
-    up), measured by the same code as the photographs (SPEC 5), falling back to the coordinate angle."""
+    up), measured by the same code as the photographs (SPEC 5), falling back to the coordinate angle;
+    ``views`` (``img`` first) give the means over every side view."""
     a = res.angle
     ok = res.status == "ok"
     s = res.system
@@ -65,6 +76,7 @@ def _row(req: Request, res, img) -> dict:
         "angle_image_left": img.angle_left if img_ok else np.nan,
         "angle_image_right": img.angle_right if img_ok else np.nan,
         "fullness": fullness(img.profile_s, img.profile_h) if img_ok else np.nan,
+        **_views_means(views if ok and views else []),
         "heap_height_mm": a.height * 1e3, "base_radius_mm": a.base_radius * 1e3,
         "angle_drift_deg_s": float(res.angle_drift),
         "n_particles": s.n, "n_steps": s.n_steps, "dt": s.dt, "t_end": res.t_end,
@@ -116,10 +128,12 @@ def _write_run(out: Path, req: Request, res) -> dict:
                           "vx": p.vel[:, 0], "vy": p.vel[:, 1], "vz": p.vel[:, 2],
                           "wx": p.omg[:, 0], "wy": p.omg[:, 1], "wz": p.omg[:, 2]})
     # a blown-up run's grains may be anywhere (or NaN): it has no side view to render or measure
-    view = render_side_view(p.pos, p.rad) if res.status != "unstable" else None
+    views = side_views(p.pos, p.rad) if res.status != "unstable" else []
     # without the photographs' shape checks: a run's hash does not cover the measurement code, so a cached row
     # and a fresh one must agree; the coordinate path has its own (column, no_heap)
-    row = _row(req, res, measure_image(view.image, limits=None) if view is not None else None)
+    imgs = [measure_image(v.image, limits=None) for v in views]
+    row = _row(req, res, imgs[0] if imgs else None, imgs)
+    view = views[0] if views else None
     art.write_table(out / "state.parquet", state, {"stage": "simulate", "key": req.key, "version": __version__})
     art.write_table(out / "profile.parquet", pd.DataFrame({"r_m": res.angle.profile_r, "h_m": res.angle.profile_h}))
     art.write_table(out / "energy.parquet", pd.DataFrame(res.energy, columns=["t", "kinetic_energy", "rim_height"]))

@@ -112,7 +112,7 @@ def acquire(surrogates: Sequence[tuple[object, np.ndarray]], samples: pd.DataFra
         P.append(gp.latent_cov(np.vstack([XE, XC])))
         iv = 1.0 / np.maximum(v, 1e-12)
         w.append(np.r_[np.tile(iv, n_eval) / (n_eval * C), np.tile(iv, n_cand)])
-        tau2.append(gp.pile_sd(XC) ** 2 / repeats)
+        tau2.append(gp.heap_sd(XC) ** 2 / repeats)  # what a heap teaches: its views' mean where fitted so
     chosen = _greedy(P, w, tau2, n_eval * C, pairs, integrated=rule == "variance")
     idx = np.array(chosen)
     return _frame(theta[:n_cand][idx // C], names, measured, idx % C)

@@ -23,7 +23,7 @@ from ..model import DEFAULT_EFFECTS, EFFECTS, Model
 from ..heaps.inputs import COND_VARS
 from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
                         calibrate_posterior, response_variances, summarise)
-from .gp import ColumnModel, GPSurrogate, holdout_rmse, informative_conditions
+from .gp import VIEWS_OF, ColumnModel, GPSurrogate, holdout_rmse, informative_conditions, views_of
 from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
 
 RESPONSE = "repose_angle"
@@ -146,7 +146,7 @@ def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: s
     scaled by ``scale`` (the prior's ranges; default each effect's own)."""
     cols = [*model.parameters, *(c for c in COND_VARS if c in rows.columns)]
     gp = GPSurrogate(model.parameters, COND_VARS, scale or effect_ranges(model), seed=seed)
-    return gp.fit(rows[cols], rows[response])
+    return gp.fit(rows[cols], rows[response], views_of(rows, response))
 
 
 def settings_ranges(cfg: dict) -> dict[str, tuple[float, float]]:
@@ -204,7 +204,9 @@ def second_response(run: Path, rows: pd.DataFrame, model: Model, conds: pd.DataF
     gp = model_surrogate(rows, model, seed, FULLNESS, scale)
     check_measured(conds, gp, run / "measure" / "conditions.parquet")  # its heaps may cover less than the angle's
     say(f"profile: each condition's photographs' mean fullness is evidence beside its angle (a photograph's two "
-        f"correlate at {rho:+.2f} within a condition; a simulated pile's fullness scatters by {gp.noise_sd_:.3f})")
+        f"correlate at {rho:+.2f} within a condition; a simulated pile's fullness scatters by {gp.noise_sd_:.3f}"
+        + (f"; its surrogate learns each heap's mean over its side views, which keeps {gp.view_share_:.2f} of that"
+           if gp.view_share_ < 1 else "") + ")")
     return SecondResponse(gp, table["mean"].to_numpy(float), table["sd"].to_numpy(float),
                           table["n"].to_numpy(float), rho)
 
@@ -420,7 +422,10 @@ class PosteriorFit:
                 "columns": bool(self.evidence.get("columns")), "prior": self.evidence.get("prior"),
                 "bounds": self.evidence.get("bounds"),
                 "surrogate_ratios": self.ratios, **({"averaged": self.averaged} if self.averaged else {}),
-                **({"profile_rho": s.rho, "profile_noise_sd": s.gp.noise_sd_} if s is not None else {})}
+                **({"profile_rho": s.rho, "profile_noise_sd": s.gp.noise_sd_} if s is not None else {}),
+                # only where the surrogates learnt from the heaps' side views' means: older answers keep their metadata
+                **({"view_share": self.gp.view_share_} if self.gp.view_share_ < 1 else {}),
+                **({"profile_view_share": s.gp.view_share_} if s is not None and s.gp.view_share_ < 1 else {})}
 
 
 def prior_bounds(model: Model, prior: str, rows: Optional[pd.DataFrame] = None,
@@ -508,10 +513,14 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     cond_vars = check_rows(run, rows, model)
     params = model.parameters
     gp = model_surrogate(rows, model, seed, scale=scale)
+    if gp.view_share_ < 1:
+        say(f"the angle's surrogate learns each heap's mean over its side views, which keeps {gp.view_share_:.2f} "
+            "of one view's pile-to-pile variance (a photograph's, which the lab's piles are)")
     check_measured(conds, gp, run / "measure" / "conditions.parquet")
     rows, second, share, evidence = _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
                                               seed, say, scale, bounds if prior == "settings" else None, judged)
-    cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else [])]
+    cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else []),
+            *(c for c in (*VIEWS_OF.values(), "side_views") if c in rows.columns)]
     held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
     post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                scatter=evidence["scatter"], second=second, columns=share)

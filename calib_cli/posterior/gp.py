@@ -167,6 +167,43 @@ def informative_conditions(rows: pd.DataFrame, candidates: Sequence[str]) -> lis
     return keep
 
 
+#: each response's mean over a heap's side views in its results row (``side_views`` of them measured)
+VIEWS_OF = {"repose_angle": "angle_views", "fullness": "fullness_views"}
+#: the fewest groups of repeated piles from which the share of a pile's variance the views keep is set
+VIEW_GROUPS = 10
+
+
+def views_of(rows: pd.DataFrame, response: str) -> Optional[np.ndarray]:
+    """Each row's mean of ``response`` over its side views, for :meth:`GPSurrogate.fit`: the row's one
+    view where none measured (``side_views`` 0), NaN where the heap was simulated before its views were
+    recorded (then the fit learns from one view a heap); None for a response without views."""
+    col = VIEWS_OF.get(response)
+    if col is None or col not in rows.columns or "side_views" not in rows.columns:
+        return None
+    n = rows["side_views"].to_numpy(float)
+    return np.where(n >= 1, rows[col].to_numpy(float), np.where(n == 0, rows[response].to_numpy(float), np.nan))
+
+
+def view_share(Xs: np.ndarray, y: np.ndarray, v: np.ndarray) -> float:
+    """The share of one view's pile-to-pile variance that the side views' mean keeps: over the groups of
+    repeated piles (rows of Xs alike), the pooled sum of squares about the group means of v over y's.
+    1 (learn from y, one view) where some v is not finite, fewer than VIEW_GROUPS groups have repeats,
+    or the views keep no less than one view does."""
+    if not np.all(np.isfinite(v)):
+        return 1.0
+    _, inv = np.unique(np.round(Xs, 9), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    n = np.bincount(inv)
+    if int((n > 1).sum()) < VIEW_GROUPS:
+        return 1.0
+
+    def within(z):
+        return float(np.sum((z - (np.bincount(inv, weights=z) / n)[inv]) ** 2))
+
+    one = within(y)
+    return float(min(within(v) / one, 1.0)) if one > 0 else 1.0
+
+
 class GPSurrogate:
     """The angle's Gaussian process over ``parameters`` (scaled by ``bounds``: name -> (low, high);
     a parameter without bounds by its training range) and the ``conditions`` among the candidates
@@ -175,7 +212,8 @@ class GPSurrogate:
     fullness), ``predict(X)``. Learned attributes end in ``_``: ``inputs_``, ``lows_``,
     ``highs_``, ``constants_`` (the candidate conditions every row shares), ``noise_sd_`` (the piles'
     rms scatter), ``scatter_`` (:func:`scatter_model`'s fit, or None: one scatter), ``white_sd_``,
-    ``signal_sd_``, ``length_scales_`` (scaled units, per input), ``n_train_``."""
+    ``signal_sd_``, ``length_scales_`` (scaled units, per input), ``n_train_``, ``view_share_`` (1: learnt
+    from one view a heap; below 1: from the side views' means, :func:`view_share`)."""
 
     def __init__(self, parameters: Sequence[str], conditions: Sequence[str] = (),
                  bounds: Mapping[str, tuple[float, float]] | None = None, nu: float = NU, restarts: int = 2,
@@ -194,8 +232,11 @@ class GPSurrogate:
             hi.append(b)
         return np.array(lo), np.array(hi)
 
-    def fit(self, X: pd.DataFrame, y) -> "GPSurrogate":
-        """Fit to the heaps X and their responses y (rows whose y is not finite are left out)."""
+    def fit(self, X: pd.DataFrame, y, views=None) -> "GPSurrogate":
+        """Fit to the heaps X and their responses y (rows whose y is not finite are left out). ``views``:
+        each heap's mean over its side views (:func:`views_of`), which the process then learns f
+        from, with the noise of such a mean; y, one view as a photograph, then only sets the share of a
+        pile's variance the views keep (``view_share_``), by which :meth:`pile_sd` is one view's."""
         from sklearn.exceptions import ConvergenceWarning
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
@@ -209,13 +250,17 @@ class GPSurrogate:
         y = np.asarray(y, float)
         keep = np.isfinite(y)
         rows, y = X[keep], y[keep]
+        v = None if views is None else np.asarray(views, float)[keep]
         conds = informative_conditions(rows, self.conditions)
         self.inputs_ = self.parameters + conds
         self.constants_ = {c: float(rows[c].iloc[0]) for c in self.conditions
                            if c in rows.columns and rows[c].nunique() == 1}
         self.lows_, self.highs_ = self._ranges(rows)
-        self.y_mean_, self.y_sd_ = float(y.mean()), float(y.std()) or 1.0
         Xs = self._scale(rows)
+        self.view_share_ = 1.0 if v is None else view_share(Xs, y, v)
+        if self.view_share_ < 1.0:
+            y = v
+        self.y_mean_, self.y_sd_ = float(y.mean()), float(y.std()) or 1.0
         self.scatter_ = scatter_model(Xs, y)
         kernel = (ConstantKernel(1.0, (1e-3, 1e3))
                   * Matern(np.full(len(self.inputs_), 0.5), LENGTH_BOUNDS, nu=self.nu)
@@ -244,24 +289,32 @@ class GPSurrogate:
         k0 = len(self.parameters)
         return {c: (float(lo), float(hi)) for c, lo, hi in zip(self.inputs_[k0:], self.lows_[k0:], self.highs_[k0:])}
 
-    def pile_sd(self, X, scaled: bool = False) -> np.ndarray:
-        """The pile-to-pile sd (deg) at X: one value everywhere, or sigma(x) where the repeated piles
-        showed the scatter to change (``scatter_``), plus what the GP's white kernel learned."""
+    def heap_sd(self, X, scaled: bool = False) -> np.ndarray:
+        """The sd (deg) of what the process learns from one heap at X, its noise: one value everywhere,
+        or sigma(x) where the repeated piles showed the scatter to change (``scatter_``), plus what the
+        GP's white kernel learned. A pile's one view where the heaps had one, their side views' mean
+        where they were fitted with ``views``."""
         Xs = np.atleast_2d(np.asarray(X, float)) if scaled else self._scale(X)
         var = np.full(len(Xs), self.white_sd_ ** 2)
         if self.scatter_ is not None:
             var = var + self.scatter_.variance(Xs)
         return np.sqrt(var)
 
+    def pile_sd(self, X, scaled: bool = False) -> np.ndarray:
+        """The pile-to-pile sd (deg) at X of one side view, as a photograph of a pile: :meth:`heap_sd`
+        over the share of that variance the views keep, sqrt(``view_share_``)."""
+        return self.heap_sd(X, scaled) / np.sqrt(self.view_share_)
+
     def log_pile_variance(self, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """log sigma^2 of a pile at b groups of m scaled inputs (G: (b, m, k)), with the white kernel's
         share w: mean log(w + v) (b, m) and its covariance within each group (b, m, m), the scatter
         process's carried by the delta method, d log(w + v) / d log v = v / (w + v). Needs a changing
-        scatter (``scatter_``)."""
+        scatter (``scatter_``); of one view (:meth:`pile_sd`)."""
         lv, cov = self.scatter_.log_variance_joint(G)
         v = np.exp(lv)
         jac = v / (self.white_sd_ ** 2 + v)
-        return np.log(self.white_sd_ ** 2 + v), jac[:, :, None] * cov * jac[:, None, :]
+        # fitted on the views' means: a photograph's one view scatters by 1 / view_share_ as much
+        return np.log(self.white_sd_ ** 2 + v) - np.log(self.view_share_), jac[:, :, None] * cov * jac[:, None, :]
 
     def _scale(self, X) -> np.ndarray:
         if not hasattr(self, "lows_"):
@@ -333,7 +386,9 @@ def holdout_rmse(rows: pd.DataFrame, parameters: Sequence[str], conditions: Sequ
     and every surrogate is trained on the other piles. One 20 % split held out 7 of hidden-effect's
     35 points, and which surrogate won changed with the seed. A surrogate that cannot be fitted on a
     fold (an RSM whose design matrix the fold leaves singular) is scored on the piles it predicted
-    (``piles``). A pile's own scatter (the GP's ``noise_sd``) is the floor no surrogate goes below."""
+    (``piles``). A pile's own scatter (the GP's ``noise_sd``) is the floor no surrogate goes below. The GP
+    learns from the heaps' side views' means where they have them (:func:`views_of`); every surrogate is
+    scored on the held-out piles' one view, as a photograph."""
     from threadpoolctl import threadpool_limits
 
     from ..surrogate.models import _torch
@@ -357,11 +412,13 @@ def _cross_validate(rows, parameters, conditions, bounds, response, folds, seed,
     pts = design_points(rows, parameters)
     fold = np.random.default_rng(seed).permutation(pts.max() + 1) % max(2, int(folds))
     y = rows[response].to_numpy(float)
+    views = views_of(rows, response)
     preds = {k: np.full(len(y), np.nan) for k in which}
     noise = []
     for k in range(fold.max() + 1):
         test = fold[pts] == k
-        gp = GPSurrogate(parameters, conditions, bounds, seed=seed).fit(rows[~test], y[~test])
+        gp = GPSurrogate(parameters, conditions, bounds, seed=seed).fit(
+            rows[~test], y[~test], None if views is None else views[~test])
         noise.append(gp.noise_sd_)
         preds["gp"][test] = gp.predict(rows[test])
         X = rows[gp.inputs_].to_numpy(float)
