@@ -20,6 +20,10 @@ hidden-effect the default decided at 276 here and at 348 for real.
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --targets tempered,mix --seeds 0,1
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --firsts 24,0 --targets plugin --seeds 0
     python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --real --firsts 24 --targets tempered --seeds 0
+    python benchmarks/fitted_standin.py --src sample_runs/hidden-effect --views 0,1 --seeds 0,1
+
+``--views 0,1``: every pile, those at hand redrawn too, gets 4 side views (:func:`pile`), and the rounds learn from
+one view (0) or the views' mean (1, ``calibrate --side-views``).
 """
 from __future__ import annotations
 
@@ -53,23 +57,56 @@ def surfaces(src: Path):
     return a.gp, full.gp, full.rho, a.rows.iloc[0].to_dict(), a.bounds
 
 
+#: the share of one view's pile variance the mean of 4 side views keeps, angle and fullness (benchmarks/heap_views.py:
+#: 0.59-0.69 and 0.52-0.62 on three labs)
+SHARES = (0.65, 0.57)
+
+
+def pile(angle, full, rho, x: pd.DataFrame, seed: int) -> dict:
+    """One stand-in pile at x: its one view's angle and fullness (the surfaces' means plus their pile scatter, the
+    two correlated by rho) and their means over 4 side views. A view's value is the heap's own (variance
+    (4 f - 1) / 3 of one view's) plus which flanks it caught (4 (1 - f) / 3, apart in each view), so that one view
+    scatters as the surfaces' piles do and the 4 views' mean by f of it (:data:`SHARES`)."""
+    g = np.random.default_rng(seed)
+    z = g.normal(size=(2, 5))  # per response: the heap's own, then one per view
+    z[1] = rho * z[0] + np.sqrt(1 - rho ** 2) * z[1]
+    out = {}
+    for k, (gp, name, views, f) in enumerate(((angle, "repose_angle", "angle_views", SHARES[0]),
+                                              (full, FULLNESS, "fullness_views", SHARES[1]))):
+        m, sd = float(gp.predict(x[gp.inputs_])[0]), float(gp.pile_sd(x[gp.inputs_])[0])
+        seen = m + sd * (np.sqrt((4 * f - 1) / 3) * z[k, 0] + np.sqrt(4 * (1 - f) / 3) * z[k, 1:])
+        out.update({name: float(seen[0]), views: float(seen.mean())})
+    return {**out, "side_views": 4}
+
+
 def stand_in(angle, full, rho, template):
     def campaign(requests, run_dir, workers=1, on_done=None, dask=None, **kw):
         out = []
         for q in requests:
             c = condition_dict(q.condition)
-            x = pd.DataFrame([{**q.params, **c}])
-            z = np.random.default_rng(q.seed).normal(size=2)
-            a = float(angle.predict(x[angle.inputs_])[0] + angle.pile_sd(x[angle.inputs_])[0] * z[0])
-            f = float(full.predict(x[full.inputs_])[0]
-                      + full.pile_sd(x[full.inputs_])[0] * (rho * z[0] + np.sqrt(1 - rho ** 2) * z[1]))
             out.append({**template, "run_hash": q.hash, "design": q.design, "run_id": q.run_id, "repeat": q.repeat,
                         "seed": q.seed, "preset": q.preset, "condition_id": q.condition_id, "model": q.model,
                         "engine": q.engine, **q.params, **c, "status": "ok", "source": q.source,
-                        "repose_angle": a, FULLNESS: f})
+                        **pile(angle, full, rho, pd.DataFrame([{**q.params, **c}]), q.seed)})
         append_index(run_dir, out)
         return pd.DataFrame(out)
     return campaign
+
+
+def redraw_at_hand(run: Path, angle, full, rho) -> None:
+    """The heaps at hand drawn from the stand-in too (``--views``): each formed heap of the model's parameters given
+    its one view and 4 views' means as :func:`pile` draws them, seeded by its seed, so that a run learning from one
+    view and one learning from the views start from the same heaps."""
+    from calib_cli import artifacts as art
+    from calib_cli.heaps.index import RESULTS
+
+    rows = pd.read_parquet(run / RESULTS)
+    x = rows.assign(**{p: rows[p].fillna(0.0) if p in rows.columns else 0.0 for p in angle.parameters})
+    new = [pile(angle, full, rho, x.iloc[[i]], int(rows["seed"].iloc[i])) if rows["status"].iloc[i] == "ok"
+           else {"side_views": 0} for i in range(len(rows))]
+    rows = pd.concat([rows.drop(columns=[c for c in ("repose_angle", FULLNESS) if c in rows.columns]),
+                      pd.DataFrame(new, index=rows.index)], axis=1)
+    art.write_table(run / RESULTS, rows)
 
 
 _plain_greedy = adaptive._greedy
@@ -150,22 +187,27 @@ def aiming(targets: str, box: dict):
 
 
 def one(src: Path, root: Path, first, batch, seed: int, budget: int, truth: dict, weigh: str = "sum",
-        targets: str = "posterior", box: dict | None = None, workers: int = 0) -> dict:
+        targets: str = "posterior", box: dict | None = None, workers: int = 0, views: int = -1,
+        fitted: tuple = ()) -> dict:
     """One calibration; ``workers``: simulate its heaps on that many (else the stand-in draws them), saying each
-    round as the stage does."""
+    round as the stage does. ``views`` 0 or 1 (``--views``): the heaps at hand redrawn from the stand-in
+    (:func:`redraw_at_hand`, ``fitted`` its surfaces) and the surrogates learning from one view or the views' mean."""
     adaptive._greedy = _combined_greedy if weigh == "combined" else _plain_greedy
     cal.acquire = aiming(targets, box or {})
-    run = root / f"{first}-{batch}-{seed}-{weigh}-{targets}"
+    run = root / f"{first}-{batch}-{seed}-{weigh}-{targets}-{views}"
     subprocess.run([sys.executable, str(Path(__file__).with_name("gpu_device_prep.py")), "--src", str(src),
                     "--out", str(run)], check=True, capture_output=True)
+    if views >= 0:
+        redraw_at_hand(run, *fitted[:3])
     t0 = time.perf_counter()
     r = cal.calibrate(run, budget=budget, first=first, batch=batch, seed=seed, at_revision=1, workers=workers or 1,
-                      say=None if workers else lambda *a, **k: None)
+                      say=None if workers else lambda *a, **k: None, views=views == 1)
     per = r.rounds[r.rounds["revision"] == 1]
     rounds = per.drop_duplicates("round")
     sure = rounds[rounds["surrogate_ratio"] <= 1.0]
     t = r.table.set_index("parameter")
-    return {"first": first or "default", "batch": batch or "default", "weigh": weigh, "targets": targets, "seed": seed,
+    return {"first": first or "default", "batch": batch or "default", "weigh": weigh, "targets": targets,
+            **({"views": "4 views' mean" if views else "one view"} if views >= 0 else {}), "seed": seed,
             "start": int(rounds["heaps"].iloc[0] - rounds["calibration_heaps"].iloc[0]),
             "decided_at": int(sure["heaps"].min()) if len(sure) else np.nan,
             "trajectory": " ".join(f"{h}:{q:.2f}" for h, q in zip(rounds["heaps"], rounds["surrogate_ratio"])),
@@ -185,6 +227,9 @@ def main() -> None:
                     "tempered, mix or plugin (see aiming()), comma-separated to compare")
     ap.add_argument("--seeds", default="0,1", help="the calibrations' seeds, comma-separated (the design's, the "
                     "piles' and the sampler's)")
+    ap.add_argument("--views", default="", help="0,1: the heaps at hand redrawn from the stand-in, each pile with 4 "
+                    "side views, and the surrogates learning from one view (0) or the views' mean (1; calibrate "
+                    "--side-views), comma-separated to compare")
     ap.add_argument("--budget", type=int, default=250)
     ap.add_argument("--real", action="store_true", help="simulate the new heaps (the run's own preset and engine) "
                     "instead of drawing them from the stand-in: one real calibration a setting")
@@ -202,12 +247,14 @@ def main() -> None:
                 for batch in (int(b) or None for b in a.batches.split(",")):
                     for weigh in a.weighs.split(","):
                         for targets in a.targets.split(","):
-                            out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh,
-                                           targets, box, a.workers if a.real else 0))
-                            print(out[-1], flush=True)
+                            for views in ([int(v) for v in a.views.split(",")] if a.views else [-1]):
+                                out.append(one(src, Path(tmp), first, batch, seed, a.budget, TRUTHS[src.name], weigh,
+                                               targets, box, a.workers if a.real else 0, views, tuple(fitted)))
+                                print(out[-1], flush=True)
     df = pd.DataFrame(out)
     print(df.drop(columns="trajectory").to_string())
-    print(df.groupby(["first", "batch", "weigh", "targets"], sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
+    keys = ["first", "batch", "weigh", "targets", *(["views"] if "views" in df.columns else [])]
+    print(df.groupby(keys, sort=False)[["decided_at", "stop_heaps", "held"]].mean().to_string())
     print("\n".join(f"{r.first} {r.batch} {r.weigh} {r.targets} seed {r.seed}: {r.trajectory}" for r in df.itertuples()))
 
 

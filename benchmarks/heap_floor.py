@@ -38,6 +38,12 @@ rise near linearly over the factor table learns more per heap.
 
     .venv/bin/python benchmarks/heap_floor.py --trend sample_runs/hidden-effect sample_runs/control-lab
 
+``--views``: the same table as ``--warps`` with both processes learning from one side view a heap (view 0, as
+every heap did before 2026-12-06) and from each heap's mean over its 4 side views (the results rows' ``angle_views``
+and ``fullness_views``): on one run's own heaps, what the views change, apart from where its rounds placed them.
+
+    .venv/bin/python benchmarks/heap_floor.py --views sample_runs/hidden-effect sample_runs/control-lab
+
 ``--noise 0.6,0.7/0.5``: what heaps that each scatter less would do (e.g. measured from several side views,
 ``benchmarks/heap_views.py``): every simulated pile's variance scaled by each factor f (``a/p``: the angle's by a,
 the fullness's by p), the lab's measured means as they are. Per round, the angle's, the profile's and the
@@ -74,14 +80,14 @@ class Answer(NamedTuple):
     samples: pd.DataFrame  # the answer's draws
 
 
-def _answer(run: Path) -> Answer:
+def _answer(run: Path, views: bool = False) -> Answer:
     from calib_cli.measurements import measured_conditions
     from calib_cli.model import load_model
     from calib_cli.posterior.evidence import in_box, model_rows, model_surrogate, prior_bounds, settings_ranges
     from calib_cli.stages.common import resolve_settings
 
     model, conds = load_model(run), measured_conditions(run)
-    rows = model_rows(run, model)
+    rows = model_rows(run, model, views=views)
     bounds = prior_bounds(model, "settings", rows, settings_ranges(resolve_settings(run, None, None)))
     rows = in_box(rows, bounds)
     rows = rows[np.isfinite(rows["repose_angle"].to_numpy(float))].reset_index(drop=True)
@@ -367,6 +373,18 @@ def main() -> None:
             print(pd.concat(tables).to_string(index=False))
             print("the oracle's heaps to a combined ratio of 1 from those at hand and a round 0 of 72: "
                   + ", ".join(f"f = {f}: {h}" for f, h in zip(factors, oracle)))
+        return
+    if args[:1] == ["--views"]:
+        from calib_cli.posterior.gp import VIEWS_OF
+
+        for run in map(Path, args[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
+            answer = _answer(run, views=True)
+            one = answer._replace(rows=answer.rows.drop(columns=[*VIEWS_OF.values(), "side_views"], errors="ignore"))
+            print(f"\n{run}: each round's ratios at the answer's draws, the processes learning from one view a heap "
+                  "and from its side views' mean")
+            print(pd.concat([warped_refits(one, "none").assign(warp="one view"),
+                             warped_refits(answer, "none").assign(warp="views' mean")])
+                  .rename(columns={"warp": "learnt from"}).to_string(index=False))
         return
     if args[:1] == ["--warps"]:
         warps, args = ["none", *args[1].split(",")], args[2:]

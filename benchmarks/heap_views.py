@@ -8,9 +8,11 @@ are rendered from V azimuths spread over half a turn (view k looks along the dir
 its two flanks are at distinct azimuths) and measured by the same code as the photographs. Heaps that share
 everything but their seed (a lab condition's repeats, a design point's two piles) form groups; the table gives
 the pooled within-group sd of the angle and the fullness from the first view alone (the one the results rows
-hold) and from the mean over 2 and 4 views, and f, the ratio of the variances: the share of a heap's noise
-variance that V views keep. A surrogate's variance where it is noise-bound scales with f at equal heaps
-(``heap_floor.py``'s emulation), while the lab's measured means keep their one-view photographs' variance.
+hold as ``angle_image``) and from the mean over 2 and 4 views, and f, the ratio of the variances: the share of a
+heap's noise variance that V views keep. A surrogate's variance where it is noise-bound scales with f at equal heaps
+(``heap_floor.py``'s emulation), while the lab's measured means keep their one-view photographs' variance. Since
+2026-12-06 every heap's row records its 4 views' means (``angle_views``, ``fullness_views``) and the surrogates
+learn from them, f estimated on each fit's own repeated piles (``GPSurrogate.view_share_``).
 
     .venv/bin/python benchmarks/heap_views.py /tmp/views/he-lab/.runs /tmp/views/ctl-lab/.runs
 

@@ -30,10 +30,11 @@ def stand_in(p, fill):
             - 6 * p["restitution"] * 75 / fill + 0.04 * fill)
 
 
-def _fake_campaign(calls, stands=lambda p: False, angle=None):
+def _fake_campaign(calls, stands=lambda p: False, angle=None, views=False):
     """A campaign that 'simulates' each request as the stand-in plus a pile's scatter of 1 deg, seeded by
     the request, and writes its rows to the run's index as the real one does; where ``stands``, the fill
-    stands as a column (no angle)."""
+    stands as a column (no angle). ``views``: each row also records 4 side views' mean, a heap's own scatter
+    of 0.6 deg and each view's of 0.8 (one view: 1 deg)."""
     def run_campaign(requests, run_dir, workers=1, on_done=None, dask=None, **kw):
         rows = []
         for q in requests:
@@ -46,6 +47,10 @@ def _fake_campaign(calls, stands=lambda p: False, angle=None):
                    **q.params, **cond, "status": "column" if column else "ok",
                    "repose_angle": np.nan if column else mean + rng.normal(0, 1.0),
                    "source": q.source}
+            if views:
+                seen = mean + rng.normal(0, 0.6) + rng.normal(0, 0.8, 4)
+                row.update(repose_angle=np.nan if column else seen[0], angle_views=np.nan if column else seen.mean(),
+                           side_views=0 if column else 4)
             rows.append(row)
             if on_done:
                 on_done(q, row)
@@ -169,6 +174,31 @@ def test_calibrate_runs_rounds_until_stable_and_writes_its_artefacts(lab):
     # a rerun reads every round back and simulates nothing
     again = calibrate(run, budget=200, first=60, batch=20, walkers=16, steps=400, **QUIET)
     assert again.skipped and len(calls) == rounds["round"].max() + 1
+
+
+def test_with_side_views_the_surrogates_learn_each_heap_from_their_mean_and_only_then(lab, monkeypatch):
+    """--side-views: the rounds' surrogates learn from the heaps' views' mean (their provenance names the share
+    of one view's variance it keeps, and the rounds' lock the option); without it, from one view, under the
+    settings the rounds were locked with before views were an option."""
+    import json
+
+    from calib_cli.model import DEFAULT_EFFECTS, Model
+    from calib_cli.stages.calibrate import Plan, calibrate
+
+    run, calls = lab
+    monkeypatch.setattr("calib_cli.stages.calibrate.run_campaign", _fake_campaign(calls, views=True))
+    kw = dict(budget=60, first=60, walkers=16, steps=200, **QUIET)
+    calibrate(run, views=True, **kw)
+    meta = art.read_provenance(run / "calibrate" / "rev0" / "round-00" / "summary.parquet")
+    assert 0.3 < meta["view_share"] < 0.9, meta.get("view_share")  # (0.6^2 + 0.8^2 / 4) / 1: 0.52
+    lock = run / "calibrate" / "rev0-round-00.lock.json"
+    with_views = json.loads(lock.read_text())["settings_hash"]
+    calibrate(run, force=True, **kw)
+    meta = art.read_provenance(run / "calibrate" / "rev0" / "round-00" / "summary.parquet")
+    assert "view_share" not in meta and json.loads(lock.read_text())["settings_hash"] != with_views
+    # the option enters a round's settings only where given: rounds locked before it stay up to date
+    assert "views" not in Plan(60, 60, 20).round_settings(Model(DEFAULT_EFFECTS)) and Plan(60, 60, 20, views=True).round_settings(
+        Model(DEFAULT_EFFECTS))["views"] is True
 
 
 def test_a_stopped_calibration_goes_on_from_its_last_finished_round(lab, tmp_path):

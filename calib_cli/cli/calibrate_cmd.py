@@ -44,6 +44,10 @@ def calibrate(
                                                     "condition's piles that stood as columns (default: wherever the "
                                                     "photographs were measured and some simulated fill stood).",
                                                     show_default=False)] = None,
+    views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
+                                        "of its 4 side views instead of the one a photograph has (where every heap "
+                                        "in the fit recorded them; heaps from older versions did not). Measured, "
+                                        "not the default: docs/method.md.")] = False,
     walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers.")] = 32,
     steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round; the answer (the "
                                        "last round's posterior) samples three to six times as many.")] = 2000,
@@ -75,7 +79,7 @@ def calibrate(
             prog.advance(task)
 
         r = run_calibration(run, budget, first, batch, repeats, rule, walkers, steps, seed, preset, shear_modulus,
-                            engine, workers, dask, scatter, profile, columns, at_revision, force, say=say,
+                            engine, workers, dask, scatter, profile, columns, at_revision, force, views, say=say,
                             on_heap=on_heap)
     if r.skipped and r.rounds is None:
         return

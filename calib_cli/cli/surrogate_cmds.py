@@ -152,6 +152,10 @@ def calibrate_posterior(
                                                     "chance that a simulated fill stands. Default: wherever the "
                                                     "photographs were measured and some simulated fill stood.",
                                                     show_default=False)] = None,
+    views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
+                                        "of its 4 side views instead of the one a photograph has (where every heap "
+                                        "in the fit recorded them; heaps from older versions did not). Measured, "
+                                        "not the default: docs/method.md.")] = False,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
@@ -173,7 +177,7 @@ def calibrate_posterior(
     from ..stages.posterior import posterior as posterior_stage
 
     r = posterior_stage(run, walkers, steps, seed, prior, force, say=say, design=design, scatter=scatter,
-                        profile=profile, columns=columns)
+                        profile=profile, columns=columns, views=views)
     if r.skipped:
         return skipped(r.stage)
     console.print(df_table(posterior_table(r.table), f"posterior of model revision {r.revision}: 90 % intervals"))

@@ -61,14 +61,17 @@ def _quiet(message: str, err: bool = False) -> None:
 JUDGED = ("ok", "column")
 
 
-def model_rows(run: Path, model: Model, judged: bool = False) -> pd.DataFrame:
+def model_rows(run: Path, model: Model, judged: bool = False, views: bool = False) -> pd.DataFrame:
     """The simulated piles of the current model (every heap that gave an angle, or with ``judged`` every
     heap that stood as a column too, with each absent effect's parameter at its neutral value, or
     unset), with the model's parameters filled in where a heap left one unset: a wall's value at the
-    grains' own, another at its neutral value."""
+    grains' own, another at its neutral value. ``views``: keep each heap's side views' means, from which
+    the surrogates then learn (:func:`~calib_cli.posterior.gp.views_of`); else one view a heap."""
     if not (run / RESULTS).is_file():
         raise CalibError(f"no simulated heaps in {run}: run `calib calibrate --run {run}` (or simulate-heap) first")
     rows = current_results(run)
+    if not views:
+        rows = rows.drop(columns=[c for c in VIEW_COLUMNS if c in rows.columns])
     if judged:
         keep = rows["status"].isin(JUDGED).to_numpy().copy() if "status" in rows.columns else np.zeros(len(rows), bool)
     else:
@@ -136,6 +139,10 @@ def check_measured(conds: pd.DataFrame, gp: GPSurrogate, path: Path) -> None:
 def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
     """Each of the model's parameters' range (its effect's bounds): the prior and the surrogate's scale."""
     return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
+
+
+#: a results row's side views' columns (:mod:`calib_cli.heaps.runner`)
+VIEW_COLUMNS = (*VIEWS_OF.values(), "side_views")
 
 
 def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE,
@@ -486,7 +493,8 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
                   prior: str = "settings", ranges: Optional[dict] = None, scatter: Optional[bool] = None,
                   profile: Optional[bool] = None, columns: Optional[bool] = None,
                   rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
-                  judged: Optional[pd.DataFrame] = None, average: bool = False, say: Say = _quiet) -> PosteriorFit:
+                  judged: Optional[pd.DataFrame] = None, average: bool = False, views: bool = False,
+                  say: Say = _quiet) -> PosteriorFit:
     """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
     on the run's heaps of the model (``rows``: else :func:`model_rows`) under a uniform ``prior``
     (:func:`prior_bounds`; ``ranges`` the run's factor table). With the settings' prior the surrogates
@@ -495,8 +503,9 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     columns too (None: wherever the heaps and photographs allow). ``held_out_by``: the surrogates
     whose held-out error is scored (none: empty). ``judged``: the heaps the column share learns from (those
     that stood too; else every such heap of the model). ``average``: over the effect the model gained, on and
-    off (:func:`averaged`)."""
-    rows = model_rows(run, model) if rows is None else rows
+    off (:func:`averaged`). ``views``: the surrogates learn each heap from its side views' mean, where every
+    heap recorded them (:func:`model_rows`; ``rows`` given: learnt from whatever view columns they hold)."""
+    rows = model_rows(run, model, views=views) if rows is None else rows
     bounds = prior_bounds(model, prior, rows, ranges)
     scale = bounds if prior == "settings" else effect_ranges(model)
     if prior == "settings":
@@ -520,7 +529,7 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     rows, second, share, evidence = _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
                                               seed, say, scale, bounds if prior == "settings" else None, judged)
     cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else []),
-            *(c for c in (*VIEWS_OF.values(), "side_views") if c in rows.columns)]
+            *(c for c in VIEW_COLUMNS if c in rows.columns)]
     held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
     post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                scatter=evidence["scatter"], second=second, columns=share)

@@ -60,6 +60,7 @@ class Plan:
     profile: Optional[bool] = None
     columns: Optional[bool] = None
     bounds: dict = field(default_factory=dict)  # the prior: the run's factor table
+    views: bool = False  # the surrogates learn each heap from its side views' mean
     span: int = 0  # heaps the stop rule looks back over: a default batch's round (0: this plan's batch)
 
     def round_settings(self, model: Model) -> dict:
@@ -68,7 +69,9 @@ class Plan:
         return {"first": self.first, "batch": self.batch, "repeats": self.repeats, "rule": self.rule,
                 "walkers": self.walkers, "steps": self.steps, "seed": self.seed, "scatter": self.scatter,
                 "profile": self.profile, "columns": self.columns, "model": model.hash,
-                "bounds": {k: list(v) for k, v in self.bounds.items()}}
+                "bounds": {k: list(v) for k, v in self.bounds.items()},
+                # only where asked: the rounds locked before views were an option stay up to date
+                **({"views": True} if self.views else {})}
 
 
 @dataclass
@@ -190,7 +193,8 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
     if prev.fit is not None:
         gp, second = prev.fit.gp, prev.fit.second
     else:
-        rows = in_box(_until_round(model_rows(run, model), model, prev.index, _reused(run, model)), plan.bounds)
+        rows = in_box(_until_round(model_rows(run, model, views=plan.views), model, prev.index, _reused(run, model)),
+                      plan.bounds)
         gp = model_surrogate(rows, model, plan.seed, scale=plan.bounds)
         second = None
         if prev.evidence.get("profile"):
@@ -222,7 +226,7 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
     """The posterior after round k (locked): every heap of the model so far, the surrogates' held-out
     error scored for the Gaussian processes alone (the last round's is scored for every surrogate)."""
     reused = _reused(run, model)
-    rows = _until_round(model_rows(run, model), model, k, reused)
+    rows = _until_round(model_rows(run, model, views=plan.views), model, k, reused)
     judged = _until_round(model_rows(run, model, judged=True), model, k, reused)
     cond_vars = informative_conditions(rows, COND_VARS)
     prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns, judged)
@@ -384,14 +388,15 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
               preset: Optional[str] = None, shear_modulus: Optional[float] = None, engine: Optional[str] = None,
               workers: int = 1, dask: Optional[str] = None, scatter: Optional[bool] = None,
               profile: Optional[bool] = None, columns: Optional[bool] = None, at_revision: Optional[int] = None,
-              force: bool = False,
+              force: bool = False, views: bool = False,
               say: Optional[Say] = None, on_heap: Optional[Callable] = None) -> CalibrateResult:
     """Calibrate the run's current model in rounds until the posterior is stable or ``budget`` heaps are
     simulated (see the module's docstring). Writes RUN/calibrate/rev<N>/round-<k>/ per round (design,
     posterior), RUN/calibrate/rounds.parquet, rounds.png and point.parquet (the posterior's most probable
     draw, which compare and diagnose simulate), and RUN/posterior/ (the last round's posterior, every
     surrogate's held-out error). ``at_revision``: do nothing unless the model is at that revision (a
-    pipeline's step for one revision). ``on_heap(request, row)`` after each heap."""
+    pipeline's step for one revision). ``views``: the surrogates learn each heap from its side views' mean
+    (heaps simulated since they are recorded; docs/method.md). ``on_heap(request, row)`` after each heap."""
     say = say or plain
     run = check_run_dir(run)
     model = load_model(run)
@@ -411,7 +416,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     if conds.empty:
         raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")
     plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
-                 seed=seed, scatter=scatter, profile=profile, columns=columns,
+                 seed=seed, scatter=scatter, profile=profile, columns=columns, views=bool(views),
                  bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
     final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     if final.up_to_date() and not force:
@@ -503,7 +508,7 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
     """RUN/posterior/: the last round's heaps and evidence, sampled longer (:func:`_final_steps`), with every
     surrogate's held-out error; returns its draws."""
     reused = _reused(run, model)
-    rows = _until_round(model_rows(run, model), model, last.index, reused)
+    rows = _until_round(model_rows(run, model, views=plan.views), model, last.index, reused)
     judged = _until_round(model_rows(run, model, judged=True), model, last.index, reused)
     cond_vars = informative_conditions(in_box(rows, plan.bounds), COND_VARS)
     steps = _final_steps(last, plan)

@@ -71,7 +71,7 @@ def _calibrate_answer(run: Path, revision: int) -> bool:
 def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, prior: str = "settings",
               force: bool = False, say: Optional[Say] = None, design: int = 0,
               scatter: Optional[bool] = None, profile: Optional[bool] = None,
-              columns: Optional[bool] = None) -> PosteriorStageResult:
+              columns: Optional[bool] = None, views: bool = False) -> PosteriorStageResult:
     """Sample the posterior of the current model's parameters given every measured condition, through
     Gaussian processes trained on the run's simulated heaps of the model
     (:func:`~calib_cli.posterior.evidence.fit_posterior`); the prior is uniform over the run's factor table
@@ -82,7 +82,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     (:func:`~calib_cli.posterior.suggest.region_design`) for ``simulate-heap --design``. ``scatter`` /
     ``profile`` / ``columns``: weigh each condition's pile scatter / mean heap profile / share of piles
     that stood as columns as well as its mean angle (None, the default: wherever the simulated heaps and
-    the photographs allow)."""
+    the photographs allow). ``views``: the surrogates learn each heap from its side views' mean where every
+    heap recorded them (docs/method.md)."""
     say = say or plain
     run = check_run_dir(run)
     if prior not in PRIORS:
@@ -93,7 +94,7 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
     if conds.empty:
         raise CalibError(f"no measured condition in {run / 'measure' / 'conditions.parquet'}: "
                          "run `calib measure-angle` first")
-    rows = model_rows(run, model)
+    rows = model_rows(run, model, views=views)
     cond_vars = check_rows(run, rows, model)
     used = rows[[*model.parameters, *cond_vars, RESPONSE]]
     ranges = settings_ranges(resolve_settings(run, None, None))
@@ -107,7 +108,8 @@ def posterior(run: Path, walkers: int = 32, steps: int = 5000, seed: int = 0, pr
                        "model": mfile if mfile.is_file() else None, **prof_in},
                settings={"walkers": walkers, "steps": steps, "seed": seed, "model": model.hash, "prior": prior,
                          "bounds": bounds,
-                         **({"design": design} if design else {}), "scatter": scatter, **prof_set})
+                         **({"design": design} if design else {}), "scatter": scatter, **prof_set,
+                         **({"views": True} if views else {})})
     if st.up_to_date() and not force:
         return PosteriorStageResult(st, True)
     if not force and _calibrate_answer(run, model.revision):
