@@ -139,6 +139,8 @@ def test_the_surrogate_learns_a_heap_from_its_side_views_and_keeps_a_photograph_
     failed = rows.assign(side_views=np.where(rows.index == 0, 0, rows["side_views"]), angle_views=np.nan)
     assert views_of(failed, "repose_angle")[0] == rows.at[0, "repose_angle"]
     assert view_share(np.arange(12.0)[:, None], rows["repose_angle"][:12].to_numpy(), rows["angle_views"][:12].to_numpy()) == 1.0
+    with pytest.raises(CalibError, match="one side views' mean per row"):
+        GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"], np.ones(3))
 
 
 def test_the_joint_prediction_is_scikit_learns_covariance_without_the_piles_scatter(gp):

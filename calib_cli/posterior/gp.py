@@ -248,6 +248,8 @@ class GPSurrogate:
         if missing:
             raise CalibError(f"GPSurrogate.fit: the heaps lack the parameter column(s) {', '.join(missing)}")
         y = np.asarray(y, float)
+        if views is not None and np.shape(views) != y.shape:
+            raise CalibError("GPSurrogate.fit(X, y, views) takes one side views' mean per row, as y")
         keep = np.isfinite(y)
         rows, y = X[keep], y[keep]
         v = None if views is None else np.asarray(views, float)[keep]
