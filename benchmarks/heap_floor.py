@@ -375,11 +375,11 @@ def main() -> None:
                   + ", ".join(f"f = {f}: {h}" for f, h in zip(factors, oracle)))
         return
     if args[:1] == ["--views"]:
-        from calib_cli.posterior.gp import VIEWS_OF
+        from calib_cli.posterior.evidence import VIEW_COLUMNS
 
         for run in map(Path, args[1:] or ["sample_runs/hidden-effect", "sample_runs/control-lab"]):
             answer = _answer(run, views=True)
-            one = answer._replace(rows=answer.rows.drop(columns=[*VIEWS_OF.values(), "side_views"], errors="ignore"))
+            one = answer._replace(rows=answer.rows.drop(columns=list(VIEW_COLUMNS), errors="ignore"))
             print(f"\n{run}: each round's ratios at the answer's draws, the processes learning from one view a heap "
                   "and from its side views' mean")
             print(pd.concat([warped_refits(one, "none").assign(warp="one view"),

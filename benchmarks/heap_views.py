@@ -38,18 +38,13 @@ VIEWS = (1, 2, 4)
 
 
 def _views(state: pd.DataFrame, n: int) -> list:
-    """The n views' measurements (ImageAngle), view 0 the results row's own."""
-    from calib_cli.dem.render import render_side_view
+    """The n views' measurements (ImageAngle), view 0 the results row's own: the views a campaign renders
+    (:func:`calib_cli.dem.render.side_views`), measured as it measures them."""
+    from calib_cli.dem.render import side_views
     from calib_cli.imaging.measure import measure_image
 
     xyz, rad = state[["x", "y", "z"]].to_numpy(float), state["radius"].to_numpy(float)
-    out = []
-    for k in range(n):
-        a = np.pi * k / n
-        c, s = np.cos(a), np.sin(a)
-        rot = np.column_stack([c * xyz[:, 0] - s * xyz[:, 1], s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]])
-        out.append(measure_image(render_side_view(rot, rad).image, limits=None))
-    return out
+    return [measure_image(v.image, limits=None) for v in side_views(xyz, rad, n)]
 
 
 def heap_table(runs: list[Path], n: int = max(VIEWS)) -> pd.DataFrame:
