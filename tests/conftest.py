@@ -1,4 +1,8 @@
+import importlib
 import os
+
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 from pathlib import Path
 
 # the GPU engine's kernels run under numba's CUDA simulator unless told otherwise (CI has no GPU; on a

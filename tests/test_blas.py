@@ -1,0 +1,51 @@
+"""OpenBLAS's kernels pinned before numpy loads (calib_cli/blas.py)."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from calib_cli.blas import CORE, cpu_flags, pin_openblas
+
+
+def _cpuinfo(tmp_path, flags):
+    p = tmp_path / "cpuinfo"
+    p.write_text(f"processor\t: 0\nmodel name\t: test\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t: sse2\n")
+    return str(p)
+
+
+def test_an_avx2_cpu_gets_the_avx2_kernels(tmp_path):
+    env = {}
+    assert pin_openblas(env, "x86_64", _cpuinfo(tmp_path, "fpu sse2 avx avx2 fma avx512f")) == CORE
+    assert env == {"OPENBLAS_CORETYPE": "Haswell"}
+
+
+def test_what_the_user_set_wins(tmp_path):
+    env = {"OPENBLAS_CORETYPE": "SkylakeX"}
+    assert pin_openblas(env, "x86_64", _cpuinfo(tmp_path, "avx2 fma")) is None
+    assert env == {"OPENBLAS_CORETYPE": "SkylakeX"}
+
+
+@pytest.mark.parametrize("machine, flags", [("x86_64", "sse2 avx"),      # no AVX2: Haswell's would trap
+                                            ("x86_64", "avx2"),          # no FMA
+                                            ("aarch64", "avx2 fma")])    # another architecture
+def test_a_cpu_without_them_keeps_openblas_own_choice(tmp_path, machine, flags):
+    env = {}
+    assert pin_openblas(env, machine, _cpuinfo(tmp_path, flags)) is None
+    assert env == {}
+
+
+def test_an_unreadable_cpuinfo_pins_nothing(tmp_path):
+    assert cpu_flags(str(tmp_path / "absent")) == frozenset()
+    env = {}
+    assert pin_openblas(env, "x86_64", str(tmp_path / "absent")) is None and env == {}
+
+
+@pytest.mark.skipif(not {"avx2", "fma"} <= cpu_flags(), reason="needs an x86-64 CPU with AVX2 and FMA")
+def test_importing_calib_first_loads_numpy_and_scipy_with_the_avx2_kernels():
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    code = ("import calib_cli, numpy, scipy.linalg\n"
+            "from threadpoolctl import threadpool_info\n"
+            "print(sorted({i.get('architecture') for i in threadpool_info() if i['internal_api'] == 'openblas'}))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "['Haswell']"
