@@ -57,10 +57,13 @@ def points(n: int) -> list[dict]:
 def environments(mode: str = "avx2") -> tuple[dict, dict]:
     """(as this CPU sets the libraries up, as on a CPU without AVX-512 or with numpy on its baseline)."""
     targets = numpy_dispatch_targets()
-    env_on = {**os.environ, "NUMBA_NUM_THREADS": "1"}
+    # A keeps the kernels OpenBLAS picks for this CPU, which importing calib_cli would pin (calib_cli/blas.py)
+    env_on = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    env_on.update(NUMBA_NUM_THREADS="1", CALIB_NATIVE_BLAS="1")
     if mode == "avx2":
         return env_on, {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(t for t in targets if t not in ("X86_V3", "AVX2")),
-                        "OPENCV_CPU_DISABLE": "AVX512-SKX", "OPENBLAS_CORETYPE": "Haswell"}
+                        "OPENCV_CPU_DISABLE": "AVX512-SKX", "OPENBLAS_CORETYPE": "Haswell",
+                        "CALIB_NATIVE_BLAS": "0"}
     return env_on, {**env_on, "NPY_DISABLE_CPU_FEATURES": " ".join(targets)}
 
 

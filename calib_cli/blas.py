@@ -14,6 +14,7 @@ import platform
 
 CORE = "Haswell"   # OpenBLAS's AVX2 + FMA kernels: on every x86-64 CPU since 2013-2015
 NEEDS = frozenset({"avx2", "fma"})
+NATIVE = "CALIB_NATIVE_BLAS"   # "1": leave OpenBLAS on the kernels it picks for this CPU
 
 
 def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
@@ -32,11 +33,12 @@ def pin_openblas(environ=os.environ, machine: str | None = None,
                  cpuinfo: str = "/proc/cpuinfo") -> str | None:
     """Set OPENBLAS_CORETYPE to the AVX2 kernels where the CPU has them; return what was set.
 
-    A value the user set wins; a CPU without AVX2 and FMA (forcing them would be an illegal
-    instruction), another architecture or an unreadable cpuinfo keep OpenBLAS's own choice. It
-    acts only if it runs before numpy is first imported in the process.
+    A value the user set wins, and CALIB_NATIVE_BLAS=1 keeps the CPU's own kernels; a CPU without
+    AVX2 and FMA (forcing them would be an illegal instruction), another architecture or an
+    unreadable cpuinfo keep OpenBLAS's own choice. It acts only if it runs before numpy is first
+    imported in the process.
     """
-    if "OPENBLAS_CORETYPE" in environ:
+    if "OPENBLAS_CORETYPE" in environ or environ.get(NATIVE) == "1":
         return None
     if (machine or platform.machine()).lower() not in ("x86_64", "amd64"):
         return None

@@ -24,6 +24,9 @@ def test_what_the_user_set_wins(tmp_path):
     env = {"OPENBLAS_CORETYPE": "SkylakeX"}
     assert pin_openblas(env, "x86_64", _cpuinfo(tmp_path, "avx2 fma")) is None
     assert env == {"OPENBLAS_CORETYPE": "SkylakeX"}
+    env = {"CALIB_NATIVE_BLAS": "1"}
+    assert pin_openblas(env, "x86_64", _cpuinfo(tmp_path, "avx2 fma")) is None
+    assert env == {"CALIB_NATIVE_BLAS": "1"}
 
 
 @pytest.mark.parametrize("machine, flags", [("x86_64", "sse2 avx"),      # no AVX2: Haswell's would trap
