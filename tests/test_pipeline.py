@@ -96,7 +96,7 @@ calib calibrate --run sample_runs/hidden-effect --at-revision 0 --budget 72 --pr
 calib compare --run sample_runs/hidden-effect --at-revision 0 --repeats 4 --preset default --workers 2
 calib diagnose --run sample_runs/hidden-effect --at-revision 0 --repeats 2 --preset default --workers 2
 calib model add cohesion --run sample_runs/hidden-effect --at-revision 0
-calib calibrate --run sample_runs/hidden-effect --at-revision 1 --budget 250 --preset default --workers 2
+calib calibrate --run sample_runs/hidden-effect --at-revision 1 --budget 250 --side-views --preset default --workers 2
 calib compare --run sample_runs/hidden-effect --at-revision 1 --repeats 4 --preset default --workers 2
 calib suggest-conditions --run sample_runs/hidden-effect --rig sample_data/rig.toml --top 3
 calib report --run sample_runs/hidden-effect
@@ -109,7 +109,7 @@ calib calibrate --run sample_runs/control-lab --at-revision 0 --budget 72 --pres
 calib compare --run sample_runs/control-lab --at-revision 0 --repeats 4 --preset default --workers 2
 calib diagnose --run sample_runs/control-lab --at-revision 0 --repeats 2 --preset default --workers 2
 calib model add cohesion --run sample_runs/control-lab --at-revision 0
-calib calibrate --run sample_runs/control-lab --at-revision 1 --budget 250 --preset default --workers 2
+calib calibrate --run sample_runs/control-lab --at-revision 1 --budget 250 --side-views --preset default --workers 2
 calib compare --run sample_runs/control-lab --at-revision 1 --repeats 4 --preset default --workers 2
 calib suggest-conditions --run sample_runs/control-lab --rig sample_data/rig.toml --top 3
 calib report --run sample_runs/control-lab

@@ -46,8 +46,8 @@ def calibrate(
                                                     show_default=False)] = None,
     views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
                                         "of its 4 side views instead of the one a photograph has (where every heap "
-                                        "in the fit recorded them; heaps from older versions did not). Measured, "
-                                        "not the default: docs/method.md.")] = False,
+                                        "in the fit recorded them; heaps from older versions did not); the sample "
+                                        "pipelines use it after `calib model add`: docs/method.md.")] = False,
     walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers.")] = 32,
     steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round; the answer (the "
                                        "last round's posterior) samples three to six times as many.")] = 2000,

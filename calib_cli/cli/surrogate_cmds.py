@@ -154,8 +154,8 @@ def calibrate_posterior(
                                                     show_default=False)] = None,
     views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
                                         "of its 4 side views instead of the one a photograph has (where every heap "
-                                        "in the fit recorded them; heaps from older versions did not). Measured, "
-                                        "not the default: docs/method.md.")] = False,
+                                        "in the fit recorded them; heaps from older versions did not); "
+                                        "the sample pipelines use it after `calib model add`: docs/method.md.")] = False,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a
