@@ -9,7 +9,8 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from .common import AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, console, df_table, posterior_table, say
+from .common import (AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, SideViewsOpt, console, df_table,
+                     posterior_table, say)
 
 
 def calibrate(
@@ -44,10 +45,7 @@ def calibrate(
                                                     "condition's piles that stood as columns (default: wherever the "
                                                     "photographs were measured and some simulated fill stood).",
                                                     show_default=False)] = None,
-    views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
-                                        "of its 4 side views instead of the one a photograph has (where every heap "
-                                        "in the fit recorded them; heaps from older versions did not); the sample "
-                                        "pipelines use it after `calib model add`: docs/method.md.")] = False,
+    views: SideViewsOpt = False,
     walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers.")] = 32,
     steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round; the answer (the "
                                        "last round's posterior) samples three to six times as many.")] = 2000,

@@ -129,6 +129,10 @@ SettingOpt = Annotated[
     typer.Option("--setting", "-s", help="Override one setting, e.g. -s pb.alpha=0.1 (repeatable)."),
 ]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Rerun even if inputs and settings are unchanged.")]
+SideViewsOpt = Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the "
+                                           "mean of its 4 side views instead of the one a photograph has (where every "
+                                           "heap in the fit recorded them; heaps from older versions did not); the "
+                                           "sample pipelines use it after `calib model add`: docs/method.md.")]
 AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", min=0, help="Do nothing unless the model is at "
                                                      "this revision (a pipeline's step for one revision).",
                                                      show_default=False)]

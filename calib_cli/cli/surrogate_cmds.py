@@ -10,7 +10,7 @@ from rich.markup import escape
 
 from ..errors import CalibError
 from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
-                     check_run_dir, console, df_table, posterior_table, say, skipped)
+                     SideViewsOpt, check_run_dir, console, df_table, posterior_table, say, skipped)
 
 
 def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None,
@@ -152,10 +152,7 @@ def calibrate_posterior(
                                                     "chance that a simulated fill stands. Default: wherever the "
                                                     "photographs were measured and some simulated fill stood.",
                                                     show_default=False)] = None,
-    views: Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the mean "
-                                        "of its 4 side views instead of the one a photograph has (where every heap "
-                                        "in the fit recorded them; heaps from older versions did not); "
-                                        "the sample pipelines use it after `calib model add`: docs/method.md.")] = False,
+    views: SideViewsOpt = False,
     force: ForceOpt = False,
 ):
     """The posterior over the current model's parameters given every measured condition: a

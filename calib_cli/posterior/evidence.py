@@ -59,6 +59,8 @@ def _quiet(message: str, err: bool = False) -> None:
 # ------------------------------------------------------------------ the heaps and their surrogates
 #: the heaps' statuses the column share learns from: those that stood, and those that formed a heap
 JUDGED = ("ok", "column")
+#: a results row's side views' columns (:mod:`calib_cli.heaps.runner`)
+VIEW_COLUMNS = (*VIEWS_OF.values(), "side_views")
 
 
 def model_rows(run: Path, model: Model, judged: bool = False, views: bool = False) -> pd.DataFrame:
@@ -139,10 +141,6 @@ def check_measured(conds: pd.DataFrame, gp: GPSurrogate, path: Path) -> None:
 def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
     """Each of the model's parameters' range (its effect's bounds): the prior and the surrogate's scale."""
     return {EFFECTS[e].parameter: (EFFECTS[e].low, EFFECTS[e].high) for e in model.effects}
-
-
-#: a results row's side views' columns (:mod:`calib_cli.heaps.runner`)
-VIEW_COLUMNS = (*VIEWS_OF.values(), "side_views")
 
 
 def model_surrogate(rows: pd.DataFrame, model: Model, seed: int = 0, response: str = RESPONSE,
