@@ -22,10 +22,13 @@ intervals less per round, which is why the rule looks back a default batch of he
 from __future__ import annotations
 
 import argparse
+import importlib
 import tempfile
 import time
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

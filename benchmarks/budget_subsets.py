@@ -14,10 +14,13 @@ revision 1 chose were chosen beside the full set, so a lean pipeline run for rea
     .venv/bin/python benchmarks/budget_subsets.py --rev1 144,168,192 --at-hand full,lean --workers 2
 """
 import argparse
+import importlib
 import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

@@ -22,9 +22,12 @@ Usage:  python benchmarks/capillary_vs_jkr.py [--seeds 3] [--workers 2] [--sizes
 from __future__ import annotations
 
 import argparse
+import importlib
 import itertools
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 from scipy import stats
 

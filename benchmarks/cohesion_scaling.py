@@ -27,8 +27,11 @@ Usage:  python benchmarks/cohesion_scaling.py [--seeds 5] [--seeds-a 10] [--work
 from __future__ import annotations
 
 import argparse
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 from scipy import stats
 

@@ -19,8 +19,11 @@ rolling at |F_ne + 2 F_pulloff|, where SPEC 5 caps sliding on the repulsive part
 from __future__ import annotations
 
 import argparse
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem.heap import get_preset, run_heap

@@ -28,6 +28,7 @@ one view (0) or the views' mean (1, ``calibrate --side-views``).
 from __future__ import annotations
 
 import argparse
+import importlib
 import subprocess
 import sys
 import tempfile
@@ -35,6 +36,8 @@ import time
 import warnings
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

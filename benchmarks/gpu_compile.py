@@ -15,6 +15,7 @@ a GPU.
 ``--precision=mixed``: the kernels of heaps whose velocities, spins, forces, torques and contact histories
 are float32 (calib_cli.dem.system.PRECISIONS).
 """
+import importlib
 import os
 import re
 import shutil
@@ -24,6 +25,8 @@ import tempfile
 import time
 
 os.environ["NUMBA_ENABLE_CUDASIM"] = "0"
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np  # noqa: E402
 
 from calib_cli.dem import gpu  # noqa: E402

@@ -6,10 +6,13 @@ heaps' rows at hand then: every row but revision 1's own calibration and compare
     python benchmarks/gpu_device_prep.py [--src sample_runs/hidden-effect] [--out gpu_run/he_rev1]
 """
 import argparse
+import importlib
 import json
 import shutil
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import pandas as pd
 
 from calib_cli.artifacts import file_hash

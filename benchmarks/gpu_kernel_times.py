@@ -19,8 +19,11 @@ added --reps times): the batch is thrown away after.
         --probe 2 --reps 2     # the simulator (no graphs: launched one by one): checks the script, not a time
 """
 import argparse
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem import gpu

@@ -10,8 +10,11 @@ on the same fill for scale (one chunk on every thread).
 """
 import argparse
 import dataclasses
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem import gpu

@@ -18,11 +18,14 @@ ratios.
         --modes graph,graph+pair          # the simulator: checks the script, not a speed
 """
 import argparse
+import importlib
 import os
 import platform
 import time
 
 import numba
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem import gpu

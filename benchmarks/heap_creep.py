@@ -17,8 +17,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 import calib_cli.dem.heap as heap

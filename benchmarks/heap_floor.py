@@ -55,10 +55,13 @@ round 0 of 72.
 """
 from __future__ import annotations
 
+import importlib
 import sys
 from pathlib import Path
 from typing import NamedTuple
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

@@ -17,9 +17,12 @@ Two cases at one lab condition of ``make hidden-effect`` (5-6 mm grains, 40 mm c
 from __future__ import annotations
 
 import argparse
+import importlib
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

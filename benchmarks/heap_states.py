@@ -15,7 +15,10 @@ made of copies of them.
 from __future__ import annotations
 
 from dataclasses import replace
+import importlib
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem.heap import PRESETS, HeapTest

@@ -27,10 +27,13 @@ the labs of ``stages/hidden-effect.toml`` and ``control-lab.toml`` made again (6
 """
 from __future__ import annotations
 
+import importlib
 import json
 import sys
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

@@ -20,11 +20,14 @@ ranks is `--engine lammps --mpi N`, not timed here).
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import tempfile
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.engines.lammps import open_lammps, write_data  # noqa: E402

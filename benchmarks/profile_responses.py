@@ -14,8 +14,11 @@ variance), and the lab's photographs' mean and sd per condition.
 from __future__ import annotations
 
 import argparse
+import importlib
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

@@ -16,10 +16,13 @@ physics version are skipped (their run hash would not match either).
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from pathlib import Path
 
 import numba
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

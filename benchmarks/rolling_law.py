@@ -54,11 +54,14 @@ Usage:  python benchmarks/rolling_law.py [--seeds 3] [--workers 2] [--g 0.3,0.7]
 from __future__ import annotations
 
 import argparse
+import importlib
 import itertools
 import time
 from dataclasses import replace
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

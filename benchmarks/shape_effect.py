@@ -15,10 +15,13 @@ Usage:  python benchmarks/shape_effect.py [--seeds 3] [--workers 2] [--surface-e
 from __future__ import annotations
 
 import argparse
+import importlib
 import itertools
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem.heap import HeapCondition, get_preset

@@ -7,8 +7,11 @@ Run both while other processes load the cores to see what numba's parallel pair 
 busy machine (docs/performance.md, "Two numba threads on a loaded machine").
 """
 
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from calib_cli.dem.heap import PRESETS, fill_cylinder, interactions

@@ -19,9 +19,12 @@ same heaps would decide sooner).
 from __future__ import annotations
 
 import argparse
+import importlib
 import warnings
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 import pandas as pd
 

@@ -8,10 +8,13 @@ largest eigenvalue of that matrix: the condition-space direction where the surro
 """
 from __future__ import annotations
 
+import importlib
 import sys
 import warnings
 from pathlib import Path
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numpy as np
 
 from fitted_standin import plugin  # this script's folder is on the path when it runs

@@ -52,3 +52,20 @@ def test_importing_calib_first_loads_numpy_and_scipy_with_the_avx2_kernels():
             "print(sorted({i.get('architecture') for i in threadpool_info() if i['internal_api'] == 'openblas'}))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "['Haswell']"
+
+
+def test_every_benchmark_that_uses_calib_pins_before_numpy_loads():
+    """A benchmark that refits a posterior must compute on the kernels `calib` computes on, so calib_cli
+    (its pin) is imported before numpy, pandas or scipy at the top of each script that uses both."""
+    import re
+    from pathlib import Path
+
+    late = []
+    for p in sorted((Path(__file__).parent.parent / "benchmarks").glob("*.py")):
+        lines = p.read_text().splitlines()
+        first = lambda pat: next((i for i, s in enumerate(lines) if re.match(pat, s)), None)  # noqa: E731
+        np_at = first(r"(import|from) (numpy|pandas|scipy)\b")
+        calib_at = first(r"\s*(import calib_cli|from calib_cli|importlib\.import_module\(\"calib_cli\"\))")
+        if np_at is not None and calib_at is not None and calib_at > np_at:
+            late.append(p.name)
+    assert late == []

@@ -9,8 +9,8 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from .common import (AtRevisionOpt, ForceOpt, PresetOpt, RunOpt, ShearModulusOpt, SideViewsOpt, console, df_table,
-                     posterior_table, say)
+from .common import (AtRevisionOpt, ColumnsOpt, ForceOpt, PresetOpt, ProfileOpt, RunOpt, ScatterOpt, ShearModulusOpt,
+                     SideViewsOpt, console, df_table, posterior_table, say)
 
 
 def calibrate(
@@ -35,16 +35,9 @@ def calibrate(
     workers: Annotated[int, typer.Option(min=1, help="Heaps at once on a local process pool.")] = 1,
     dask: Annotated[Optional[str], typer.Option(help="Run the heaps on a Dask cluster: a scheduler address or "
                                                 "'local'.")] = None,
-    scatter: Annotated[Optional[bool], typer.Option("--scatter/--no-scatter", help="Weigh each condition's pile "
-                                                    "scatter (default: wherever the simulated scatter changes with "
-                                                    "the parameters).", show_default=False)] = None,
-    profile: Annotated[Optional[bool], typer.Option("--profile/--no-profile", help="Weigh each condition's heap "
-                                                    "profile (default: wherever the photographs and the heaps' side "
-                                                    "views give one).", show_default=False)] = None,
-    columns: Annotated[Optional[bool], typer.Option("--columns/--no-columns", help="Weigh the share of each "
-                                                    "condition's piles that stood as columns (default: wherever the "
-                                                    "photographs were measured and some simulated fill stood).",
-                                                    show_default=False)] = None,
+    scatter: ScatterOpt = None,
+    profile: ProfileOpt = None,
+    columns: ColumnsOpt = None,
     views: SideViewsOpt = False,
     walkers: Annotated[int, typer.Option("--walkers", min=2, help="emcee walkers.")] = 32,
     steps: Annotated[int, typer.Option("--steps", min=10, help="Steps per walker, each round; the answer (the "

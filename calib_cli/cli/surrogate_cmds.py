@@ -9,8 +9,9 @@ import typer
 from rich.markup import escape
 
 from ..errors import CalibError
-from .common import (ForceOpt, PresetOpt, ResponsesOpt, RunOpt, SettingOpt, SettingsOpt, ShearModulusOpt,
-                     SideViewsOpt, check_run_dir, console, df_table, posterior_table, say, skipped)
+from .common import (ColumnsOpt, ForceOpt, PresetOpt, ProfileOpt, ResponsesOpt, RunOpt, ScatterOpt, SettingOpt,
+                     SettingsOpt, ShearModulusOpt, SideViewsOpt, check_run_dir, console, df_table, posterior_table, say,
+                     skipped)
 
 
 def fit_surrogate(run: RunOpt, responses: ResponsesOpt = None,
@@ -135,23 +136,9 @@ def calibrate_posterior(
                                         "many points spread over the 90 % intervals (a Latin hypercube), to "
                                         "simulate at the measured conditions with simulate-heap --design, so "
                                         "the surrogate learns where the posterior lies; then run this again.")] = 0,
-    scatter: Annotated[Optional[bool], typer.Option("--scatter/--no-scatter", help="Weigh each condition's "
-                                                    "pile-to-pile scatter as well as its mean: cohesive heaps scatter "
-                                                    "more than dry ones of the same mean angle. It assumes the lab's "
-                                                    "piles scatter as the simulated ones do (no operator or photo "
-                                                    "scatter beyond). Default: wherever the simulated scatter changes "
-                                                    "with the parameters.", show_default=False)] = None,
-    profile: Annotated[Optional[bool], typer.Option("--profile/--no-profile", help="Weigh each condition's heap "
-                                                    "profile as well as its angle: the photographs' mean fullness (1 "
-                                                    "for a cone's straight flanks, above 1 for convex ones) against "
-                                                    "the simulated heaps' side views. It assumes the photographs show "
-                                                    "the heap's silhouette as the side views do. Default: wherever the "
-                                                    "photographs and enough heaps give one.", show_default=False)] = None,
-    columns: Annotated[Optional[bool], typer.Option("--columns/--no-columns", help="Weigh how many of each "
-                                                    "condition's photographed piles stood as columns, against the "
-                                                    "chance that a simulated fill stands. Default: wherever the "
-                                                    "photographs were measured and some simulated fill stood.",
-                                                    show_default=False)] = None,
+    scatter: ScatterOpt = None,
+    profile: ProfileOpt = None,
+    columns: ColumnsOpt = None,
     views: SideViewsOpt = False,
     force: ForceOpt = False,
 ):
