@@ -132,22 +132,27 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Rerun even if inputs an
 SideViewsOpt = Annotated[bool, typer.Option("--side-views", help="The surrogates learn each simulated heap from the "
                                            "mean of its 4 side views instead of the one a photograph has (where every "
                                            "heap in the fit recorded them; heaps from older versions did not); the "
-                                           "sample pipelines use it after `calib model add`: docs/method.md.")]
-ScatterOpt = Annotated[Optional[bool], typer.Option(
-    "--scatter/--no-scatter", show_default=False,
-    help="Weigh each condition's pile-to-pile scatter as well as its mean: cohesive heaps scatter more than dry ones "
-         "of the same mean angle. It assumes the lab's piles scatter as the simulated ones do (no operator or photo "
-         "scatter beyond). Default: wherever the simulated scatter changes with the parameters.")]
-ProfileOpt = Annotated[Optional[bool], typer.Option(
-    "--profile/--no-profile", show_default=False,
-    help="Weigh each condition's heap profile as well as its angle: the photographs' mean fullness (1 for a cone's "
-         "straight flanks, above 1 for convex ones) against the simulated heaps' side views. It assumes the "
-         "photographs show the heap's silhouette as the side views do. Default: wherever the photographs and enough "
-         "heaps give one.")]
-ColumnsOpt = Annotated[Optional[bool], typer.Option(
-    "--columns/--no-columns", show_default=False,
-    help="Weigh how many of each condition's photographed piles stood as columns, against the chance that a "
-         "simulated fill stands. Default: wherever the photographs were measured and some simulated fill stood.")]
+                                           "hidden-effect and control pipelines use it after `calib model add`: "
+                                           "docs/method.md.")]
+
+
+def _evidence_switch(name: str, help: str):
+    """A --NAME/--no-NAME option for one piece of the posterior's evidence; unset (None) means the default."""
+    return Annotated[Optional[bool], typer.Option(f"--{name}/--no-{name}", show_default=False, help=help)]
+
+
+ScatterOpt = _evidence_switch(
+    "scatter", "Weigh each condition's pile-to-pile scatter as well as its mean: cohesive heaps scatter more than dry "
+    "ones of the same mean angle. It assumes the lab's piles scatter as the simulated ones do (no operator or photo "
+    "scatter beyond). Default: wherever the simulated scatter changes with the parameters.")
+ProfileOpt = _evidence_switch(
+    "profile", "Weigh each condition's heap profile as well as its angle: the photographs' mean fullness (1 for a "
+    "cone's straight flanks, above 1 for convex ones) against the simulated heaps' side views. It assumes the "
+    "photographs show the heap's silhouette as the side views do. Default: wherever the photographs and enough heaps "
+    "give one.")
+ColumnsOpt = _evidence_switch(
+    "columns", "Weigh how many of each condition's photographed piles stood as columns, against the chance that a "
+    "simulated fill stands. Default: wherever the photographs were measured and some simulated fill stood.")
 AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", min=0, help="Do nothing unless the model is at "
                                                      "this revision (a pipeline's step for one revision).",
                                                      show_default=False)]
