@@ -23,9 +23,9 @@ import os
 import platform
 import time
 
-import numba
 # first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
 importlib.import_module("calib_cli")
+import numba
 import numpy as np
 
 from calib_cli.dem import gpu

@@ -10,8 +10,11 @@ fresh fill's.
     NUMBA_NUM_THREADS=1 python benchmarks/heap_phases.py [--steps 2000]
 """
 import argparse
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numba
 
 from calib_cli.dem.heap import PRESETS, HeapTest

@@ -14,8 +14,11 @@ The table gives the wall time and the steps of each heap and both as ratios to t
 from __future__ import annotations
 
 import argparse
+import importlib
 import time
 
+# first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
+importlib.import_module("calib_cli")
 import numba
 
 from calib_cli.dem import heap

@@ -20,9 +20,9 @@ import importlib
 import sys
 from pathlib import Path
 
-import numba
 # first: calib_cli pins OpenBLAS's kernels before numpy loads, as the command line does (calib_cli/blas.py)
 importlib.import_module("calib_cli")
+import numba
 import numpy as np
 import pandas as pd
 

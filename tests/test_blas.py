@@ -54,9 +54,13 @@ def test_importing_calib_first_loads_numpy_and_scipy_with_the_avx2_kernels():
     assert out.stdout.strip() == "['Haswell']"
 
 
+#: a top-level import that loads numpy (numba and the others import it themselves)
+NUMPY_USERS = r"(import|from) (numpy|pandas|scipy|numba|cv2|torch|matplotlib|statsmodels|pyarrow|sklearn|emcee)\b"
+
+
 def test_every_benchmark_that_uses_calib_pins_before_numpy_loads():
     """A benchmark that refits a posterior must compute on the kernels `calib` computes on, so calib_cli
-    (its pin) is imported before numpy, pandas or scipy at the top of each script that uses both."""
+    (its pin) is imported before numpy, or any library that loads it, at the top of each script that uses both."""
     import re
     from pathlib import Path
 
@@ -64,7 +68,7 @@ def test_every_benchmark_that_uses_calib_pins_before_numpy_loads():
     for p in sorted((Path(__file__).parent.parent / "benchmarks").glob("*.py")):
         lines = p.read_text().splitlines()
         first = lambda pat: next((i for i, s in enumerate(lines) if re.match(pat, s)), None)  # noqa: E731
-        np_at = first(r"(import|from) (numpy|pandas|scipy)\b")
+        np_at = first(NUMPY_USERS)
         calib_at = first(r"\s*(import calib_cli|from calib_cli|importlib\.import_module\(\"calib_cli\"\))")
         if np_at is not None and calib_at is not None and calib_at > np_at:
             late.append(p.name)
