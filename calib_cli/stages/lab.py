@@ -20,7 +20,7 @@ from ..heaps.inputs import Pairs, given_pairs as pairs
 from ..heaps.keys import RUNS
 from ..heaps.runner import run_campaign
 from ..model import EFFECTS
-from .common import checked
+from .common import checked, stage
 
 
 def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:
@@ -101,8 +101,8 @@ def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: st
     meta = {"hidden_effect": hidden, "parameters": truth, "preset": preset, "seed": seed,
             **({"engine": engine} if engine != "builtin" else {}), **({"px_per_m": px_per_m} if px_per_m != 6000 else {}),
             **modulus_settings(shear_modulus)}
-    st = art.Stage(out.parent, out.name, "synth-lab",
-                   settings={"requests": [q.hash for q in reqs], "noise": noise, "px_per_m": px_per_m, **meta})
+    st = stage(out.parent, out.name, "synth-lab", version="synth-lab",
+               settings={"requests": [q.hash for q in reqs], "noise": noise, "px_per_m": px_per_m, **meta})
     if st.up_to_date() and not force:
         return LabResult(out, _recorded_rows(out), len(conds), skipped=True)
     _engine_ready(engine)
