@@ -892,7 +892,10 @@ def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     h = verdicts(table, samples, ratio=0.3, prior="heaps").set_index("parameter")
     assert "simulate heaps beyond it (the prior is the span of the heaps at hand" in h.loc["restitution", "verdict"]
     assert t.loc["surface_energy", "edge"] == "" and t.loc["rolling_friction", "edge"] == ""
-    assert t.loc["rolling_friction", "identified"]
+    # the box cuts the whole posterior: the narrow rolling friction is known inside it only
+    assert (t["box_cut"] == "restitution high").all() and not t["identified"].any()
+    assert t.loc["rolling_friction", "verdict"].startswith("inside this box only: 90 % between 0.14 and 0.16, while "
+                                                           "the box cuts the posterior at restitution's upper edge")
     # the rule's threshold: a flat posterior puts a quarter of EDGE_SHARE in the band; at its physical bound
     # (restitution 1.0) nothing can be widened
     assert pressed_edge(rng.uniform(0.1, 0.5, 20000), 0.1, 0.5) == ""
@@ -900,6 +903,37 @@ def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     assert EDGE_SHARE > 0.025
     from calib_cli.model import EFFECTS
     assert pressed_edge(np.full(100, 0.99), 0.5, 1.0, EFFECTS["restitution"]) == ""
+
+
+def test_no_effect_verdict_while_the_box_cuts_the_posterior():
+    """Static friction crowding its box's top (0.7 of a physical 1.0) while cohesion is plainly on: the
+    Bayes factor is still reported, but the verdict is withheld ("cut"), since beyond the box friction
+    could stand in for cohesion; the same draws with friction inside the box give "on". Withheld too
+    where two parameters press, and the words name both edges."""
+    from calib_cli.posterior.evidence import cut_words, effect_verdict, verdicts, widen_advice
+
+    rng = np.random.default_rng(5)
+    table = pd.DataFrame({"parameter": ["static_friction", "surface_energy"], "median": [0.68, 0.6],
+                          "q05": [0.62, 0.45], "q95": [0.699, 0.75], "low": [0.3, 0.0], "high": [0.7, 1.6],
+                          "rel_width": [0.2, 0.19], "identified": [True, True], "n_eff": [4000.0] * 2})
+    se = rng.uniform(0.45, 0.75, 5000)
+    pressed = pd.DataFrame({"static_friction": 0.7 - np.abs(rng.normal(0, 0.02, 5000)), "surface_energy": se})
+    inside = pressed.assign(static_friction=rng.normal(0.5, 0.03, 5000))
+    cut = verdicts(table, pressed, ratio=0.3).set_index("parameter").loc["surface_energy"]
+    free = verdicts(table, inside, ratio=0.3).set_index("parameter").loc["surface_energy"]
+    assert free["identified"] and effect_verdict(free["bf_off"], free["bf_upper"], free["decided"],
+                                                 free["box_cut"]) == "on"
+    assert cut["box_cut"] == "static_friction high" and not cut["identified"] and cut["bf_off"] == free["bf_off"]
+    assert effect_verdict(cut["bf_off"], cut["bf_upper"], cut["decided"], cut["box_cut"]) == "cut"
+    assert "no verdict while the box cuts the posterior (inside it: the data call for it)" in cut["verdict"]
+    # the surrogate unsure comes first: nothing more can be said
+    assert effect_verdict(0.01, False, False, "static_friction high") == "undecided"
+    assert cut_words("static_friction high, restitution low") == ("static_friction's upper edge and restitution's "
+                                                                  "lower edge")
+    # what `calib calibrate` prints after the answer: the ranges to widen, none where the box cuts nothing
+    whole = verdicts(table, pressed, ratio=0.3)
+    assert "widen factors.static_friction.high in settings.toml" in widen_advice(whole)
+    assert widen_advice(verdicts(table, inside, ratio=0.3)) == "" and widen_advice(whole.drop(columns="box_cut")) == ""
 
 
 def test_the_surrogate_and_the_sampler_say_what_they_lack_in_one_line():

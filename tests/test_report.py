@@ -132,7 +132,9 @@ def test_the_posterior_section_shows_the_rounds_the_corner_plot_and_the_surrogat
 
 def test_first_screen_flags_an_interval_its_box_cut(tmp_path):
     """A posterior crowding the top of its prior (the LAMMPS lab's restitution of 2026-11-27: 0.438-0.498 of
-    0.1-0.5, truth 0.3): a red 'at upper edge', not 'identified', and the headline says to widen the range."""
+    0.1-0.5, truth 0.3): a red 'at upper edge', not 'identified', and the headline says to widen the range.
+    The box cuts the whole posterior: the other parameters are known inside it only and cohesion gets no
+    verdict, its Bayes factor shown."""
     run = tmp_path / "run"
     shutil.copytree(RUNS / "foreign-lab", run, ignore=shutil.ignore_patterns("runs", ".runs"))
     path = run / "posterior" / "summary.parquet"
@@ -141,6 +143,7 @@ def test_first_screen_flags_an_interval_its_box_cut(tmp_path):
     table.loc[at, ["median", "q05", "q95", "rel_width", "edge"]] = [0.482, 0.438, 0.498, 0.15, "high"]
     table[["surrogate_ratio", "decided"]] = [0.79, True]  # that run's surrogates were sure enough
     table.loc[~at, "edge"] = ""
+    table["box_cut"] = "restitution high"
     art.write_table(path, table, meta)
     lock = run / "posterior" / "sample.lock.json"  # the edit is this test's, not a corrupt artefact
     record = json.loads(lock.read_text())
@@ -150,6 +153,10 @@ def test_first_screen_flags_an_interval_its_box_cut(tmp_path):
     assert "restitution</td><td>0.482</td>" in top and ">at upper edge<" in top
     assert "Pressed against an edge of its range, so cut by it: restitution" in top
     assert ">identified<" not in top.split("restitution</td>")[1].split("</tr>")[0]
+    assert top.count(">inside the box only<") == 3 and ">no verdict: the box cuts the posterior<" in top
+    assert "No verdict: the box cuts the posterior at restitution&#x27;s upper edge" in top
+    assert "Cohesion: no verdict while the box cuts the posterior (Bayes factor of off 2.9)" in top
+    assert "Known inside the box only, which cuts the posterior:" in top
 
 
 def test_first_screen_degrades_on_the_paper_and_smoke_runs():

@@ -59,6 +59,7 @@ def calibrate(
     draw: what compare and diagnose simulate) and RUN/posterior/. A rerun goes on from the last
     finished round; Ctrl-C loses only the heaps in flight.
     """
+    from ..posterior.evidence import widen_advice
     from ..stages.calibrate import calibrate as run_calibration
 
     # a bar on a terminal only: piped, the transient bar left an empty line before every message
@@ -78,6 +79,9 @@ def calibrate(
         console.print(f"[green]✓[/] calibrate rev{r.revision}: inputs and settings unchanged, nothing to do "
                       "(use --force to rerun)")
     show_calibration(r)
+    widen = widen_advice(r.table)
+    if widen:
+        console.print(f"[yellow]![/] {widen} (`calib calibrate --run {run}`)")
     console.print(f"next: `calib compare --run {run}` simulates the most probable draw at every condition; "
                   f"`calib suggest-conditions --run {run} --rig RIG.toml` names the conditions to measure next")
 

@@ -297,7 +297,12 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against; a
     posterior pressed against a bound of its box that could be wider (``edge``: low/high, see
     :func:`pressed_edge`) is not called identified: its width is the box's, not the data's, and the verdict
-    says how to widen the box of this ``prior`` (:data:`PRIORS`)."""
+    says how to widen the box of this ``prior`` (:data:`PRIORS`). Nor is any other parameter, nor does an
+    effect's Bayes factor give a verdict (``box_cut`` names the pressed ones): the likelihood's peak may lie
+    beyond the box, and the parameters that trade off with the pressed one sit where they compensate for the
+    bound (on the cohesive LAMMPS lab surface energy's interval, 0.22-0.51 J/m2 with static friction and
+    restitution at their boxes' tops, missed the truth 0.6; docs/method.md, "A box that cuts the
+    posterior")."""
     owner = {e.parameter: e for e in EFFECTS.values()}
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
@@ -309,7 +314,10 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     table["surrogate_ratio"], table["decided"] = float(ratio), not unsure
     table["edge"] = [pressed_edge(samples[r.parameter].to_numpy(float), r.low, r.high, owner.get(r.parameter),
                                   r.neutral) for r in table.itertuples()]
-    table["identified"] = table["identified"] & (not unsure) & (table["edge"] == "")
+    pressed = table["edge"] != ""
+    table["box_cut"] = ", ".join(f"{p} {e}" for p, e in zip(table.loc[pressed, "parameter"],
+                                                             table.loc[pressed, "edge"]))
+    table["identified"] = table["identified"] & (not unsure) & (not pressed.any())
     table["verdict"] = [_words(r, owner, unsure, prior) for r in table.itertuples()]
     return table
 
@@ -374,6 +382,10 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
         w = (f"at its range's {'lower' if r.edge == 'low' else 'upper'} edge: 90 % between {r.q05:.3g} and "
              f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it ({_widen(r, prior)}) or the model "
              "lacks an effect")
+    elif r.box_cut:
+        w = (f"inside this box only: 90 % between {r.q05:.3g} and {r.q95:.3g}, while the box cuts the posterior at "
+             f"{cut_words(r.box_cut)} (widen {'those ranges' if ', ' in r.box_cut else 'that range'} and calibrate "
+             "again)")
     elif r.identified:
         w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
     else:
@@ -383,16 +395,45 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
         name = owner[r.parameter].name
         say = ("undecided" if unsure else "the data call for it" if r.bf_off < BF_NEEDED
                else "the data favour it off" if r.bf_off > BF_OFF else "the data do not decide")
+        if r.box_cut and not unsure:
+            say = f"no verdict while the box cuts the posterior (inside it: {say})"
         w += (f"; {name} off ({r.parameter} = {r.neutral:g}) against on: Bayes factor "
               f"{bf_text(r.bf_off, r.bf_upper)}, {say}")
     return w
 
 
-def effect_verdict(bf: float, upper: bool, decided: bool) -> str:
-    """A switchable effect's verdict in one word: on, off, undecided or open (the data do not decide)."""
+def cut_words(box_cut: str) -> str:
+    """"static_friction's upper edge" from :func:`verdicts`' ``box_cut`` ("static_friction high"), joined by "and"."""
+    pairs = (q.rsplit(" ", 1) for q in box_cut.split(", "))
+    said = [f"{p}'s {'lower' if e == 'low' else 'upper'} edge" for p, e in pairs]
+    return ", ".join(said[:-1]) + " and " + said[-1] if len(said) > 1 else said[0]
+
+
+def widen_advice(table: pd.DataFrame) -> str:
+    """Where the box cuts a posterior (:func:`verdicts`' ``box_cut``), which ranges to widen; "" where it does not."""
+    cut = str(box_cuts(table).iloc[0]) if len(table) else ""
+    if not cut:
+        return ""
+    ranges = ", ".join(f"factors.{p}.{e}" for p, e in (q.rsplit(" ", 1) for q in cut.split(", ")))
+    return (f"the box cuts the posterior at {cut_words(cut)}: widen {ranges} in settings.toml (within the effect's "
+            "bounds, `calib model show`) and calibrate again; the heaps at hand inside the new box are used")
+
+
+def effect_verdict(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
+    """A switchable effect's verdict in one word: on, off, undecided, open (the data do not decide) or cut
+    (the box cuts the posterior: ``cut`` is :func:`verdicts`' ``box_cut``)."""
     if not decided or not np.isfinite(bf):
         return "undecided" if not decided else ""
+    if cut:
+        return "cut"
     return "on" if bf < BF_NEEDED else "off" if bf > BF_OFF and not upper else "open"
+
+
+def box_cuts(table: pd.DataFrame) -> pd.Series:
+    """Each row's ``box_cut`` of a summary or rounds table ("" in one written before the column existed)."""
+    if "box_cut" not in table.columns:
+        return pd.Series("", index=table.index, dtype=object)
+    return table["box_cut"].fillna("").astype(str)
 
 
 # ------------------------------------------------------------------ the fit

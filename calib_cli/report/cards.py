@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ..model import EFFECTS
-from ..posterior.evidence import bf_text, edges, effect_verdict
+from ..posterior.evidence import bf_text, box_cuts, cut_words, edges, effect_verdict
 from ..posterior.suggest import any_ranked, best_per_effect
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
@@ -171,20 +171,22 @@ def ranking_card(f: RunFiles) -> str:
                        "<a href='#discrepancy'>Discrepancy loop</a>.", "prov"))
 
 
-def _effect_badge(bf: float, upper: bool, decided: bool) -> str:
-    word = effect_verdict(bf, upper, decided)
+def _effect_badge(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
+    word = effect_verdict(bf, upper, decided, cut)
     return {"on": badge("called for", "fail"), "off": badge("favoured off", "pass"),
             "open": badge("not decided", "warn"),
-            "undecided": badge("undecided: the surrogate is unsure", "warn")}.get(word, "")
+            "undecided": badge("undecided: the surrogate is unsure", "warn"),
+            "cut": badge("no verdict: the box cuts the posterior", "warn")}.get(word, "")
 
 
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     rows = []
-    for r, edge, off in zip(post.itertuples(index=False), edges(post), favoured_off(post)):
+    for r, edge, off, cut in zip(post.itertuples(index=False), edges(post), favoured_off(post), box_cuts(post)):
         decided = bool(getattr(r, "decided", True))
         at_edge = badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail") if edge else ""
         state = (badge("undecided", "warn") + (" " + at_edge if at_edge else "") if not decided
                  else at_edge if edge
+                 else badge("inside the box only", "warn") if cut
                  else badge(f"off, P(off) {r.p_off:.2f}", "pass") if off
                  else badge(f"identified, {100 * r.rel_width:.0f} % of range", "pass") if r.identified
                  else badge(f"{100 * r.rel_width:.0f} % of range", "warn"))
@@ -203,8 +205,8 @@ def _effects_table(post: pd.DataFrame) -> str:
     rows = [[esc(owner.get(r.parameter, r.parameter)), esc(bf_text(r.bf_off, bool(getattr(r, "bf_upper", False)))),
              num(p_off(r), 2) if np.isfinite(p_off(r))
              else "not averaged: the Bayes factor is a bound" if getattr(r, "bf_upper", False) else "&ndash;",
-             _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)))]
-            for r in eff.itertuples(index=False)]
+             _effect_badge(r.bf_off, bool(getattr(r, "bf_upper", False)), bool(getattr(r, "decided", True)), cut)]
+            for r, cut in zip(eff.itertuples(index=False), box_cuts(eff))]
     return rows_table(["effect", "Bayes factor of off", "probability off (the intervals average it)", ""], rows,
                       "compact") + note("Bayes factor of off: how much more probable the data are with the effect "
                                         "off than with it on; below 0.1 they call for it, above 3 they favour it off "
@@ -258,6 +260,11 @@ def posterior_card(f: RunFiles) -> str:
         body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
                      f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
+    elif box_cuts(post).iloc[0]:
+        body += note(f"No verdict: the box cuts the posterior at {esc(cut_words(box_cuts(post).iloc[0]))}, so the data "
+                     "may lie beyond it and the other parameters sit where they make up for the bound. Widen each "
+                     "such range in settings.toml ([factors]) and run <code>calib calibrate</code> again; if the posterior "
+                     "follows the edge out to the parameter's physical bound, the model lacks an effect.", "prov")
     corner = (" Every pair of parameters: <a href='#posterior'>the posterior's corner plot</a>."
               if (f.run / "posterior" / "corner.png").is_file() else "")
     body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "

@@ -204,26 +204,30 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
     each added effect's verdict with its Bayes factor."""
     from ..model import EFFECTS
-    from ..posterior.evidence import bf_text, edges, effect_verdict
+    from ..posterior.evidence import bf_text, box_cuts, edges, effect_verdict
 
     edge = edges(post) != ""
     cut = list(post.loc[edge, "parameter"])
     pressed = (f" Pressed against an edge of its range, so cut by it: {words(cut)} (widen the range in settings.toml, "
                "or the model lacks an effect)." if cut else "")
+    boxed = str(box_cuts(post).iloc[0]) if len(post) else ""
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').{pressed}")
     off = favoured_off(post)
     ident = list(post.loc[post["identified"].astype(bool) & ~off, "parameter"])
     loose = list(post.loc[~post["identified"].astype(bool) & ~edge & ~off, "parameter"])
+    why = ("known inside the box only, which cuts the posterior" if boxed
+           else "not identified (90 % interval over a fifth of its range)")
     text = (f" Identified by the data: {words(ident)}." if ident else "") + \
-        (f" Not identified (90 % interval over a fifth of its range): {words(loose)}." if loose else "") + pressed
+        (f" {why[0].upper() + why[1:]}: {words(loose)}." if loose else "") + pressed
     owner = {e.parameter: e.name for e in EFFECTS.values()}
     said = {"on": "the data call for it", "off": "the data favour it off", "open": "the data do not decide",
-            "undecided": "undecided, the surrogate is unsure where the posterior lies"}
+            "undecided": "undecided, the surrogate is unsure where the posterior lies",
+            "cut": "no verdict while the box cuts the posterior"}
     for r in post[post["bf_off"].notna()].itertuples(index=False) if "bf_off" in post.columns else []:
         upper = bool(getattr(r, "bf_upper", False))
-        word = effect_verdict(r.bf_off, upper, bool(getattr(r, "decided", True)))
+        word = effect_verdict(r.bf_off, upper, bool(getattr(r, "decided", True)), boxed)
         text += (f" {esc(owner.get(r.parameter, r.parameter)).capitalize()}: {said.get(word, '')} "
                  f"(Bayes factor of off {esc(bf_text(r.bf_off, upper))}).")
     return text

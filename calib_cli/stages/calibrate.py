@@ -29,9 +29,9 @@ from ..measurements import CONDITIONS, measured_conditions
 from ..model import MODEL_FILE, Model, load_model
 from ..posterior.adaptive import RULES, acquire, first_design, reference_round, stop_reason
 from ..posterior.calibrate import check_sampler, response_variances
-from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, effect_verdict, evidence_lock, fit_posterior,
-                                  heaps_needed, in_box, model_rows, model_surrogate, most_probable, prior_bounds,
-                                  profile_rows, second_response, settings_ranges, summary_view,
+from ..posterior.evidence import (FULLNESS, RESPONSE, PosteriorFit, box_cuts, effect_verdict, evidence_lock,
+                                  fit_posterior, heaps_needed, in_box, model_rows, model_surrogate, most_probable,
+                                  prior_bounds, profile_rows, second_response, settings_ranges, summary_view,
                                   write_posterior)
 from ..posterior.gp import informative_conditions
 from ..heaps.inputs import (COND_VARS, check_engine, condition_from_row, content_seed, heap_engine, heap_precision,
@@ -295,9 +295,10 @@ def _at_hand(run: Path, model: Model) -> pd.DataFrame:
 
 
 def _effect_words(table: pd.DataFrame) -> list[str]:
-    """Each switchable effect's verdict in a word (on, off, open, undecided), in the table's order."""
+    """Each switchable effect's verdict in a word (on, off, open, undecided, cut), in the table's order."""
     ok = table["bf_off"].notna()
-    return [effect_verdict(b, u, d) for b, u, d in zip(table["bf_off"][ok], table["bf_upper"][ok], table["decided"][ok])]
+    return [effect_verdict(b, u, d, c) for b, u, d, c in
+            zip(table["bf_off"][ok], table["bf_upper"][ok], table["decided"][ok], box_cuts(table)[ok])]
 
 
 def _record(rnd: Round, new: int, revision: int) -> pd.DataFrame:
@@ -311,7 +312,9 @@ def _record(rnd: Round, new: int, revision: int) -> pd.DataFrame:
         "calibration_heaps": rnd.spent, "heaps": rnd.heaps, "parameter": t["parameter"], "median": t["median"],
         "q05": t["q05"], "q95": t["q95"], "low": t["low"], "high": t["high"], "rel_width": t["rel_width"],
         "identified": t["identified"], "bf_off": t["bf_off"], "bf_upper": t["bf_upper"],
-        "effect": [effect_verdict(b, u, d) for b, u, d in zip(t["bf_off"], t["bf_upper"], t["decided"])],
+        "effect": [effect_verdict(b, u, d, c) for b, u, d, c in zip(t["bf_off"], t["bf_upper"], t["decided"],
+                                                                     box_cuts(t))],
+        "box_cut": box_cuts(t),
         "surrogate_ratio": rnd.ratios["combined"], "ratio_angle": rnd.ratios.get(RESPONSE, math.nan),
         "ratio_profile": rnd.ratios.get(FULLNESS, math.nan), "rmse_angle": rmse[RESPONSE],
         "rmse_profile": rmse[FULLNESS], "scatter": bool(rnd.evidence.get("scatter")),

@@ -57,9 +57,11 @@ R = TypeVar("R")
 #: compare 2: chi2/dof divides by the degrees of freedom the fit took from the measured means, not C - p;
 #: 3: its figures tell the conditions apart and draw chi2/dof beside the RMSE
 #: synth-lab 1: a synthetic lab's photographs, conditions.csv and truth.toml (its folder is the stage's group)
+#: posterior 11, calibrate 4, calibrate-answer 6: while a parameter presses against an edge of its box no
+#: parameter is identified and no effect gets a verdict (the `box_cut` column)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 10, "suggest": 5, "calibrate": 3,
-                 "calibrate-answer": 5, "synth-lab": 1}
+                 "diagnose": 2, "posterior": 11, "suggest": 5, "calibrate": 4,
+                 "calibrate-answer": 6, "synth-lab": 1}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
