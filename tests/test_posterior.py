@@ -894,8 +894,9 @@ def test_a_posterior_pressed_against_a_bound_it_could_pass_is_not_identified():
     assert t.loc["surface_energy", "edge"] == "" and t.loc["rolling_friction", "edge"] == ""
     # the box cuts the whole posterior: the narrow rolling friction is known inside it only
     assert (t["box_cut"] == "restitution high").all() and not t["identified"].any()
-    assert t.loc["rolling_friction", "verdict"].startswith("inside this box only: 90 % between 0.14 and 0.16, while "
-                                                           "the box cuts the posterior at restitution's upper edge")
+    assert t.loc["rolling_friction", "verdict"].startswith("inside this box only: 90 % between 0.14 and 0.16 (10 % of "
+                                                           "its range), while the box cuts the posterior at "
+                                                           "restitution's upper edge")
     # the rule's threshold: a flat posterior puts a quarter of EDGE_SHARE in the band; at its physical bound
     # (restitution 1.0) nothing can be widened
     assert pressed_edge(rng.uniform(0.1, 0.5, 20000), 0.1, 0.5) == ""
@@ -928,6 +929,15 @@ def test_no_effect_verdict_while_the_box_cuts_the_posterior():
     assert "no verdict while the box cuts the posterior (inside it: the data call for it)" in cut["verdict"]
     # the surrogate unsure comes first: nothing more can be said
     assert effect_verdict(0.01, False, False, "static_friction high") == "undecided"
+    unsure = verdicts(table, pressed, ratio=2.0).set_index("parameter").loc["surface_energy"]
+    assert unsure["verdict"].startswith("undecided: the surrogate is unsure") and "box cuts" not in unsure["verdict"]
+    # with the heaps' span as the prior, widening the box means simulating beyond it
+    heaps = verdicts(table, pressed, ratio=0.3, prior="heaps").set_index("parameter").loc["surface_energy"]
+    assert "(simulate heaps beyond it)" in heaps["verdict"] and "widen that range" in cut["verdict"]
+    # the rounds' record and the stop rule read the same word
+    from calib_cli.stages.calibrate import _effect_words
+    assert _effect_words(verdicts(table, pressed, ratio=0.3)) == ["cut"]
+    assert _effect_words(verdicts(table, inside, ratio=0.3)) == ["on"]
     assert cut_words("static_friction high, restitution low") == ("static_friction's upper edge and restitution's "
                                                                   "lower edge")
     # what `calib calibrate` prints after the answer: the ranges to widen, none where the box cuts nothing

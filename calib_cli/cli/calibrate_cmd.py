@@ -81,7 +81,7 @@ def calibrate(
     show_calibration(r)
     widen = widen_advice(r.table)
     if widen:
-        console.print(f"[yellow]![/] {widen} (`calib calibrate --run {run}`)")
+        console.print(f"[yellow]![/] {widen} (`calib calibrate --run {run}` with the same options)")
     console.print(f"next: `calib compare --run {run}` simulates the most probable draw at every condition; "
                   f"`calib suggest-conditions --run {run} --rig RIG.toml` names the conditions to measure next")
 

@@ -323,9 +323,9 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
 
 
 #: the answer's columns a result's ``summary()`` shows (posterior/summary.parquet holds more: ranges, draws'
-#: effective size, the surrogate's ratio, the pressed edge)
-SUMMARY_COLUMNS = ("parameter", "median", "q05", "q95", "rel_width", "identified", "bf_off", "bf_upper",
-                   "autocorr_time", "chain_ok", "verdict")
+#: effective size, the surrogate's ratio, each pressed edge)
+SUMMARY_COLUMNS = ("parameter", "median", "q05", "q95", "rel_width", "identified", "box_cut", "bf_off",
+                   "bf_upper", "autocorr_time", "chain_ok", "verdict")
 
 
 def summary_view(table: pd.DataFrame) -> pd.DataFrame:
@@ -383,9 +383,10 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
              f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it ({_widen(r, prior)}) or the model "
              "lacks an effect")
     elif r.box_cut:
-        w = (f"inside this box only: 90 % between {r.q05:.3g} and {r.q95:.3g}, while the box cuts the posterior at "
-             f"{cut_words(r.box_cut)} (widen {'those ranges' if ', ' in r.box_cut else 'that range'} and calibrate "
-             "again)")
+        more = ("simulate heaps beyond " + ("them" if ", " in r.box_cut else "it") if prior == "heaps"
+                else f"widen {'those ranges' if ', ' in r.box_cut else 'that range'} and calibrate again")
+        w = (f"inside this box only: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its "
+             f"range), while the box cuts the posterior at {cut_words(r.box_cut)} ({more})")
     elif r.identified:
         w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
     else:
@@ -589,10 +590,11 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
     share of the draws from the posterior with the effect's parameter held at its neutral value. Without it,
     a free effect's boundary (surface energy >= 0) pulls the other parameters (rolling friction trades for a
     little cohesion) even where the data favour it off. The Bayes factor and the verdicts stay those of the
-    model with the effect free; a bound (no draw near neutral) averages nothing: P(off) < B / (1 + B)."""
+    model with the effect free; a bound (no draw near neutral) averages nothing: P(off) < B / (1 + B), nor does
+    a Bayes factor the box cuts (:func:`verdicts`: it gives no verdict, so it weighs nothing either)."""
     t = fit.table
     eff = t[np.isfinite(t["bf_off"].to_numpy(float))]
-    if len(eff) != 1 or bool(eff["bf_upper"].iloc[0]):
+    if len(eff) != 1 or bool(eff["bf_upper"].iloc[0]) or str(box_cuts(t).iloc[0]):
         return fit
     r = eff.iloc[0]
     p_off = float(r.bf_off / (1.0 + r.bf_off))

@@ -26,7 +26,9 @@ def _missing(cmd: str, what: str) -> str:
 def _ga_state(p: str, w: float, post) -> str:
     """The GA point's badge: pinned only where the posterior identifies the parameter too."""
     if post is not None and p in post.index:
-        return badge("pinned", "pass") if bool(post.loc[p, "identified"]) else badge("posterior wide", "warn")
+        if bool(post.loc[p, "identified"]):
+            return badge("pinned", "pass")
+        return badge("the box cuts the posterior", "warn") if box_cuts(post).iloc[0] else badge("posterior wide", "warn")
     return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
 
 
@@ -242,6 +244,16 @@ def _point_note(f: RunFiles, rev) -> str:
                 f"simulates; <code>calibrate/point.parquet</code>): {values}.", "prov")
 
 
+def _cut_note(cut: str, prior: str, decided: bool) -> str:
+    """What the card says where the box cuts the posterior (``cut``: the summary's ``box_cut``)."""
+    widen = ("Simulate heaps beyond those edges (the prior is the heaps' span) and run <code>calib calibrate</code>"
+             if prior == "heaps" else "Widen each such range in settings.toml ([factors]) and run "
+             "<code>calib calibrate</code> again")
+    return (("No verdict: t" if decided else "T") + f"he box cuts the posterior at {esc(cut_words(cut))}, so the "
+            "data may lie beyond it and the other parameters sit where they make up for the bound. " + widen
+            + "; if the posterior follows the edge out to the parameter's physical bound, the model lacks an effect.")
+
+
 def posterior_card(f: RunFiles) -> str:
     """The answer: each parameter's median and 90 % interval with its unit, whether identified, each added
     effect's Bayes factor, and what to measure next; or, without a posterior, the command that makes one."""
@@ -260,11 +272,9 @@ def posterior_card(f: RunFiles) -> str:
         body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
                      f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
-    elif box_cuts(post).iloc[0]:
-        body += note(f"No verdict: the box cuts the posterior at {esc(cut_words(box_cuts(post).iloc[0]))}, so the data "
-                     "may lie beyond it and the other parameters sit where they make up for the bound. Widen each "
-                     "such range in settings.toml ([factors]) and run <code>calib calibrate</code> again; if the posterior "
-                     "follows the edge out to the parameter's physical bound, the model lacks an effect.", "prov")
+    if box_cuts(post).iloc[0]:
+        body += note(_cut_note(str(box_cuts(post).iloc[0]), prov.get("prior", "settings"),
+                               "decided" not in post.columns or bool(post["decided"].iloc[0])), "prov")
     corner = (" Every pair of parameters: <a href='#posterior'>the posterior's corner plot</a>."
               if (f.run / "posterior" / "corner.png").is_file() else "")
     body += note(f"Model revision {esc(rev)}, {esc(prov.get('heaps', '?'))} simulated heaps, given "

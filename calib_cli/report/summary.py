@@ -214,7 +214,7 @@ def _posterior_clause(post: pd.DataFrame) -> str:
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
         return (" The posterior gives no verdict yet: the surrogate is unsure where it lies (its variance there "
                 f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means').{pressed}")
-    off = favoured_off(post)
+    off = favoured_off(post) & (boxed == "")  # a Bayes factor the box cuts favours nothing
     ident = list(post.loc[post["identified"].astype(bool) & ~off, "parameter"])
     loose = list(post.loc[~post["identified"].astype(bool) & ~edge & ~off, "parameter"])
     why = ("known inside the box only, which cuts the posterior" if boxed
