@@ -28,7 +28,8 @@ def _ga_state(p: str, w: float, post) -> str:
     if post is not None and p in post.index:
         if bool(post.loc[p, "identified"]):
             return badge("pinned", "pass")
-        return badge("the box cuts the posterior", "warn") if box_cuts(post).iloc[0] else badge("posterior wide", "warn")
+        cut = box_cuts(post).iloc[0]
+        return badge("the box cuts the posterior" if cut else "posterior wide", "warn")
     return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
 
 
