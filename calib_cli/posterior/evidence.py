@@ -403,10 +403,14 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
     return w
 
 
+def cut_pairs(box_cut: str) -> list[tuple[str, str]]:
+    """:func:`verdicts`' ``box_cut`` ("static_friction high, restitution low") as (parameter, edge) pairs."""
+    return [tuple(q.rsplit(" ", 1)) for q in box_cut.split(", ")] if box_cut else []
+
+
 def cut_words(box_cut: str) -> str:
     """"static_friction's upper edge" from :func:`verdicts`' ``box_cut`` ("static_friction high"), joined by "and"."""
-    pairs = (q.rsplit(" ", 1) for q in box_cut.split(", "))
-    said = [f"{p}'s {'lower' if e == 'low' else 'upper'} edge" for p, e in pairs]
+    said = [f"{p}'s {'lower' if e == 'low' else 'upper'} edge" for p, e in cut_pairs(box_cut)]
     return ", ".join(said[:-1]) + " and " + said[-1] if len(said) > 1 else said[0]
 
 
@@ -415,7 +419,7 @@ def widen_advice(table: pd.DataFrame) -> str:
     cut = str(box_cuts(table).iloc[0]) if len(table) else ""
     if not cut:
         return ""
-    ranges = ", ".join(f"factors.{p}.{e}" for p, e in (q.rsplit(" ", 1) for q in cut.split(", ")))
+    ranges = ", ".join(f"factors.{p}.{e}" for p, e in cut_pairs(cut))
     return (f"the box cuts the posterior at {cut_words(cut)}: widen {ranges} in settings.toml (within the effect's "
             "bounds, `calib model show`) and calibrate again; the heaps at hand inside the new box are used")
 

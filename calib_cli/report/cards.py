@@ -273,8 +273,9 @@ def posterior_card(f: RunFiles) -> str:
         body += note(f"No verdict: where the posterior lies the surrogate's own variance is "
                      f"{num(post['surrogate_ratio'].iloc[0], 2)}x the measured means'; simulate heaps there "
                      "(<code>calib calibrate</code> with a larger budget).", "prov")
-    if box_cuts(post).iloc[0]:
-        body += note(_cut_note(str(box_cuts(post).iloc[0]), prov.get("prior", "settings"),
+    cut = str(box_cuts(post).iloc[0])
+    if cut:
+        body += note(_cut_note(cut, prov.get("prior", "settings"),
                                "decided" not in post.columns or bool(post["decided"].iloc[0])), "prov")
     corner = (" Every pair of parameters: <a href='#posterior'>the posterior's corner plot</a>."
               if (f.run / "posterior" / "corner.png").is_file() else "")
