@@ -319,6 +319,21 @@ def test_the_pile_log_variance_carries_the_scatter_process_s_covariance_through_
     assert np.all(np.linalg.eigvalsh(cov) > -1e-12)
 
 
+def test_the_scatter_s_blocks_a_chunk_of_groups_at_a_time_equal_those_of_one_call_bit_for_bit(scatter_gp):
+    """The posterior's start predicts 1,600 groups at once: chunked, each block and mean is the same float as
+    from one call over every point (which a committed run's chains depend on)."""
+    from calib_cli.posterior import gp as gpmod
+
+    fit = scatter_gp.scatter_
+    G = np.random.default_rng(3).random((2 * gpmod.GROUPS_AT_ONCE + 5, 3, 3))
+    b, m, k = G.shape
+    mean, cov = fit.gp.predict(G.reshape(-1, k), return_cov=True)
+    idx = np.arange(b)
+    whole = (fit.z_mean + fit.z_sd * mean.reshape(b, m), fit.z_sd ** 2 * cov.reshape(b, m, b, m)[idx, :, idx, :])
+    chunked = fit.log_variance_joint(G)
+    assert np.array_equal(chunked[0], whole[0]) and np.array_equal(chunked[1], whole[1])
+
+
 def test_the_scatter_process_recovers_a_constant_scatter_from_groups_of_three():
     from calib_cli.posterior.gp import _fit_log_variance
 
