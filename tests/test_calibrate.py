@@ -176,6 +176,32 @@ def test_calibrate_runs_rounds_until_stable_and_writes_its_artefacts(lab):
     assert again.skipped and len(calls) == rounds["round"].max() + 1
 
 
+def test_with_two_workers_the_held_out_scores_run_beside_the_chains_and_come_out_the_same(lab, tmp_path, monkeypatch):
+    """More than one worker: each posterior's held-out scores are computed in a second process while the chains
+    run (calib_cli.pool.beside), and every table is the one a single worker writes, bit for bit."""
+    from calib_cli import pool
+    from calib_cli.stages.calibrate import calibrate
+
+    run, calls = lab
+    other = tmp_path / "one"
+    shutil.copytree(run, other)
+    used, real = [], pool.beside
+
+    def counted(fn, *args):
+        used.append(fn.__name__)
+        return real(fn, *args)
+
+    monkeypatch.setattr(pool, "beside", counted)
+    kw = dict(budget=60, first=60, walkers=16, steps=200, **QUIET)
+    calibrate(run, workers=2, **kw)
+    assert used == ["held_out", "held_out"]  # round 0's posterior and the answer's
+    calibrate(other, workers=1, **kw)
+    assert len(used) == 2
+    for f in ("posterior/surrogates.parquet", "posterior/summary.parquet", "posterior/samples.parquet",
+              "calibrate/rev0/round-00/surrogates.parquet", "calibrate/rounds.parquet"):
+        assert art.read_table(run / f).equals(art.read_table(other / f)), f
+
+
 def test_with_side_views_the_surrogates_learn_each_heap_from_their_mean_and_only_then(lab, monkeypatch):
     """--side-views: the rounds' surrogates learn from the heaps' views' mean (their provenance names the share
     of one view's variance it keeps, and the rounds' lock the option); without it, from one view, under the

@@ -752,16 +752,13 @@ def test_a_stopped_pool_ends_its_workers_at_once_and_finishes_no_queued_heap():
     """Ctrl-C reaches every process of the terminal's group: a pool worker ignores it (one that caught it took
     the next queued heap, and the pool's exit waited for it; a second Ctrl-C then hung the command), and the
     parent ends the workers at once, cancelling what is queued."""
-    import concurrent.futures as cf
-    import multiprocessing
     import os
     import signal
     import time
 
-    from calib_cli.heaps import runner as heap_runner
+    from calib_cli.pool import end_pool, spawn_pool
 
-    pool = cf.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=heap_runner._pool_worker, initargs=(os.getpid(),))
+    pool = spawn_pool(2)
     started: set[int] = set()
     deadline = time.time() + 120
     while len(started) < 2 and time.time() < deadline:  # each worker has run its start (a task after it)
@@ -774,7 +771,7 @@ def test_a_stopped_pool_ends_its_workers_at_once_and_finishes_no_queued_heap():
     time.sleep(0.5)
     assert all(p.is_alive() for p in workers)  # the workers left Ctrl-C to their parent
     t0 = time.time()
-    heap_runner._end_pool(pool)
+    end_pool(pool)
     assert time.time() - t0 < 15 and not any(p.is_alive() for p in workers)
     # none of the heaps ran to its end: the queued ones cancelled or failed with the pool, none started anew
     time.sleep(0.5)

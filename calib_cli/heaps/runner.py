@@ -12,9 +12,7 @@ import concurrent.futures as cf
 import contextlib
 import os
 import shutil
-import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -24,6 +22,7 @@ import pandas as pd
 from .. import __version__
 from .. import artifacts as art
 from ..errors import CalibError
+from ..pool import end_pool, spawn_pool
 from ..dem import KERNEL_VERSION
 from ..dem.heap import HeapTest, Numerics, condition_dict, resume, run_heap
 from ..dem.render import side_views
@@ -338,52 +337,15 @@ def _run_on_pool(todo: list[tuple[int, Request]], run_dir: Path, workers: int, f
     as each heap is done. A stop (Ctrl-C, an error) ends the workers at once: the heaps in flight are lost,
     as promised, and no queued one starts (a worker that caught Ctrl-C itself took the next queued heap, and
     the pool's exit waited for it)."""
-    import multiprocessing
-
-    # spawn, not fork: numba's threading layer is not fork-safe once the parent has used it
-    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=_pool_worker, initargs=(os.getpid(),))
+    pool = spawn_pool(workers)
     try:
         futs = {pool.submit(_execute_in_worker, req, str(run_dir), force): i for i, req in todo}
         for f in cf.as_completed(futs):
             finish(futs[f], f.result())
     except BaseException:
-        _end_pool(pool)
+        end_pool(pool)
         raise
     pool.shutdown(wait=True)
-
-
-def _pool_worker(parent: int) -> None:
-    """A pool worker's start: Ctrl-C is its parent's to act on (it ends the pool), and the worker dies with
-    its parent (after a kill -9 of the pid a run's lock names, workers went on writing heaps into the run
-    directory outside its lock; Linux's PR_SET_PDEATHSIG, elsewhere nothing)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
-    if os.getppid() != parent:  # the parent died before the line above could tie this worker to it
-        os._exit(1)
-
-
-def _end_pool(pool: cf.ProcessPoolExecutor) -> None:
-    """Cancel the queued heaps and kill the workers, not waiting for the heaps in flight."""
-    workers = list((getattr(pool, "_processes", None) or {}).values())  # the executor's only handle on them
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in workers:
-        p.kill()
-    # join() returns when a worker's pipe closes, which can come a moment before the kernel lets it be reaped:
-    # wait until each has an exit code, so none is left behind as a zombie that still reads as alive
-    deadline = time.monotonic() + 10
-    for p in workers:
-        p.join(timeout=max(deadline - time.monotonic(), 0))
-        while p.exitcode is None and time.monotonic() < deadline:
-            time.sleep(0.01)
 
 
 #: heaps a GPU batch holds at most: a step costs about the same from 1 to 256 `default` heaps on an H200

@@ -9,6 +9,7 @@ the run directory and writes nothing (docs/method.md, "The posterior").
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Callable, Optional
 import numpy as np
 import pandas as pd
 
+from .. import pool
 from ..heaps.index import RESULTS, current_results, heap_setups
 from ..errors import CalibError
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
@@ -538,7 +540,7 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
                   profile: Optional[bool] = None, columns: Optional[bool] = None,
                   rows: Optional[pd.DataFrame] = None, held_out_by: tuple[str, ...] = ("gp", "rsm", "bp"),
                   judged: Optional[pd.DataFrame] = None, average: bool = False, views: bool = False,
-                  say: Say = _quiet) -> PosteriorFit:
+                  beside: bool = False, say: Say = _quiet) -> PosteriorFit:
     """The posterior of the model's parameters given the measured ``conds``, through Gaussian processes
     on the run's heaps of the model (``rows``: else :func:`model_rows`) under a uniform ``prior``
     (:func:`prior_bounds`; ``ranges`` the run's factor table). With the settings' prior the surrogates
@@ -548,7 +550,9 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     whose held-out error is scored (none: empty). ``judged``: the heaps the column share learns from (those
     that stood too; else every such heap of the model). ``average``: over the effect the model gained, on and
     off (:func:`averaged`). ``views``: the surrogates learn each heap from its side views' mean, where every
-    heap recorded them (:func:`model_rows`; ``rows`` given: learnt from whatever view columns they hold)."""
+    heap recorded them (:func:`model_rows`; ``rows`` given: learnt from whatever view columns they hold).
+    ``beside``: score the held-out errors in a second process while the chains run in this one (the same
+    numbers, on a second core; docs/performance.md, "The posterior's fits")."""
     rows = model_rows(run, model, views=views) if rows is None else rows
     bounds = prior_bounds(model, prior, rows, ranges)
     scale = bounds if prior == "settings" else effect_ranges(model)
@@ -574,9 +578,13 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
                                               seed, say, scale, bounds if prior == "settings" else None, judged)
     cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else []),
             *(c for c in VIEW_COLUMNS if c in rows.columns)]
-    held = held_out(rows[cols], params, scale, seed, second is not None, held_out_by) if held_out_by else pd.DataFrame()
-    post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
-                               scatter=evidence["scatter"], second=second, columns=share)
+    scored = (rows[cols], params, scale, seed, second is not None, held_out_by)
+    with pool.beside(held_out, *scored) if beside and held_out_by else contextlib.nullcontext() as pending:
+        held = held_out(*scored) if held_out_by and pending is None else pd.DataFrame()
+        post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
+                                   scatter=evidence["scatter"], second=second, columns=share)
+        if pending is not None:
+            held = pending.result()
     ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
     table = verdicts(post.summary(), post.samples_, ratios["combined"], prior)
     evidence.update(prior=prior, bounds=bounds)

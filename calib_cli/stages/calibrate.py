@@ -62,6 +62,7 @@ class Plan:
     bounds: dict = field(default_factory=dict)  # the prior: the run's factor table
     views: bool = False  # the surrogates learn each heap from its side views' mean
     span: int = 0  # heaps the stop rule looks back over: a default batch's round (0: this plan's batch)
+    beside: bool = False  # the held-out scores in a second process beside the chains (more than one worker)
 
     def round_settings(self, model: Model) -> dict:
         """What a round's design and posterior depend on (not the budget: a larger budget goes on from
@@ -243,7 +244,7 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
                      {"scatter": meta["scatter"], "profile": meta["profile"]})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=plan.steps, seed=plan.seed,
                         ranges=plan.bounds, scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows,
-                        judged=judged, held_out_by=("gp",), say=say if first else _quiet)
+                        judged=judged, held_out_by=("gp",), beside=plan.beside, say=say if first else _quiet)
     with st.commit() as out:
         write_posterior(out, fit, prefix=d.relative_to(st.dir).as_posix() + "/")
     return Round(k, rule, design, fit.table, fit.samples, fit.held, fit.ratios, fit.heaps, fit.evidence, fit)
@@ -420,7 +421,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
         raise CalibError(f"no measured condition in {run / CONDITIONS}: run `calib measure-angle` first")
     plan = _plan(model, conds, budget, first, batch, repeats=repeats, rule=rule, walkers=walkers, steps=steps,
                  seed=seed, scatter=scatter, profile=profile, columns=columns, views=bool(views),
-                 bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
+                 beside=workers > 1 and not dask, bounds=prior_bounds(model, "settings", ranges=settings_ranges(cfg)))
     final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     if final.up_to_date() and not force:
         return CalibrateResult(final, True)
@@ -525,7 +526,7 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
                 settings={"calibrate": plan.round_settings(model), "round": last.index, "steps": steps, **prof_set})
     fit = fit_posterior(run, model, conds, walkers=plan.walkers, steps=steps, seed=plan.seed, ranges=plan.bounds,
                         scatter=plan.scatter, profile=plan.profile, columns=plan.columns, rows=rows, judged=judged,
-                        average=True, say=say)
+                        average=True, beside=plan.beside, say=say)
     with pst.commit() as out:
         write_posterior(out, fit)
     return fit.samples
