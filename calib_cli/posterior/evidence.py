@@ -385,8 +385,9 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
              f"{r.q95:.3g}, crowding {bound:.3g}; the data may lie beyond it ({_widen(r, prior)}) or the model "
              "lacks an effect")
     elif r.box_cut:
-        more = ("simulate heaps beyond " + ("them" if ", " in r.box_cut else "it") if prior == "heaps"
-                else f"widen {'those ranges' if ', ' in r.box_cut else 'that range'} and calibrate again")
+        several = len(cut_pairs(r.box_cut)) > 1
+        more = ("simulate heaps beyond " + ("them" if several else "it") if prior == "heaps"
+                else f"widen {'those ranges' if several else 'that range'} and calibrate again")
         w = (f"inside this box only: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its "
              f"range), while the box cuts the posterior at {cut_words(r.box_cut)} ({more})")
     elif r.identified:
