@@ -54,11 +54,17 @@ def end_pool(pool: cf.ProcessPoolExecutor) -> None:
 
 
 @contextlib.contextmanager
-def beside(fn, *args):
+def beside(fn, *args, spawn: bool = True):
     """Run ``fn(*args)`` in a spawned process while the with-block runs here; yields its future. A stop in
     the block (Ctrl-C, an error) ends that process at once. For work a second core can do while this one is
     busy (a posterior's held-out scores beside its chains): the same numbers as in this process, since each
-    computation runs whole in one process on one thread."""
+    computation runs whole in one process on one thread. ``spawn`` False: ``fn`` runs here, before the
+    block (one core: the caller's code reads the same either way)."""
+    if not spawn:
+        done: cf.Future = cf.Future()
+        done.set_result(fn(*args))
+        yield done
+        return
     pool = spawn_pool(1)
     try:
         yield pool.submit(fn, *args)

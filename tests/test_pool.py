@@ -24,3 +24,10 @@ def test_a_stop_in_the_block_ends_the_side_process_at_once():
             time.sleep(2.0)  # the process has started its call
             raise KeyboardInterrupt
     assert time.monotonic() - t0 < 30  # not the 120 s the call would have taken
+
+
+def test_beside_without_spawn_runs_the_call_here_before_the_block():
+    calls = []
+    with beside(calls.append, "scored", spawn=False) as pending:
+        assert calls == ["scored"]  # done before the block's own work, in this process
+        assert pending.result(timeout=0) is None

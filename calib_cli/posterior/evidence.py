@@ -9,7 +9,6 @@ the run directory and writes nothing (docs/method.md, "The posterior").
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -221,7 +220,9 @@ def second_response(run: Path, rows: pd.DataFrame, model: Model, conds: pd.DataF
 def held_out(used: pd.DataFrame, params: list[str], scale, seed: int, profile: bool,
              which: tuple[str, ...] = ("gp", "rsm", "bp")) -> pd.DataFrame:
     """The surrogates' held-out RMSE per pile (:func:`holdout_rmse`), of the angle and, with ``profile``,
-    of the fullness (on the heaps that have one); ``which`` surrogates."""
+    of the fullness (on the heaps that have one); ``which`` surrogates (none: an empty table)."""
+    if not which:
+        return pd.DataFrame()
     held = holdout_rmse(used, params, COND_VARS, scale, RESPONSE, seed=seed, which=which).assign(response=RESPONSE)
     if not profile:
         return held
@@ -580,12 +581,10 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
     cols = [*params, *cond_vars, RESPONSE, *([FULLNESS] if second is not None else []),
             *(c for c in VIEW_COLUMNS if c in rows.columns)]
     scored = (rows[cols], params, scale, seed, second is not None, held_out_by)
-    with pool.beside(held_out, *scored) if beside and held_out_by else contextlib.nullcontext() as pending:
-        held = held_out(*scored) if held_out_by and pending is None else pd.DataFrame()
+    with pool.beside(held_out, *scored, spawn=beside and bool(held_out_by)) as pending:
         post = calibrate_posterior(gp, conds, bounds, n_walkers=walkers, n_steps=steps, seed=seed,
                                    scatter=evidence["scatter"], second=second, columns=share)
-        if pending is not None:
-            held = pending.result()
+        held = pending.result()
     ratios = surrogate_ratios(gp, second, conds, post.samples_, seed=seed)
     table = verdicts(post.summary(), post.samples_, ratios["combined"], prior)
     evidence.update(prior=prior, bounds=bounds)
