@@ -103,6 +103,8 @@ def rounds_figure(rounds, answer=None):
     measured means' (below 1 a verdict can be given) with each effect's Bayes factor of "off". ``answer``
     (the final posterior's summary, sampled longer) is drawn in black after the last round."""
     params = list(dict.fromkeys(rounds["parameter"]))
+    averaged = answer is not None and "p_off" in answer.columns and answer["p_off"].notna().any()
+    said = "the answer (sampled longer, averaged on and off)" if averaged else "the answer (sampled longer)"
     n = len(params) + 1
     cols = min(n, 3)
     rows_ = int(np.ceil(n / cols))
@@ -114,7 +116,7 @@ def rounds_figure(rounds, answer=None):
         if answer is not None and p in set(answer["parameter"]):
             a = answer.set_index("parameter").loc[p]
             ax.errorbar([r["heaps"].iloc[-1]], [a["median"]], yerr=[[a["median"] - a["q05"]], [a["q95"] - a["median"]]],
-                        fmt="D", color="k", ms=4, capsize=3, label="the answer")
+                        fmt="D", color="k", ms=4, capsize=3, label=said)
         ax.set_ylim(r["low"].iloc[0], r["high"].iloc[0])
         ax.set_title(p)
         ax.set_xlabel("heaps the posterior learnt from")
@@ -138,12 +140,16 @@ def rounds_figure(rounds, answer=None):
     ax.axhline(0.1, color="tab:red", lw=0.6, ls="--")
     ax.axhline(3.0, color="tab:green", lw=0.6, ls="--")
     ax.set_xlabel("heaps the posterior learnt from")
+    ax.set_ylabel("ratio; Bayes factor of off")
     ax.set_title("ratio above 1: no verdict; Bayes factor below 0.1 (red): on, above 3 (green): off", fontsize=8)
     spare = list(axes.flat)[n:]
+    handles, labels = ax.get_legend_handles_labels()
+    diamond = [(h, lab) for h, lab in zip(*axes.flat[0].get_legend_handles_labels()) if lab == said]
+    handles, labels = [h for h, _ in diamond] + handles, [lab for _, lab in diamond] + labels
     if spare:  # the curves fill their panel: the legend goes in the empty one beside it
-        spare[0].legend(*ax.get_legend_handles_labels(), loc="center left", fontsize=8, frameon=False)
+        spare[0].legend(handles, labels, loc="center left", fontsize=8, frameon=False)
     else:
-        ax.legend(fontsize=7)
+        ax.legend(handles, labels, fontsize=7)
     for extra in spare:
         extra.axis("off")
     fig.suptitle(f"calibrate, model revision {int(rounds['revision'].iloc[0])}: the posterior round by round")

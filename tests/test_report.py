@@ -99,7 +99,8 @@ def test_first_screen_of_a_run_with_diagnose():
     assert "Cohesion: the data call for it (Bayes factor of off &lt; 0.066)" in top
     assert "surface_energy</td><td>0.453</td><td>0.316 &ndash; 0.67</td><td>J/m2</td>" in top
     assert ">pinned<" not in top and "best fit (GA)" not in top
-    assert "8 rounds, 240 heaps simulated, the posterior on 372; stopped by its budget" in top
+    assert ("8 rounds, 240 heaps simulated, the posterior on 372 (132 of them simulated before this calibration, "
+            "by an earlier revision, compare or diagnose, and reused); stopped by its budget") in top
     # the one set a user simulates with: compare's point, not the medians
     assert "static_friction 0.456, rolling_friction 0.123, restitution 0.22, surface_energy 0.438 J/m2." in top
     # fit per condition: one chart row per condition, pass or fail as compare's residuals say
@@ -108,7 +109,8 @@ def test_first_screen_of_a_run_with_diagnose():
     assert all(c in chart for c in sol["condition_id"])
     assert chart.count(">pass<") == (~sol["fails"]).sum() and chart.count(">fail<") == sol["fails"].sum() == 1
     # error history and ranking with verdicts
-    assert "+ cohesion" in top and top.count("1 of 6 |z| &gt; 2") == 2  # revisions 0 and 1
+    assert "+ cohesion (surface_energy)" in top and top.count("1 of 6 |z| &gt; 2") == 2  # revisions 0 and 1
+    assert "sliding_friction (static_friction), rolling_friction, restitution" in top  # the posterior's names
     assert ">significant<" in top and "not significant" in top
     # one photograph per condition, and an honest word about the missing simulated side views (a clone
     # keeps none; a checkout that ran the pipeline keeps its heaps' folders, and shows them)
@@ -128,6 +130,12 @@ def test_the_posterior_section_shows_the_rounds_the_corner_plot_and_the_surrogat
     assert "Model revision 0's residual against each condition variable" in page
     paper = build_report(RUNS / "paper")
     assert "Not run in this run directory (<code>calib calibrate</code>)" in paper
+    # the answer is the rounds' last posterior sampled longer; averaged over the effect on and off where the
+    # data decided it, which is why the control's answer is narrower than its last round
+    assert "averaged over" not in sec and "drawn hollow is an upper bound" in sec
+    control = build_report(RUNS / "control-lab")
+    sec = control[control.index("<section id=posterior>"):control.index("<section id=screening>")]
+    assert "then averaged over cohesion on and off (probability off 0.99)" in sec
 
 
 def test_first_screen_flags_an_interval_its_box_cut(tmp_path):

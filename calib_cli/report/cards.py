@@ -138,6 +138,12 @@ def _uncertainty_words(f: RunFiles) -> str:
     return f" (u = {said} here, from both means' scatter; the whiskers are the piles' own sd)"
 
 
+def _with_parameter(effect: str) -> str:
+    """"sliding_friction (static_friction)": an effect with the parameter the posterior names, where they differ."""
+    e = EFFECTS.get(effect)
+    return f"{effect} ({e.parameter})" if e is not None and e.parameter != effect else effect
+
+
 def history_card(f: RunFiles) -> str:
     """RMSE per model revision, each row naming the effects that revision added."""
     hist = f.table("compare/history.parquet")
@@ -147,8 +153,9 @@ def history_card(f: RunFiles) -> str:
     rows, before = [], None
     for r in hist.itertuples(index=False):
         eff = str(r.effects).split(",")
-        shown = ", ".join(eff) if before is None else "+ " + ", ".join(e for e in eff if e not in before) \
-            if set(eff) - set(before) else "(same effects)"
+        shown = ", ".join(map(_with_parameter, eff)) if before is None else \
+            "+ " + ", ".join(_with_parameter(e) for e in eff if e not in before) if set(eff) - set(before) \
+            else "(same effects)"
         before = eff
         # a count, not a verdict (the headline judges the conditions together): amber, not red
         failing = badge(f"{int(r.n_fail)} of {int(r.n_conditions)} |z| > 2", "warn" if r.n_fail else "pass")
@@ -228,8 +235,11 @@ def _rounds_note(f: RunFiles, rev) -> str:
         return ""
     last = r[r["round"] == r["round"].max()].iloc[0]
     why = str(last["stop"]).split(":")[0]
+    own, learnt = int(last["calibration_heaps"]), int(last["heaps"])
+    before = (f" ({learnt - own} of them simulated before this calibration, by an earlier revision, compare or "
+              "diagnose, and reused)" if learnt > own else "")
     return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, "
-                f"{int(last['calibration_heaps'])} heaps simulated, the posterior on {int(last['heaps'])}; "
+                f"{own} heaps simulated, the posterior on {learnt}{before}; "
                 f"stopped by {esc(_STOPS.get(why, why))} "
                 "(<a href='#posterior'>the intervals round by round</a>).", "prov")
 
@@ -284,9 +294,10 @@ def posterior_card(f: RunFiles) -> str:
     body += _rounds_note(f, rev) + _point_note(f, rev)
     nxt = f.table("suggest/ranking.parquet")
     if nxt is not None and not nxt.empty:
-        head = "Measure next" if any_ranked(nxt) else \
-            "Measure next: none ranked (the surrogate extrapolates at each), the first in the rig's order"
-        body += f"<h3>{head}</h3>" + "".join(
+        body += "<h3>Measure next</h3>" + ("" if any_ranked(nxt) else note(
+            "Not ranked yet: at each condition the rig offers, the gain and the separation are extrapolated beyond "
+            "the simulated heaps and the measured conditions. Below, the first three in the rig's order, each with "
+            "what to simulate first.", "prov")) + "".join(
             f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
                         f"({sep:.2g} chi-square units, sensitivities {how})</p>"

@@ -6,7 +6,8 @@ import html
 
 import pandas as pd
 
-from .html import RunFiles, esc, figure, img, note, table
+from ..model import EFFECTS
+from .html import RunFiles, esc, figure, img, note, num, table
 from .stages import _cols, figures, not_run, section
 
 #: stage folders in run order: their Parquet tables are listed raw at the end
@@ -43,7 +44,10 @@ def posterior(f: RunFiles) -> str:
     shots = [figure(f.run, f.run / rel, cap) for rel, cap in (
         ("calibrate/rounds.png", "Each parameter's 90 % interval and median against the heaps its round's posterior "
                                  "learnt from; the surrogates' variance over the measured means' (a verdict below 1) "
-                                 "and each effect's Bayes factor of off"),
+                                 "and each effect's Bayes factor of off. In black, the answer: the last round's "
+                                 "posterior sampled longer" + _averaged_words(f) + ". A Bayes factor drawn hollow is an "
+                                 "upper bound: no draw fell near the effect's off value, and a round's shorter chains "
+                                 "bound it less tightly than the answer's"),
         ("posterior/corner.png", f"Model revision {esc(rev)}'s posterior draws over the prior's ranges, every pair "
                                  "(dashed: 90 % intervals)")) if (f.run / rel).is_file()]
     body = f"<div class='figs post'>{''.join(shots)}</div>" if shots else ""
@@ -52,6 +56,19 @@ def posterior(f: RunFiles) -> str:
         body += note("The surrogates' held-out error per pile against the piles' own scatter (deg for the angle), "
                      "by cross-validation over the design points:") + table(sur, digits=3)
     return section("posterior", title, None, body)
+
+
+def _averaged_words(f: RunFiles) -> str:
+    """", then averaged over EFFECT on and off (probability off P)" where the answer averages an effect."""
+    post = f.table("posterior/summary.parquet")
+    if post is None or "p_off" not in post.columns:
+        return ""
+    on = post[post["p_off"].notna()]
+    if on.empty:
+        return ""
+    name = next((e.name for e in EFFECTS.values() if e.parameter == on["parameter"].iloc[0]), on["parameter"].iloc[0])
+    return (f", then averaged over {esc(name.replace('_', ' '))} on and off (probability off "
+            f"{num(float(on['p_off'].iloc[0]), 2)}), so its intervals are not the rounds' (which keep the effect free)")
 
 
 def discrepancy(f: RunFiles) -> str:

@@ -328,7 +328,7 @@ def _say_round(rnd: Round, spent: int, say: Say) -> None:
     bf = [f"{r.parameter} Bayes factor off {'<' if r.bf_upper else ''}{r.bf_off:.2g}" for r in t.itertuples()
           if np.isfinite(r.bf_off)]
     say(f"round {rnd.index}: posterior on {rnd.heaps} heaps ({spent} simulated by this calibration): "
-        + "; ".join(parts + bf) + f"; surrogate/measurement variance {rnd.ratios['combined']:.2g}")
+        + "; ".join(parts + bf) + f"; surrogate/measurement variance {rnd.ratios['combined']:.3g}")
 
 
 # ------------------------------------------------------------------ the calibration
