@@ -198,10 +198,15 @@ def _check_declared(key: str, v: Any, where: str) -> None:
     parts = key.split(".")
     name = _DECLARED.get(key) or (parts[1] if len(parts) == 3 and parts[0] == "factors" and parts[2] in ("low", "high")
                                  else None)
-    if name in QUANTITIES and _is_number(v):
-        check(name, v, f"setting {key}{where}")
-    elif name and _is_number(v):
-        _check_law_value(name, v, f"setting {key}{where}")
+    if len(parts) == 3 and parts[0] in ("ascent", "bbd") and parts[1] in ("fixed", "ranges"):
+        name = parts[2]  # a value held fixed, or a design's range: within the parameter's own bounds too
+    for x in (v if isinstance(v, list) else [v]):
+        if name in QUANTITIES and _is_number(x):
+            check(name, x, f"setting {key}{where}")
+        elif name and _is_number(x):
+            _check_law_value(name, x, f"setting {key}{where}")
+    if isinstance(v, list) and len(v) == 2 and parts[1:2] == ["ranges"] and all(map(_is_number, v)) and v[0] >= v[1]:
+        raise CalibError(f"setting {key} = {v!r}{where} must be [low, high] with low < high")
     if key == "heap.engine" and v not in ENGINE_NAMES:
         raise CalibError(f"setting heap.engine = {v!r}{where} must be one of {', '.join(ENGINE_NAMES)}")
     if key == "heap.precision" and v not in PRECISION_NAMES:
@@ -394,6 +399,9 @@ def validate(s: Mapping) -> None:
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"]:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")
+    from .doe.pb import check_runs  # here: the DOE modules are not needed to read settings otherwise
+
+    check_runs(s["pb"]["runs"], len(s["pb"].get("factors") or s["factors"]), "setting pb.runs")
     for key in ("ascent", "bbd"):
         for n in s[key]["fixed"]:
             if n not in s["factors"]:

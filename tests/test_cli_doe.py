@@ -194,7 +194,26 @@ def test_help_says_what_is_read_and_written():
 
 def test_bad_setting_on_command_line(run):
     r = calib("pb", "design", "--run", run, "-s", "pb.runs=10")
-    assert r.exit_code == 2 and "multiple of 4" in r.output
+    assert r.exit_code == 2 and "no Plackett-Burman design has 10 runs" in r.output
+    # 28 is a multiple of 4 that pyDOE3 has no design of (it asserted: an internal error)
+    r = calib("pb", "design", "--run", run, "-s", "pb.runs=28", "--force")
+    assert r.exit_code == 2 and "no Plackett-Burman design has 28 runs" in r.output and "choose one of 8, 12" in r.output
+
+
+def test_pb_sizes_are_the_ones_pydoe3_builds():
+    import pyDOE3
+
+    from calib_cli.doe.pb import sizes
+
+    assert sizes(100) == [4, 8, 12, 16, 20, 24, 32, 40, 48, 64, 80, 96]
+    assert all(pyDOE3.pbdesign(n - 1).shape[0] == n for n in sizes(100))
+
+
+def test_a_fixed_value_or_a_design_range_is_checked_like_a_factor(run):
+    for bad in ("bbd.fixed.restitution=nan", "ascent.fixed.restitution=-5", "bbd.ranges.static_friction=[-1, 0.2]",
+                "bbd.ranges.static_friction=[0.4, 0.2]"):
+        r = calib("bbd", "design", "--run", run, "-s", bad, "--force")
+        assert r.exit_code == 2 and "setting " in r.output and "internal error" not in r.output, (bad, r.output)
 
 
 def test_console_entry_point_exit_codes(tmp_path):

@@ -200,6 +200,9 @@ def test_diagnose_probes_forward_from_neutral_and_central_around_the_grains_valu
 def test_model_cli(tmp_path):
     run = str(tmp_path / "run")
     r = runner.invoke(app, ["model", "add", "cohesion", "--run", run])
+    assert r.exit_code == 2 and "does not exist" in r.output and not (tmp_path / "run").exists()  # a typo'd --run
+    (tmp_path / "run").mkdir()
+    r = runner.invoke(app, ["model", "add", "cohesion", "--run", run])
     assert r.exit_code == 0 and "revision 1" in r.output
     r = runner.invoke(app, ["model", "add", "cohesion", "--run", run])
     assert r.exit_code == 2 and "already" in r.output

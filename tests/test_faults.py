@@ -355,6 +355,15 @@ BAD: list[Bad] = [
     Bad("calibrate-dask-no-port", ["calibrate", "--run", "{run}", "--dask", "tcp://somewhere"]),
     Bad("diagnose-alpha-zero", ["diagnose", "--run", "{run}", "--alpha", "0"]),
     Bad("model-show-no-such-run", ["model", "show", "--run", "{tmp}/no-such-run"]),
+    # ---- found by an audit of every command (2026-12-07): internal errors and bad values taken as given
+    Bad("pb-design-runs-pydoe3-lacks", ["pb", "design", "--run", "{run}", "--force", "-s", "pb.runs=28"]),
+    Bad("bbd-design-fixed-nan", ["bbd", "design", "--run", "{run}", "--force", "-s", "bbd.fixed.restitution=nan"]),
+    Bad("bbd-design-range-below-bound", ["bbd", "design", "--run", "{run}", "--force", "-s",
+                                         "bbd.ranges.static_friction=[-1, 0.2]"]),
+    Bad("invert-surrogate-wrong-fields", ["invert", "--run", "{run}", "--force"],
+        prep=lambda run: ((run / "surrogate" / "fit.lock.json").unlink(),
+                          (run / "surrogate" / "models" / "rsm.json").write_text('{"kind": "rsm"}'))),
+    Bad("model-add-no-such-run", ["model", "add", "cohesion", "--run", "{tmp}/no-such-run"]),
 ]
 
 

@@ -404,6 +404,7 @@ def test_simulate_heap_runs_the_rolling_spring_with_a_model_file(tmp_path):
     run = tmp_path / "run"
     cond = ["--preset", "smoke", "--condition", "particle_d_min_mm=5", "--condition", "particle_d_max_mm=6",
             "--condition", "cylinder_diameter_mm=30", "--condition", "fill_height_mm=24"]
+    run.mkdir()
     assert runner.invoke(app, ["model", "add", "cohesion", "--run", str(run)]).exit_code == 0
     r = runner.invoke(app, ["simulate-heap", "--run", str(run), *cond, "--set", "rolling_spring=1",
                             "--set", "surface_energy=0.2"])
@@ -480,7 +481,7 @@ def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
 
     rows = pd.DataFrame({"run_hash": ["a", "a", "b", "c"], "design": "pb", "run_id": [1, 1, 2, 3], "repeat": 0,
                          "condition_id": "", "source": [CACHE_SOURCE, CACHE_SOURCE, "old", CACHE_SOURCE],
-                         "repose_angle": [30.0, 30.0, 99.0, 31.0]})
+                         "repose_angle": [30.0, 30.0, 89.0, 31.0]})
     art.write_table(tmp_path / "simulate" / "results.parquet", rows)
     cur = current_results(tmp_path)
     assert sorted(cur["run_hash"]) == ["a", "c"]  # the old kernel's row is not a repeat, nor is a duplicate
@@ -708,6 +709,11 @@ def test_a_design_listing_one_point_twice_computes_it_once(tmp_path):
 @pytest.mark.parametrize("edit, words", [
     (lambda d: d.assign(repose_angle=d["repose_angle"].astype(str)), "repose_angle hold text where numbers belong"),
     (lambda d: d.assign(static_friction="0.3"), "static_friction hold text where numbers belong"),
+    # NaN in a condition variable broke the surrogate's linear algebra (exit 70); 400 deg was fitted as a heap
+    (lambda d: d.assign(fill_height_mm=[float("nan"), *d["fill_height_mm"].iloc[1:]]),
+     "fill_height_mm hold empty or infinite values"),
+    (lambda d: d.assign(repose_angle=[400.0, *d["repose_angle"].iloc[1:]]), "repose_angle 400 deg (row 0) is outside"),
+    (lambda d: d.rename(columns={"repose_angle": "angle"}), "no column repose_angle"),
 ])
 def test_a_results_index_edited_into_another_shape_is_one_line(tmp_path, edit, words):
     import shutil

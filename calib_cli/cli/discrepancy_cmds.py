@@ -57,6 +57,14 @@ EffectArg = Annotated[str, typer.Argument(help=f"The effect: one of {_EFFECTS_HE
 
 # (help without hard line breaks past the first paragraph: typer keeps those, and they would break a narrow terminal's
 # lines in the middle)
+def _existing(run: Path) -> Path:
+    """A run directory that is there: a mistyped --run made a stray folder holding only a model."""
+    run = check_run_dir(run)
+    if not run.is_dir():
+        raise CalibError(f"--run {run} does not exist: `calib init --run {run}` makes a run directory")
+    return run
+
+
 @model_app.command("add", cls=CalibCommand, short_help="Add an effect: a new revision of RUN/model.toml.",
                    help="Add an effect to the run's model: writes a new revision of RUN/model.toml (old ones kept "
                    "in RUN/model/), whose parameter the next calibration fits.\n\n"
@@ -68,7 +76,7 @@ def model_add(effect: EffectArg, run: RunOpt, at_revision: AtRevisionOpt = None)
         return
     from ..model import EFFECTS, Model, load_model, save_model
 
-    run = check_run_dir(run)
+    run = _existing(run)
     m = load_model(run)
     if effect not in EFFECTS:
         raise CalibError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
@@ -86,7 +94,7 @@ def model_add(effect: EffectArg, run: RunOpt, at_revision: AtRevisionOpt = None)
 def model_remove(effect: EffectArg, run: RunOpt):
     from ..model import Model, load_model, save_model
 
-    run = check_run_dir(run)
+    run = _existing(run)
     m = load_model(run)
     if effect not in m.effects:
         raise CalibError(f"{effect} is not in the model ({', '.join(m.effects)})")

@@ -8,11 +8,12 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .. import __version__
 from .. import artifacts as art
-from ..dem.heap import FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, Numerics
+from ..dem.heap import CONDITION_VARIABLES, FLOOR_VARIABLES, LAWS, PARAMETERS, HeapCondition, Numerics
 from ..errors import CalibError
 from .keys import RUNS, cache_source, heap_source, physics
 
@@ -38,9 +39,23 @@ def _checked(rows: pd.DataFrame, path: Path) -> pd.DataFrame:
     here, not met as a TypeError in whichever stage reads it."""
     from pandas.api.types import is_numeric_dtype
 
+    if len(rows) and "repose_angle" not in rows.columns:
+        raise CalibError(f"simulation results {path}: no column repose_angle")
     text = [c for c in NUMERIC if c in rows.columns and len(rows) and not is_numeric_dtype(rows[c])]
     if text:
         raise CalibError(f"simulation results {path}: column(s) {', '.join(text)} hold text where numbers belong")
+    # a heap's condition and its angle as a simulation gives them: a NaN condition variable broke the
+    # surrogate's linear algebra (an internal error), and an angle of 400 deg was fitted as a heap
+    blank = [c for c in CONDITION_VARIABLES if c in rows.columns and not np.isfinite(rows[c].to_numpy(float)).all()]
+    if blank:
+        raise CalibError(f"simulation results {path}: column(s) {', '.join(blank)} hold empty or infinite values "
+                         "where every heap has a condition")
+    if "repose_angle" in rows.columns:
+        a = rows["repose_angle"].to_numpy(float)
+        bad = np.isinf(a) | (a < 0) | (a > 90)
+        if bad.any():
+            raise CalibError(f"simulation results {path}: repose_angle {a[bad][0]:g} deg (row {int(np.argmax(bad))}) is "
+                             "outside 0 to 90 deg")
     return rows
 
 

@@ -125,7 +125,8 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
         dname = Path(design).parent.name
         ids = df["run_id"].to_numpy() if "run_id" in df.columns else np.arange(1, len(df) + 1)
         for rid, (_, row) in zip(ids, df.iterrows()):
-            points.append((int(rid), {**fixed, **parse_params({c: row[c] for c in cols})}))
+            given = {c: row[c].item() if isinstance(row[c], np.generic) else row[c] for c in cols}
+            points.append((int(rid), {**fixed, **parse_params(given, f"design {design}, run_id {int(rid)}")}))
     else:
         points.append((0, fixed))
     from ..model import load_model

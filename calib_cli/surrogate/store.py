@@ -26,7 +26,11 @@ def load_models(run: Path, model: Optional[str]) -> tuple[dict, dict]:
         if not p.is_file():
             raise CalibError(f"surrogate {n!r} was not fitted in {run} (have: "
                              f"{', '.join(q.stem for q in (run / MODELS_DIR).glob('*.json'))})")
-        models[n] = model_from_state(art.read_json(p))
+        try:
+            models[n] = model_from_state(art.read_json(p))
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:  # JSON of the wrong shape: edited or truncated
+            raise CalibError(f"surrogate file {p} is not one `calib fit-surrogate` writes ({type(e).__name__}: {e}); "
+                             f"fit it again: `calib fit-surrogate --run {run} --force`") from None
     return models, best
 
 

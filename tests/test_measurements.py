@@ -1,0 +1,41 @@
+"""calib_cli.measurements: the measured conditions every analysis reads, checked where they are read (a table
+whose stage lock is gone can hold anything a hand edit left)."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+import pytest
+
+from calib_cli.errors import CalibError
+from calib_cli.measurements import CONDITIONS, measured_conditions
+
+GOOD = pd.DataFrame({"condition_id": ["A", "B"], "mean": [33.7, 30.4], "sd": [2.5, math.nan], "n": [10, 1]})
+
+
+def _run(tmp_path, table: pd.DataFrame):
+    (tmp_path / CONDITIONS).parent.mkdir(parents=True, exist_ok=True)
+    table.to_parquet(tmp_path / CONDITIONS)
+    return tmp_path
+
+
+def test_a_good_table_reads_as_written_one_pile_without_an_sd(tmp_path):
+    assert measured_conditions(_run(tmp_path, GOOD)).equals(GOOD)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (dict(mean=[math.nan, 30.4]), "condition A has mean nan deg"),
+    (dict(mean=[math.inf, 30.4]), "condition A has mean inf deg"),
+    (dict(mean=[400.0, 30.4]), "a mean angle in (0, 90) deg"),
+    (dict(sd=[-1.0, math.nan]), "an sd >= 0"),
+    (dict(sd=[math.nan, math.nan], n=[10, 1]), "condition A"),  # ten piles need their sd
+    (dict(n=[math.nan, 1]), "a whole number of piles"),
+    (dict(mean=["abc", "30.4"]), "column(s) mean hold text where numbers belong"),
+    (dict(condition_id=[None, None]), "every condition needs a condition_id"),
+])
+def test_nan_text_or_an_impossible_angle_is_one_line_naming_the_condition(tmp_path, edit, words):
+    """These met the posterior as NaN ('Probability function returned NaN') or text: internal errors."""
+    with pytest.raises(CalibError, match=None) as e:
+        measured_conditions(_run(tmp_path, GOOD.assign(**edit)))
+    assert words in str(e.value) and "\n" not in str(e.value)
