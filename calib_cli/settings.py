@@ -149,7 +149,7 @@ RULES: dict[str, Rule] = {
     "surrogate.hidden": _POSITIVE, "surrogate.epochs": _POSITIVE, "surrogate.seed": Rule("integer", 0),
     "invert.generations": _POSITIVE, "invert.population": Rule("integer", 2), "invert.seed": Rule("integer", 0),
     "invert.crossover": Rule("number", 0, 1), "invert.mutation": Rule("number", 0, 1),
-    "invert.tolerance": Rule("number", 0, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
+    "invert.tolerance": Rule("number", 0, 90, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
     "invert.refine": Rule("integer", 0), "invert.refine_z": Rule("number", 0, open=True),
     "heap.shear_modulus": Rule("number", empty=True), "heap.engine": Rule("text"),
     "heap.precision": Rule("text"),

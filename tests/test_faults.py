@@ -364,6 +364,7 @@ BAD: list[Bad] = [
         prep=lambda run: ((run / "surrogate" / "fit.lock.json").unlink(),
                           (run / "surrogate" / "models" / "rsm.json").write_text('{"kind": "rsm"}'))),
     Bad("model-add-no-such-run", ["model", "add", "cohesion", "--run", "{tmp}/no-such-run"]),
+    Bad("invert-tolerance-inf", ["invert", "--run", "{run}", "--force", "-s", "invert.tolerance=inf"]),
 ]
 
 
