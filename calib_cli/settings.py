@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+from .doe.sizes import check_runs
 from .errors import CalibError
 from .parameters import ENGINE_NAMES, PRECISION_NAMES, PRESET_NAMES, QUANTITIES, check
 from .space import Factor, ParameterSpace
@@ -399,8 +400,6 @@ def validate(s: Mapping) -> None:
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"]:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")
-    from .doe.pb import check_runs  # here: the DOE modules are not needed to read settings otherwise
-
     check_runs(s["pb"]["runs"], len(s["pb"].get("factors") or s["factors"]), "setting pb.runs")
     for key in ("ascent", "bbd"):
         for n in s[key]["fixed"]:

@@ -203,7 +203,7 @@ def test_bad_setting_on_command_line(run):
 def test_pb_sizes_are_the_ones_pydoe3_builds():
     import pyDOE3
 
-    from calib_cli.doe.pb import sizes
+    from calib_cli.doe.sizes import sizes
 
     assert sizes(100) == [4, 8, 12, 16, 20, 24, 32, 40, 48, 64, 80, 96]
     assert all(pyDOE3.pbdesign(n - 1).shape[0] == n for n in sizes(100))
