@@ -36,8 +36,9 @@ def _check_values(c: pd.DataFrame, p: Path) -> None:
     if c["condition_id"].isna().any() or not c["condition_id"].map(lambda v: isinstance(v, str) and v != "").all():
         raise CalibError(f"measured conditions {p}: every condition needs a condition_id")
     n, mean, sd = (c[k].to_numpy(float) for k in ("n", "mean", "sd"))
-    bad = ~np.isfinite(n) | (n != np.round(n)) | ~((mean > 0) & (mean < 90)) | (sd < 0) | np.isinf(sd) \
-        | (np.isnan(sd) & (n > 1))
+    measured = n >= 1  # n 0: every photograph of the condition flagged (measure-angle writes it; refused below)
+    bad = ~np.isfinite(n) | (n != np.round(n)) | (measured & (~((mean > 0) & (mean < 90)) | (sd < 0)
+                                                             | np.isinf(sd) | (np.isnan(sd) & (n > 1))))
     if bad.any():
         r = c[bad].iloc[0]
         raise CalibError(f"measured conditions {p}: condition {r['condition_id']} has mean {r['mean']:g} deg, "

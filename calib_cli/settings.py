@@ -400,7 +400,7 @@ def validate(s: Mapping) -> None:
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"]:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")
-    check_runs(s["pb"]["runs"], len(s["pb"].get("factors") or s["factors"]), "setting pb.runs")
+    check_runs(s["pb"]["runs"], len(s["pb"]["factors"]), "setting pb.runs")
     for key in ("ascent", "bbd"):
         for n in s[key]["fixed"]:
             if n not in s["factors"]:

@@ -136,6 +136,16 @@ SIM = ["simulate-heap", "--run", "{run}", "--preset", "smoke"]
 TRUTH = ["--set", "static_friction=0.3", "--set", "rolling_friction=0.2", "--set", "restitution=0.3"]
 
 
+def _cut_weights(run: Path) -> None:
+    """The BP network's file with its last five weights gone and its stage lock deleted (a hand edit)."""
+    import json
+
+    (run / "surrogate" / "fit.lock.json").unlink()
+    path = run / "surrogate" / "models" / "bp.json"
+    state = json.loads(path.read_text())
+    path.write_text(json.dumps({**state, "theta": state["theta"][:-5]}))
+
+
 def _parquet(df: pd.DataFrame) -> bytes:
     import io
 
@@ -365,6 +375,7 @@ BAD: list[Bad] = [
                           (run / "surrogate" / "models" / "rsm.json").write_text('{"kind": "rsm"}'))),
     Bad("model-add-no-such-run", ["model", "add", "cohesion", "--run", "{tmp}/no-such-run"]),
     Bad("invert-tolerance-inf", ["invert", "--run", "{run}", "--force", "-s", "invert.tolerance=inf"]),
+    Bad("invert-network-weights-cut", ["invert", "--run", "{run}", "--force", "--model", "bp"], prep=_cut_weights),
 ]
 
 

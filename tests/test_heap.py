@@ -475,6 +475,14 @@ def test_heap_bits_do_not_depend_on_threads_changed_mid_run():
     assert a.angle.angle == b.angle.angle and a.system.n_steps == b.system.n_steps
 
 
+def test_a_floor_left_unset_on_some_heaps_is_the_default_floor_not_a_hole_in_the_index(tmp_path):
+    """NaN in a floor variable is the default floor (heaps on glass and on the rig's own floor in one index)."""
+    rows = pd.DataFrame({"run_hash": ["a", "b"], "repose_angle": [30.0, 31.0], "fill_height_mm": [50.0, 50.0],
+                         "floor_static_friction": [0.1, float("nan")]})
+    art.write_table(tmp_path / "simulate" / "results.parquet", rows)
+    assert len(load_results(tmp_path)) == 2
+
+
 def test_analyses_ignore_rows_of_older_kernels_and_duplicates(tmp_path):
     from calib_cli.heaps.index import current_results
     from calib_cli.heaps.keys import CACHE_SOURCE
@@ -711,9 +719,11 @@ def test_a_design_listing_one_point_twice_computes_it_once(tmp_path):
     (lambda d: d.assign(static_friction="0.3"), "static_friction hold text where numbers belong"),
     # NaN in a condition variable broke the surrogate's linear algebra (exit 70); 400 deg was fitted as a heap
     (lambda d: d.assign(fill_height_mm=[float("nan"), *d["fill_height_mm"].iloc[1:]]),
-     "fill_height_mm hold empty or infinite values"),
+     "fill_height_mm have an empty or infinite value"),
     (lambda d: d.assign(repose_angle=[400.0, *d["repose_angle"].iloc[1:]]), "repose_angle 400 deg (row 0) is outside"),
     (lambda d: d.rename(columns={"repose_angle": "angle"}), "no column repose_angle"),
+    (lambda d: d.assign(fill_height_mm=["abc", *d["fill_height_mm"].iloc[1:].astype(str)]),
+     "fill_height_mm hold text where numbers belong"),
 ])
 def test_a_results_index_edited_into_another_shape_is_one_line(tmp_path, edit, words):
     import shutil

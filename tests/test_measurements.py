@@ -39,3 +39,9 @@ def test_nan_text_or_an_impossible_angle_is_one_line_naming_the_condition(tmp_pa
     with pytest.raises(CalibError, match=None) as e:
         measured_conditions(_run(tmp_path, GOOD.assign(**edit)))
     assert words in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_condition_whose_photographs_were_all_flagged_is_named_as_unmeasured(tmp_path):
+    """measure-angle writes n 0 (mean and sd empty) for it: the message says so, not that the table is wrong."""
+    with pytest.raises(CalibError, match="condition.s. B have no measured angle"):
+        measured_conditions(_run(tmp_path, GOOD.assign(mean=[33.7, math.nan], n=[10, 0])))

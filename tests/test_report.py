@@ -99,8 +99,9 @@ def test_first_screen_of_a_run_with_diagnose():
     assert "Cohesion: the data call for it (Bayes factor of off &lt; 0.066)" in top
     assert "surface_energy</td><td>0.453</td><td>0.316 &ndash; 0.67</td><td>J/m2</td>" in top
     assert ">pinned<" not in top and "best fit (GA)" not in top
-    assert ("8 rounds, 240 heaps simulated, the posterior on 372 (132 of them simulated before this calibration, "
-            "by an earlier revision, compare or diagnose, and reused); stopped by its budget") in top
+    assert ("8 rounds, 240 heaps simulated, the posterior on 372 (132 of them simulated before this calibration and "
+            "reused: an earlier revision's, compare's, diagnose's or other heaps of the model in the run); "
+            "stopped by its budget") in top
     # the one set a user simulates with: compare's point, not the medians
     assert "static_friction 0.456, rolling_friction 0.123, restitution 0.22, surface_energy 0.438 J/m2." in top
     # fit per condition: one chart row per condition, pass or fail as compare's residuals say

@@ -46,10 +46,17 @@ def _checked(rows: pd.DataFrame, path: Path) -> pd.DataFrame:
         raise CalibError(f"simulation results {path}: column(s) {', '.join(text)} hold text where numbers belong")
     # a heap's condition and its angle as a simulation gives them: a NaN condition variable broke the
     # surrogate's linear algebra (an internal error), and an angle of 400 deg was fitted as a heap
-    blank = [c for c in CONDITION_VARIABLES if c in rows.columns and not np.isfinite(rows[c].to_numpy(float)).all()]
+    present = [c for c in CONDITION_VARIABLES if c in rows.columns]
+    values = {c: pd.to_numeric(rows[c], errors="coerce").to_numpy(float) for c in present}
+    text = [c for c in present if (rows[c].notna().to_numpy() & np.isnan(values[c])).any()]
+    if text:
+        raise CalibError(f"simulation results {path}: column(s) {', '.join(text)} hold text where numbers belong")
+    # a floor variable left empty is the default floor's; every heap has a grain size, cylinder, fill and lift
+    blank = [c for c in present if np.isinf(values[c]).any()
+             or (c not in FLOOR_VARIABLES and np.isnan(values[c]).any())]
     if blank:
-        raise CalibError(f"simulation results {path}: column(s) {', '.join(blank)} hold empty or infinite values "
-                         "where every heap has a condition")
+        raise CalibError(f"simulation results {path}: column(s) {', '.join(blank)} have an empty or infinite "
+                         "value in some row (every heap has a grain size, cylinder, fill and lift speed)")
     if "repose_angle" in rows.columns:
         a = rows["repose_angle"].to_numpy(float)
         bad = np.isinf(a) | (a < 0) | (a > 90)

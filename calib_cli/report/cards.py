@@ -236,8 +236,8 @@ def _rounds_note(f: RunFiles, rev) -> str:
     last = r[r["round"] == r["round"].max()].iloc[0]
     why = str(last["stop"]).split(":")[0]
     own, learnt = int(last["calibration_heaps"]), int(last["heaps"])
-    before = (f" ({learnt - own} of them simulated before this calibration, by an earlier revision, compare or "
-              "diagnose, and reused)" if learnt > own else "")
+    before = (f" ({learnt - own} of them simulated before this calibration and reused: an earlier revision's, "
+              "compare's, diagnose's or other heaps of the model in the run)" if learnt > own else "")
     return note(f"<code>calib calibrate</code>: {int(last['round']) + 1} rounds, "
                 f"{own} heaps simulated, the posterior on {learnt}{before}; "
                 f"stopped by {esc(_STOPS.get(why, why))} "

@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
+
 from .. import artifacts as art
 from ..errors import CalibError
 from .models import model_from_state
@@ -28,7 +30,8 @@ def load_models(run: Path, model: Optional[str]) -> tuple[dict, dict]:
                              f"{', '.join(q.stem for q in (run / MODELS_DIR).glob('*.json'))})")
         try:
             models[n] = model_from_state(art.read_json(p))
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:  # JSON of the wrong shape: edited or truncated
+            models[n].predict(np.zeros((1, len(models[n].inputs))))  # a network's weights of the wrong size fail here
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError, RuntimeError) as e:  # edited or truncated
             raise CalibError(f"surrogate file {p} is not one `calib fit-surrogate` writes ({type(e).__name__}: {e}); "
                              f"fit it again: `calib fit-surrogate --run {run} --force`") from None
     return models, best
