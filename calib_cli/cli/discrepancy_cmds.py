@@ -55,8 +55,6 @@ _EFFECTS_HELP = ", ".join(EFFECT_NAMES)
 EffectArg = Annotated[str, typer.Argument(help=f"The effect: one of {_EFFECTS_HELP}.", show_default=False)]
 
 
-# (help without hard line breaks past the first paragraph: typer keeps those, and they would break a narrow terminal's
-# lines in the middle)
 def _existing(run: Path) -> Path:
     """A run directory that is there: a mistyped --run made a stray folder holding only a model."""
     run = check_run_dir(run)
@@ -65,6 +63,8 @@ def _existing(run: Path) -> Path:
     return run
 
 
+# (help without hard line breaks past the first paragraph: typer keeps those, and they would break a narrow terminal's
+# lines in the middle)
 @model_app.command("add", cls=CalibCommand, short_help="Add an effect: a new revision of RUN/model.toml.",
                    help="Add an effect to the run's model: writes a new revision of RUN/model.toml (old ones kept "
                    "in RUN/model/), whose parameter the next calibration fits.\n\n"
