@@ -54,6 +54,19 @@ def end_pool(pool: cf.ProcessPoolExecutor) -> None:
 
 
 @contextlib.contextmanager
+def spawned(workers: int):
+    """A :func:`spawn_pool` for a with-block: ended at once (:func:`end_pool`) on a stop in the block (Ctrl-C,
+    an error), else shut down after its tasks finish."""
+    pool = spawn_pool(workers)
+    try:
+        yield pool
+    except BaseException:
+        end_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+@contextlib.contextmanager
 def beside(fn, *args, spawn: bool = True):
     """Run ``fn(*args)`` in a spawned process while the with-block runs here; yields its future. A stop in
     the block (Ctrl-C, an error) ends that process at once. For work a second core can do while this one is
@@ -65,10 +78,5 @@ def beside(fn, *args, spawn: bool = True):
         done.set_result(fn(*args))
         yield done
         return
-    pool = spawn_pool(1)
-    try:
+    with spawned(1) as pool:
         yield pool.submit(fn, *args)
-    except BaseException:
-        end_pool(pool)
-        raise
-    pool.shutdown(wait=True)

@@ -22,7 +22,7 @@ import pandas as pd
 from .. import __version__
 from .. import artifacts as art
 from ..errors import CalibError
-from ..pool import end_pool, spawn_pool
+from ..pool import spawned
 from ..dem import KERNEL_VERSION
 from ..dem.heap import HeapTest, Numerics, condition_dict, resume, run_heap
 from ..dem.render import side_views
@@ -337,15 +337,10 @@ def _run_on_pool(todo: list[tuple[int, Request]], run_dir: Path, workers: int, f
     as each heap is done. A stop (Ctrl-C, an error) ends the workers at once: the heaps in flight are lost,
     as promised, and no queued one starts (a worker that caught Ctrl-C itself took the next queued heap, and
     the pool's exit waited for it)."""
-    pool = spawn_pool(workers)
-    try:
+    with spawned(workers) as pool:
         futs = {pool.submit(_execute_in_worker, req, str(run_dir), force): i for i, req in todo}
         for f in cf.as_completed(futs):
             finish(futs[f], f.result())
-    except BaseException:
-        end_pool(pool)
-        raise
-    pool.shutdown(wait=True)
 
 
 #: heaps a GPU batch holds at most: a step costs about the same from 1 to 256 `default` heaps on an H200

@@ -6,7 +6,6 @@ import html
 
 import pandas as pd
 
-from ..model import EFFECTS
 from .html import RunFiles, esc, figure, img, note, num, table
 from .stages import _cols, figures, not_run, section
 
@@ -59,16 +58,13 @@ def posterior(f: RunFiles) -> str:
 
 
 def _averaged_words(f: RunFiles) -> str:
-    """", then averaged over EFFECT on and off (probability off P)" where the answer averages an effect."""
-    post = f.table("posterior/summary.parquet")
-    if post is None or "p_off" not in post.columns:
+    """", then averaged over EFFECT on and off (probability off P)" where the answer averages an effect (the
+    summary's provenance records it: :meth:`~calib_cli.posterior.evidence.PosteriorFit.provenance`)."""
+    avg = f.prov("posterior/summary.parquet").get("averaged")
+    if not avg:
         return ""
-    on = post[post["p_off"].notna()]
-    if on.empty:
-        return ""
-    name = next((e.name for e in EFFECTS.values() if e.parameter == on["parameter"].iloc[0]), on["parameter"].iloc[0])
-    return (f", then averaged over {esc(name.replace('_', ' '))} on and off (probability off "
-            f"{num(float(on['p_off'].iloc[0]), 2)}), so its intervals are not the rounds' (which keep the effect free)")
+    return (f", then averaged over {esc(avg['effect'].replace('_', ' '))} on and off (probability off "
+            f"{num(float(avg['p_off']), 2)}), so its intervals are not the rounds' (which keep the effect free)")
 
 
 def discrepancy(f: RunFiles) -> str:
