@@ -293,7 +293,8 @@ def surrogate_ratios(gp: GPSurrogate, second: Optional[SecondResponse], measured
 
 
 # ------------------------------------------------------------------ the verdicts
-def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, prior: str = "settings") -> pd.DataFrame:
+def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, prior: str = "settings",
+             off: Optional[dict] = None) -> pd.DataFrame:
     """Each parameter's verdict in words, and for an effect the model gained (not a default one) the
     Bayes factor of "off" against the posterior (``bf_off``; ``bf_upper`` where no draw fell near
     the neutral value and it is an upper bound from the effective draws). Where the surrogate is
@@ -305,7 +306,9 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     beyond the box, and the parameters that trade off with the pressed one sit where they compensate for the
     bound (on the cohesive LAMMPS lab surface energy's interval, 0.22-0.51 J/m2 with static friction and
     restitution at their boxes' tops, missed the truth 0.6; docs/method.md, "A box that cuts the
-    posterior")."""
+    posterior"). ``off``: of a posterior averaged over an effect on and off (:func:`averaged`), its parameter,
+    name, neutral value, P(off) and its interval with the effect on; where the data favour it off the
+    averaged interval is the neutral value's, and the verdict says so rather than "90 % between 0 and 0"."""
     owner = {e.parameter: e for e in EFFECTS.values()}
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
@@ -321,8 +324,20 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     table["box_cut"] = ", ".join(f"{p} {e}" for p, e in zip(table.loc[pressed, "parameter"],
                                                              table.loc[pressed, "edge"]))
     table["identified"] = table["identified"] & (not unsure) & (not pressed.any())
-    table["verdict"] = [_words(r, owner, unsure, prior) for r in table.itertuples()]
+    table["verdict"] = [_words(r, owner, unsure, prior, _off_words(r, off)) for r in table.itertuples()]
     return table
+
+
+def _off_words(r, off: Optional[dict]) -> str:
+    """For the parameter of an effect the data favour off (P(off) at a Bayes factor of BF_OFF or more) in a
+    posterior averaged over it (``off``), what its interval is: the neutral value's, and the interval with
+    the effect on; "" for any other row."""
+    if off and r.parameter == off["parameter"] and off["p_off"] >= BF_OFF / (1.0 + BF_OFF):
+        at = (f"so 90 % of the averaged draws sit at {off['neutral']:g}" if r.q05 == r.q95
+              else f"averaged, 90 % between {r.q05:.3g} and {r.q95:.3g}")
+        return (f"off with probability {off['p_off']:.2g}, {at} (with {off['effect']} on, 90 % between "
+                f"{off['q05_on']:.3g} and {off['q95_on']:.3g})")
+    return ""
 
 
 #: the answer's columns a result's ``summary()`` shows (posterior/summary.parquet holds more: ranges, draws'
@@ -375,11 +390,11 @@ def _widen(r, prior: str) -> str:
     return f"widen factors.{r.parameter}.{r.edge} in settings.toml and calibrate again"
 
 
-def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
+def _words(r, owner, unsure: bool, prior: str = "settings", off: str = "") -> str:
     if unsure:
         w = (f"undecided: the surrogate is unsure here (its variance at the posterior's draws is {r.surrogate_ratio:.3g}x "
-             f"the measured means'); 90 % between {r.q05:.3g} and {r.q95:.3g}: simulate heaps where the posterior "
-             "lies (`calib calibrate`)")
+             f"the measured means'); {off or f'90 % between {r.q05:.3g} and {r.q95:.3g}'}: simulate heaps where "
+             "the posterior lies (`calib calibrate`)")
     elif r.edge:
         bound = r.low if r.edge == "low" else r.high
         w = (f"at its range's {'lower' if r.edge == 'low' else 'upper'} edge: 90 % between {r.q05:.3g} and "
@@ -391,6 +406,8 @@ def _words(r, owner, unsure: bool, prior: str = "settings") -> str:
                 else f"widen {'those ranges' if several else 'that range'} and calibrate again")
         w = (f"inside this box only: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its "
              f"range), while the box cuts the posterior at {cut_words(r.box_cut)} ({more})")
+    elif off:  # averaged over the effect, which the data favour off (the averaging needs no edge, no cut)
+        w = off
     elif r.identified:
         w = f"identified: 90 % between {r.q05:.3g} and {r.q95:.3g} ({100 * r.rel_width:.0f} % of its range)"
     else:
@@ -616,12 +633,15 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
                               scatter=fit.evidence["scatter"], second=fit.second, columns=share)
     draws = averaged_draws(fit.samples, off.samples_.assign(**{r.parameter: r.neutral}, log_prob=off.log_prob_),
                            p_off, seed)
-    table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"],
-                     fit.evidence.get("prior", "settings"))
-    table["p_off"] = np.where(table["parameter"] == r.parameter, p_off, np.nan)
     name = next(e.name for e in EFFECTS.values() if e.parameter == r.parameter)
+    said = {"parameter": r.parameter, "effect": name, "neutral": float(r.neutral), "p_off": p_off,
+            "q05_on": float(r.q05), "q95_on": float(r.q95)}
+    table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"],
+                     fit.evidence.get("prior", "settings"), off=said)
+    table["p_off"] = np.where(table["parameter"] == r.parameter, p_off, np.nan)
+    own = p_off < BF_OFF / (1.0 + BF_OFF)  # else its verdict says so already
     table["verdict"] = [w + (f"; the intervals average {name} on and off (probability off {p_off:.2g})"
-                             if p == r.parameter else "") for p, w in zip(table["parameter"], table["verdict"])]
+                             if p == r.parameter and own else "") for p, w in zip(table["parameter"], table["verdict"])]
     say(f"the answer averages {name} on and off: the data give it off a probability of {p_off:.2g}")
     info = {"effect": name, "parameter": r.parameter, "p_off": p_off, "neutral": float(r.neutral)}
     return replace(fit, table=table, samples=draws, averaged=info)

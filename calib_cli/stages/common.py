@@ -62,8 +62,8 @@ R = TypeVar("R")
 #: posterior 12, calibrate-answer 7: an effect whose Bayes factor the box cuts is not averaged on and off
 #: (answers locked at 11 / 6 before that change could still hold the average)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 12, "suggest": 5, "calibrate": 4,
-                 "calibrate-answer": 7, "synth-lab": 1}
+                 "diagnose": 2, "posterior": 13, "suggest": 5, "calibrate": 4,
+                 "calibrate-answer": 8, "synth-lab": 1}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:
