@@ -259,6 +259,8 @@ BAD: list[Bad] = [
     Bad("sim-conditions-no-id", [*SIM, "--set", "static_friction=0.3", "--conditions", "{tmp}/c.csv"],
         {"c.csv": "particle_d_min_mm,particle_d_max_mm\n5,6\n"}),
     Bad("sim-design-missing", [*SIM, "--design", "{tmp}/none.parquet"]),
+    Bad("sim-design-misspelt-parameter", [*SIM, "--design", "{tmp}/d.parquet"],
+        {"d.parquet": _parquet(pd.DataFrame({"run_id": [1], "static_friction": [0.3], "rolling_fricton": [0.2]}))}),
     Bad("sim-design-csv-garbage", [*SIM, "--design", "{tmp}/d.parquet"], {"d.parquet": "static_friction\n0.3\n"}),
     Bad("sim-design-truncated", [*SIM, "--design", "{run}/bbd/design.parquet"], prep=_truncate("bbd/design.parquet")),
     Bad("sim-preset-unknown", ["simulate-heap", "--run", "{run}", "--preset", "turbo", "--set", "static_friction=0.3"]),

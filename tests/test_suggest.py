@@ -187,6 +187,21 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
     assert r.exit_code == 2 and "calibrate-posterior" in r.output
 
 
+def test_simulate_takes_ids_comma_separated_or_repeated(monkeypatch, tmp_path):
+    """`--simulate A,B` and `--simulate A --simulate B` name the same two candidates (a repeated option once
+    kept only its last value, silently)."""
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+    from calib_cli.stages import suggest as st
+
+    asked = []
+    monkeypatch.setattr(st, "suggest_conditions", lambda *a, simulate=(), **k: asked.append(simulate) or 1 / 0)
+    for opt in (["--simulate", "A,B"], ["--simulate", "A", "--simulate", " B"]):
+        CliRunner().invoke(app, ["suggest-conditions", "--run", str(tmp_path), "--rig", "r.toml", *opt])
+    assert asked == [["A", "B"], ["A", "B"]]
+
+
 def test_after_a_posterior_that_weighed_the_profile_the_ranking_counts_it_too(tmp_path):
     """The profile's fullness sees rolling friction here: a new condition's expected information counts
     its profile as the posterior did (the angle's alone in its own column), and the lock reads it."""

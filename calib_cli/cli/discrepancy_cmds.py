@@ -166,9 +166,10 @@ def suggest_conditions(
     piles: Annotated[Optional[int], typer.Option(min=1, help="Piles to measure a condition with (default: the "
                                                  "rig file's piles, else 10).")] = None,
     top: Annotated[int, typer.Option(min=1, help="Conditions to write into RUN/suggest/conditions.csv.")] = 5,
-    simulate: Annotated[Optional[str], typer.Option(help="Candidate condition ids, comma-separated (from a first "
-                                                    "ranking), at which to simulate diagnose's sensitivities "
-                                                    "instead of carrying them from the measured conditions.")] = None,
+    simulate: Annotated[Optional[list[str]], typer.Option(help="Candidate condition ids, comma-separated or the "
+                                                          "option repeated (from a first ranking), at which to "
+                                                          "simulate diagnose's sensitivities instead of carrying "
+                                                          "them from the measured conditions.")] = None,
     set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3, workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
     force: ForceOpt = False,
@@ -191,7 +192,7 @@ def suggest_conditions(
     """
     from ..stages import suggest as suggest_stage
 
-    ids = [i.strip() for i in simulate.split(",") if i.strip()] if simulate else []
+    ids = [i.strip() for s in simulate or [] for i in s.split(",") if i.strip()]
     r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say, simulate=ids, set_=set_, preset=preset,
                                          repeats=repeats, workers=workers, shear_modulus=shear_modulus)
     if r.skipped:

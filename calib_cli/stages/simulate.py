@@ -122,6 +122,7 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
                              "elsewhere (--responses)")
         if not cols:
             raise CalibError(f"design {design} has no parameter columns ({', '.join(PARAMETERS)})")
+        _misspelt(df, design)
         dname = Path(design).parent.name
         ids = df["run_id"].to_numpy() if "run_id" in df.columns else np.arange(1, len(df) + 1)
         for rid, (_, row) in zip(ids, df.iterrows()):
@@ -137,6 +138,19 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
             model.check(p)
         return [(rid, model.pin(p)) for rid, p in points], dname, model.hash
     return points, dname, ""
+
+
+def _misspelt(df: pd.DataFrame, design: Path) -> None:
+    """Refuses a design column that is not a parameter but reads like one ("rolling_fricton"): a design may
+    carry other columns (run_id, step, responses, notes), but this one's values would be ignored and every
+    heap would take that parameter's default, unseen."""
+    import difflib
+
+    for c in (c for c in df.columns if c not in PARAMETERS):
+        close = difflib.get_close_matches(str(c), list(PARAMETERS), n=1, cutoff=0.8)
+        if close and close[0] not in df.columns:
+            raise CalibError(f"design {design}: column {c!r} is not a parameter: did you mean {close[0]}? (its "
+                             f"values would be ignored and every heap would take {close[0]}'s default)")
 
 
 #: ``--conditions preset``: the preset's rig even where the run has measured its own
