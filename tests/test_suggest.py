@@ -351,6 +351,60 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
         st.suggest_conditions(mine, rig, simulate=["d4-5_D40_H50"], **quiet)  # measured already
 
 
+def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_intervals(ranked, tmp_path, monkeypatch):
+    """--heaps N: beside diagnose's steps, N heaps at each named candidate at parameters spread over the
+    posterior's 90 % intervals (a Latin hypercube), one pile each, numbered as a design's; refused without
+    --simulate, and at 1 (no design)."""
+    import shutil
+
+    from calib_cli import artifacts as art
+    from calib_cli.stages import suggest as st
+
+    run, rig, _ = ranked
+    mine = tmp_path / "run"
+    shutil.copytree(run, mine)
+    sens = mine / "diagnose" / "sensitivities.parquet"
+    art.write_table(sens, art.read_table(sens), {"theta": {"static_friction": 0.4, "rolling_friction": 0.2,
+                                                          "restitution": 0.3}})
+    monkeypatch.setattr(st, "signatures", lambda run_, model, theta, conds, *a: (
+        np.zeros(len(conds)), [np.full(len(conds), 20.0)] * len(model.parameters), {"cohesion": np.ones(len(conds))},
+        {"cohesion": np.full(len(conds), 0.1)}, {}))
+    asked = {}
+
+    def fake(run_, model, points, conds, preset, repeats, workers, tag, **k):
+        asked.update(points=points, ids=conds["condition_id"].tolist(), repeats=repeats, tag=tag)
+        return pd.DataFrame()
+
+    monkeypatch.setattr(st, "simulate_points", fake)
+    quiet = {"say": lambda *a, **k: None}
+    st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=4, **quiet)
+    post = art.read_table(mine / "posterior" / "summary.parquet").set_index("parameter")
+    assert asked["ids"] == ["d4-5_D60_H75"] and asked["repeats"] == 1 and asked["tag"] == "suggest-region"
+    assert [rid for rid, _ in asked["points"]] == [1, 2, 3, 4]
+    for p in post.index:
+        xs = sorted(theta[p] for _, theta in asked["points"])
+        assert post.loc[p, "q05"] <= xs[0] and xs[-1] <= post.loc[p, "q95"]
+        # a Latin hypercube: one point in each quarter of the interval
+        assert len({int(4 * (x - post.loc[p, "q05"]) / (post.loc[p, "q95"] - post.loc[p, "q05"])) for x in xs}) == 4
+    for bad, match in (({"heaps": 4}, "--heaps choose the heaps --simulate makes"),
+                       ({"heaps": 1, "simulate": ["d4-5_D60_H75"]}, "--heaps must be 0 or at least 2")):
+        with pytest.raises(CalibError, match=match):
+            st.suggest_conditions(mine, rig, **bad, **quiet)
+
+
+def test_the_command_to_rank_names_the_two_largest_gains_beyond_the_heaps():
+    """simulate_command: the ranking's command with --simulate at the two largest gains not ranked for lying
+    beyond the simulated heaps (a ranked or unknown one is not named), and --heaps; "" where there is none."""
+    from calib_cli.posterior.suggest import REGION_HEAPS, simulate_command, to_simulate
+
+    t = pd.DataFrame({"condition_id": ["a", "b", "c", "d", "e"], "info_gain_nats": [0.3, 0.9, np.nan, 0.5, 2.0],
+                      "beyond_heaps": ["grain size 3", "fill 150", "cylinder 60", "grain size 6", ""]})
+    assert to_simulate(t) == ["b", "d"]
+    assert simulate_command("calib suggest-conditions --run R --rig G", t) == (
+        f"calib suggest-conditions --run R --rig G --simulate b,d --heaps {REGION_HEAPS}")
+    assert simulate_command("x", t.assign(beyond_heaps="")) == "" and to_simulate(t.drop(columns="beyond_heaps")) == []
+
+
 def test_each_candidate_effect_is_given_the_condition_that_best_separates_it(ranked):
     run, rig, r = ranked
     lines = r.per_effect()

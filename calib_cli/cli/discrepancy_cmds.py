@@ -170,6 +170,9 @@ def suggest_conditions(
                                                           "option repeated (from a first ranking), at which to "
                                                           "simulate diagnose's sensitivities instead of carrying "
                                                           "them from the measured conditions.")] = None,
+    heaps: Annotated[int, typer.Option(min=0, help="With --simulate: heaps at each named candidate spread over "
+                                       "the posterior's 90 % intervals (a Latin hypercube), so the surrogate learns "
+                                       "the candidate where the posterior lies, not only at diagnose's point.")] = 0,
     set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3, workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
     force: ForceOpt = False,
@@ -188,13 +191,14 @@ def suggest_conditions(
     separation beyond the measured conditions' range a straight line carried out from them: both
     are shown, not ranked. --simulate ID,... simulates diagnose's finite differences there
     (--repeats heaps a step, at the parameters diagnose used, or --set), into
-    RUN/suggest/sensitivities.parquet, and ranks them.
+    RUN/suggest/sensitivities.parquet, and ranks them; --heaps N adds N heaps at each over the
+    posterior's intervals, where the surrogate must be sure for the gain to hold.
     """
     from ..stages import suggest as suggest_stage
 
     ids = [i.strip() for s in simulate or [] for i in s.split(",") if i.strip()]
     r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say, simulate=ids, set_=set_, preset=preset,
-                                         repeats=repeats, workers=workers, shear_modulus=shear_modulus)
+                                         repeats=repeats, workers=workers, shear_modulus=shear_modulus, heaps=heaps)
     if r.skipped:
         return skipped(r.stage)
     show_suggestions(r)

@@ -80,11 +80,20 @@ def _check_given(model: Model, given: dict[str, float]) -> None:
 
 def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
     """Mean, sd, n of the simulated angle per condition at parameters theta, on the run's engine."""
+    rows = simulate_points(run, model, [(0, theta)], conds, preset, repeats, workers, tag, seed, shear_modulus,
+                           by_condition=True)
+    return per_condition(rows, conds["condition_id"]), rows
+
+
+def simulate_points(run, model, points, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None,
+                    by_condition=False):
+    """The results rows of every point (run id, parameters) under every condition of ``conds``, ``repeats``
+    heaps each, on the run's engine; numbered by point (a design's), or ``by_condition`` (one point's, as
+    compare's)."""
     cfg = resolve_settings(run, None, None)
     engine = heap_engine(cfg)
     pre = heap_preset(preset, shear_modulus, heap_precision(cfg, engine))
-    reqs = build_requests([(0, model.pin(theta))], table_conditions(pre.condition, conds), pre.numerics, seed=seed,
-                          repeats=repeats, preset=preset, design=tag, model=model.hash, label_by_condition=True,
-                          engine=engine)
-    rows = run_campaign(reqs, run, workers, rows_suffice=True)
-    return per_condition(rows, conds["condition_id"]), rows
+    reqs = build_requests([(rid, model.pin(theta)) for rid, theta in points], table_conditions(pre.condition, conds),
+                          pre.numerics, seed=seed, repeats=repeats, preset=preset, design=tag, model=model.hash,
+                          label_by_condition=by_condition, engine=engine)
+    return run_campaign(reqs, run, workers, rows_suffice=True)

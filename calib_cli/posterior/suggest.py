@@ -304,6 +304,28 @@ def any_ranked(table: pd.DataFrame) -> bool:
     return any(s.notna().any() for s in _ranked(table))
 
 
+#: heaps ``suggest-conditions --heaps`` is advised to spread over the posterior at a candidate (on the
+#: hidden-cohesion lab 12 took the surrogate's sd at the best two to 1.6 and 1.3 deg, docs/tutorial-hidden-effect.md)
+REGION_HEAPS = 12
+
+
+def to_simulate(table: pd.DataFrame, n: int = 2) -> list[str]:
+    """The ``n`` candidates whose information gain is largest among those not ranked because it lies beyond
+    the simulated heaps' range: where heaps (``suggest-conditions --simulate ID --heaps N``) would first
+    turn a guess into a ranking."""
+    if "beyond_heaps" not in table:
+        return []
+    guess = table[table["beyond_heaps"].fillna("").astype(bool) & np.isfinite(table["info_gain_nats"].astype(float))]
+    return guess.sort_values("info_gain_nats", ascending=False, kind="stable")["condition_id"].astype(str).head(n).tolist()
+
+
+def simulate_command(command: str, table: pd.DataFrame) -> str:
+    """``command`` (a ranking's own, from its provenance) with the ``--simulate`` and ``--heaps`` that would
+    rank its best unranked candidates (:func:`to_simulate`), or "" where there are none."""
+    ids = to_simulate(table)
+    return f"{command} --simulate {','.join(ids)} --heaps {REGION_HEAPS}" if ids else ""
+
+
 def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:
     """For each candidate effect of a ranking, (effect, condition_id, separation, "simulated" or
     "interpolated"): the condition that would best tell it from what the parameters absorb, among those

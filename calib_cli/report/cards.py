@@ -9,7 +9,7 @@ import pandas as pd
 
 from ..model import EFFECTS
 from ..posterior.evidence import bf_text, box_cuts, cut_words, edges, effect_verdict
-from ..posterior.suggest import any_ranked, best_per_effect
+from ..posterior.suggest import any_ranked, best_per_effect, simulate_command
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, rows_table
 from .summary import PINNED, Fit, favoured_off, solution_params
@@ -189,6 +189,13 @@ def _effect_badge(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
             "cut": badge("no verdict: the box cuts the posterior", "warn")}.get(word, "")
 
 
+def _simulate_hint(f: RunFiles, ranking: pd.DataFrame) -> str:
+    """The end of "Measure next"'s note where nothing is ranked: the command (the ranking's own, from its
+    provenance) that simulates heaps at the two candidates with the largest unranked gains."""
+    cmd = simulate_command(str(f.prov("suggest/ranking.parquet").get("command", "")), ranking)
+    return f". To rank the two largest gains, simulate heaps there: <code>{esc(cmd)}</code>." if cmd else "."
+
+
 def _posterior_rows(post: pd.DataFrame) -> list[list[str]]:
     rows = []
     for r, edge, off, cut in zip(post.itertuples(index=False), edges(post), favoured_off(post), box_cuts(post)):
@@ -297,7 +304,7 @@ def posterior_card(f: RunFiles) -> str:
         body += "<h3>Measure next</h3>" + ("" if any_ranked(nxt) else note(
             "Not ranked yet: at each condition the rig offers, the gain and the separation are extrapolated beyond "
             "the simulated heaps and the measured conditions. Below, the first three in the rig's order, each with "
-            "what to simulate first.", "prov")) + "".join(
+            "what to simulate first" + _simulate_hint(f, nxt), "prov")) + "".join(
             f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
                         f"({sep:.2g} chi-square units, sensitivities {how})</p>"

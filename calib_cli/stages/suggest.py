@@ -19,13 +19,14 @@ from ..heaps.index import RESULTS
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
-from ..posterior.suggest import Evidence, Rig, any_ranked, best_per_effect, explain, parse_rig, rank_conditions
+from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, parse_rig, rank_conditions,
+                                 region_design, simulate_command)
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
-from ..discrepancy.point import model_and_theta
+from ..discrepancy.point import model_and_theta, simulate_points
 from ..discrepancy.sensitivity import signatures
 from ..heaps.inputs import Pairs
 
@@ -185,10 +186,12 @@ def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
 
 
 def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
-                         workers: int, shear_modulus: Optional[float], say: Say) -> pd.DataFrame:
+                         workers: int, shear_modulus: Optional[float], say: Say, heaps: int = 0) -> pd.DataFrame:
     """diagnose's sensitivities simulated at the candidates ``ids``: one row per candidate (NaN where not
     simulated), columns d_<parameter> and candidate_<effect> as in diagnose/sensitivities.parquet, and
-    se_candidate_<effect>, the signature's standard error from the heaps' scatter."""
+    se_candidate_<effect>, the signature's standard error from the heaps' scatter. With ``heaps``, as many
+    more at each candidate spread over the posterior's 90 % intervals (:func:`region_design`): diagnose's
+    heaps teach the surrogate the candidate at one point, these where the posterior's draws lie."""
     known = cand["condition_id"].astype(str).tolist()
     wrong = [i for i in ids if i not in known]
     if wrong:
@@ -206,8 +209,12 @@ def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset
     two_sided = sum(EFFECTS[e].two_sided for e in tested)
     n = (1 + len(model.parameters) + len(tested) + two_sided) * len(picks) * repeats
     say(f"simulating diagnose's sensitivities at {len(picks)} candidate condition(s): {n} heaps at most "
-        "(cached ones are reused)")
+        "(cached ones are reused)" + (f", and {heaps * len(picks)} over the posterior's 90 % intervals" if heaps else ""))
     _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested)
+    if heaps:
+        design = region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps)
+        points = [(int(r["run_id"]), {p: float(r[p]) for p in model.parameters}) for _, r in design.iterrows()]
+        simulate_points(run, model, points, picks, preset, 1, workers, "suggest-region", shear_modulus=shear_modulus)
     out = pd.DataFrame(index=cand.index)
     for k, e in enumerate(model.effects):
         out.loc[picks["index"], f"d_{EFFECTS[e].parameter}"] = J[k]
@@ -310,9 +317,11 @@ def _conditions_csv(table: pd.DataFrame, top: int, piles: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int) -> list[str]:
+def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int,
+                   command: str) -> list[str]:
     """What limits a ranking: a surrogate less sure than a measured mean even where there are heaps, gains or
-    separations carried beyond the heaps or the measured range (shown, not ranked)."""
+    separations carried beyond the heaps or the measured range (shown, not ranked), and the ``command``
+    (this ranking's) that would simulate heaps at the best of those."""
     notes = []
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
         notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
@@ -321,7 +330,8 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
                      "condition until it falls")
     if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
-                     "extrapolation and is not ranked: simulate heaps there first")
+                     "extrapolation and is not ranked: simulate heaps there first; at the two largest, "
+                     f"`{simulate_command(command, table)}`")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
@@ -331,13 +341,15 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
 @writes_run
 def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: int = 5, force: bool = False,
                        say: Optional[Say] = None, simulate=(), set_: Pairs = None, preset: Optional[str] = None,
-                       repeats: int = 3, workers: int = 1, shear_modulus: Optional[float] = None) -> SuggestResult:
+                       repeats: int = 3, workers: int = 1, shear_modulus: Optional[float] = None,
+                       heaps: int = 0) -> SuggestResult:
     """Rank the conditions a rig can make (``rig``: a TOML file) by the expected information about the
     current model's parameters and the expected separation of each missing effect; writes
     RUN/suggest/ranking.parquet and conditions.csv (the ``top`` ones, ``piles`` rows each). The
     candidates named in ``simulate`` get diagnose's sensitivities simulated there (``repeats`` heaps a
     step, at the parameters diagnose used or ``set_``) instead of extrapolated, in
-    RUN/suggest/sensitivities.parquet."""
+    RUN/suggest/sensitivities.parquet, and ``heaps`` more each over the posterior's 90 % intervals, which
+    the surrogate learns the candidate from where the posterior lies."""
     say = say or plain
     run = check_run_dir(run)
     cfg = resolve_settings(run, None, None)  # read first: a broken settings.toml stops every command, this one too
@@ -345,10 +357,12 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     piles = int(piles or the_rig.piles)
     if piles < 1 or top < 1 or repeats < 1:
         raise CalibError("--piles, --top and --repeats must be at least 1")
+    if heaps < 0 or heaps == 1:
+        raise CalibError(f"--heaps must be 0 or at least 2 (a design over the posterior's intervals), got {heaps}")
     simulate = [simulate] if isinstance(simulate, str) else list(simulate)  # one name, not its letters
-    if not simulate and (set_ or preset or shear_modulus is not None):
-        raise CalibError("--set, --preset and --shear-modulus choose the heaps --simulate makes: name the "
-                         "candidates to simulate (--simulate EFFECT), or leave them out")
+    if not simulate and (set_ or preset or shear_modulus is not None or heaps):
+        raise CalibError("--set, --preset, --shear-modulus and --heaps choose the heaps --simulate makes: name the "
+                         "candidates to simulate (--simulate ID), or leave them out")
     model = load_model(run)
     measured = measured_conditions(run)
     if measured.empty:
@@ -361,7 +375,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
     # simulated first (a rerun finds them cached): the heaps join what the surrogate and the lock read
-    sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say) \
+    sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say, heaps) \
         if simulate else None
     rows = model_rows(run, model)
     scale = _scale(run)
@@ -380,7 +394,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
                settings={"piles": piles, "top": top,
                          **({"profiles_at_hand": profiles_at_hand(run, rows)} if profile else {}),
                          **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
-                         "preset": preset, **modulus_settings(shear_modulus),
+                         **({"heaps": heaps} if heaps else {}), "preset": preset, **modulus_settings(shear_modulus),
                          **run_heap_settings(cfg)} if simulate else {})})
     if st.up_to_date() and not force:
         return SuggestResult(st, True, top=top)
@@ -398,7 +412,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
-    notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles)
+    notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles,
+                            f"calib suggest-conditions --run {run} --rig {rig}")
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
