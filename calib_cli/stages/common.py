@@ -61,6 +61,7 @@ R = TypeVar("R")
 #: parameter is identified and no effect gets a verdict (the `box_cut` column)
 #: posterior 12, calibrate-answer 7: an effect whose Bayes factor the box cuts is not averaged on and off
 #: (answers locked at 11 / 6 before that change could still hold the average)
+#: posterior 13, calibrate-answer 8: the verdict of an effect the data favour off says off, not "0 to 0"
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
                  "diagnose": 2, "posterior": 13, "suggest": 5, "calibrate": 4,
                  "calibrate-answer": 8, "synth-lab": 1}

@@ -338,6 +338,18 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     return notes
 
 
+def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: bool, heap_options: bool) -> None:
+    """Refuses counts out of range, and options that choose heaps (``heap_options``: --set, --preset,
+    --shear-modulus; and --heaps) without --simulate, which alone makes them."""
+    if piles < 1 or top < 1 or repeats < 1:
+        raise CalibError("--piles, --top and --repeats must be at least 1")
+    if heaps < 0 or heaps == 1:
+        raise CalibError(f"--heaps must be 0 or at least 2 (a design over the posterior's intervals), got {heaps}")
+    if not simulate and (heap_options or heaps):
+        raise CalibError("--set, --preset, --shear-modulus and --heaps choose the heaps --simulate makes: name the "
+                         "candidates to simulate (--simulate ID), or leave them out")
+
+
 @writes_run
 def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: int = 5, force: bool = False,
                        say: Optional[Say] = None, simulate=(), set_: Pairs = None, preset: Optional[str] = None,
@@ -355,14 +367,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     cfg = resolve_settings(run, None, None)  # read first: a broken settings.toml stops every command, this one too
     the_rig = load_rig(rig)
     piles = int(piles or the_rig.piles)
-    if piles < 1 or top < 1 or repeats < 1:
-        raise CalibError("--piles, --top and --repeats must be at least 1")
-    if heaps < 0 or heaps == 1:
-        raise CalibError(f"--heaps must be 0 or at least 2 (a design over the posterior's intervals), got {heaps}")
     simulate = [simulate] if isinstance(simulate, str) else list(simulate)  # one name, not its letters
-    if not simulate and (set_ or preset or shear_modulus is not None or heaps):
-        raise CalibError("--set, --preset, --shear-modulus and --heaps choose the heaps --simulate makes: name the "
-                         "candidates to simulate (--simulate ID), or leave them out")
+    _check_options(piles, top, repeats, heaps, bool(simulate), bool(set_ or preset or shear_modulus is not None))
     model = load_model(run)
     measured = measured_conditions(run)
     if measured.empty:
