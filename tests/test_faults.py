@@ -97,6 +97,10 @@ def no_heaps(monkeypatch):
 
 
 # ---------------------------------------------------------------------------- 1. bad inputs
+#: a rig file suggest-conditions reads (its options are checked before the run's posterior is)
+RIG = "[rig]\nparticle_sizes_mm = [[4, 5]]\ncylinder_diameter_mm = [40]\nfill_height_mm = [50, 75]\n"
+
+
 @dataclass
 class Bad:
     """One bad input: the command (``{run}``: the copied run directory, ``{tmp}``: the case's input
@@ -264,6 +268,11 @@ BAD: list[Bad] = [
     Bad("sim-design-csv-garbage", [*SIM, "--design", "{tmp}/d.parquet"], {"d.parquet": "static_friction\n0.3\n"}),
     Bad("sim-design-truncated", [*SIM, "--design", "{run}/bbd/design.parquet"], prep=_truncate("bbd/design.parquet")),
     Bad("sim-preset-unknown", ["simulate-heap", "--run", "{run}", "--preset", "turbo", "--set", "static_friction=0.3"]),
+    # ---- what to measure next
+    Bad("suggest-heaps-without-simulate", ["suggest-conditions", "--run", "{run}", "--rig", "{tmp}/r.toml", "--heaps",
+                                           "12"], {"r.toml": RIG}),
+    Bad("suggest-heaps-one", ["suggest-conditions", "--run", "{run}", "--rig", "{tmp}/r.toml", "--simulate", "A",
+                              "--heaps", "1"], {"r.toml": RIG}),
     # ---- surrogates and inversion
     Bad("fit-responses-nan", ["fit-surrogate", "--run", "{run}", "--responses", "{tmp}/r.csv"],
         {"r.csv": _swap_col(BBD_ROWS, 1, "nan")}),
