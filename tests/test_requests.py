@@ -140,3 +140,32 @@ def test_simulate_plans_the_committed_design_heaps(name, options):
         want = rows[rows["design"] == design]
         want = dict(zip(zip(want["run_id"], want["repeat"], want["condition_id"]), want["run_hash"]))
         assert {(r.run_id, r.repeat, r.condition_id): r.hash for r in plan.requests} == want, f"{name} {design}"
+
+
+def test_a_candidates_heaps_are_seeded_by_its_values_not_its_place():
+    """suggest-conditions' heaps at a candidate (SEEDINGS "condition") draw the same seeds whichever other
+    candidates are named beside it, and a step's heaps draw the base's (common random numbers); a design's
+    points ("content") draw apart; compare's and diagnose's ("table") stay by the condition's row."""
+    from dataclasses import replace
+
+    from calib_cli.discrepancy.point import SEEDINGS
+
+    num = Numerics()
+    a, b = HeapCondition(), HeapCondition(lift_speed_mm_s=20.0)
+    p, q = {"static_friction": 0.4}, {"static_friction": 0.5}
+
+    def seeds(how, points, conds):
+        reqs = build_requests(points, conds, num, seed=0, repeats=2)
+        reqs = [replace(r, seed=SEEDINGS[how](0, r)) for r in reqs] if SEEDINGS[how] else reqs
+        return {(r.condition_id, r.params["static_friction"], r.repeat): r.seed for r in reqs}
+
+    alone, beside = seeds("condition", [(0, p)], [("B", b)]), seeds("condition", [(0, p)], [("A", a), ("B", b)])
+    assert alone[("B", 0.4, 0)] == beside[("B", 0.4, 0)] and alone[("B", 0.4, 1)] == beside[("B", 0.4, 1)]
+    assert alone[("B", 0.4, 0)] != alone[("B", 0.4, 1)] and beside[("A", 0.4, 0)] != beside[("B", 0.4, 0)]
+    step = seeds("condition", [(0, q)], [("B", b)])
+    assert step[("B", 0.5, 0)] == alone[("B", 0.4, 0)]  # a finite difference's two ends draw alike
+    design = seeds("content", [(1, p), (2, q)], [("B", b)])
+    assert design[("B", 0.4, 0)] != design[("B", 0.5, 0)]
+    # by the row, as compare and diagnose seed the measured table: B's heaps change with its place
+    assert seeds("table", [(0, p)], [("B", b)])[("B", 0.4, 0)] != seeds("table", [(0, p)], [("A", a), ("B", b)])[
+        ("B", 0.4, 0)]

@@ -330,8 +330,8 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
     art.write_table(sens, art.read_table(sens), {"theta": theta})
     asked = {}
 
-    def fake(run_, model, theta_, conds, preset, repeats, workers, shear_modulus, cands):
-        assert cands == ["cohesion"]  # the effects diagnose tested, not every one the model lacks
+    def fake(run_, model, theta_, conds, preset, repeats, workers, shear_modulus, cands, seeds="table"):
+        assert cands == ["cohesion"] and seeds == "condition"  # the effects diagnose tested, not every one the model lacks
         asked.update(theta=theta_, ids=conds["condition_id"].tolist(), repeats=repeats)
         n = len(conds)
         return (np.zeros(n), [np.full(n, 20.0), np.full(n, 40.0), np.full(n, -2.0)], {"cohesion": np.full(n, 1.0)},
@@ -366,13 +366,13 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
     sens = mine / "diagnose" / "sensitivities.parquet"
     art.write_table(sens, art.read_table(sens), {"theta": {"static_friction": 0.4, "rolling_friction": 0.2,
                                                           "restitution": 0.3}})
-    monkeypatch.setattr(st, "signatures", lambda run_, model, theta, conds, *a: (
+    monkeypatch.setattr(st, "signatures", lambda run_, model, theta, conds, *a, **k: (
         np.zeros(len(conds)), [np.full(len(conds), 20.0)] * len(model.parameters), {"cohesion": np.ones(len(conds))},
         {"cohesion": np.full(len(conds), 0.1)}, {}))
     asked = {}
 
     def fake(run_, model, points, conds, preset, repeats, workers, tag, **k):
-        asked.update(points=points, ids=conds["condition_id"].tolist(), repeats=repeats, tag=tag)
+        asked.update(points=points, ids=conds["condition_id"].tolist(), repeats=repeats, tag=tag, seeds=k["seeds"])
         return pd.DataFrame()
 
     monkeypatch.setattr(st, "simulate_points", fake)
@@ -380,6 +380,7 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
     st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=4, **quiet)
     post = art.read_table(mine / "posterior" / "summary.parquet").set_index("parameter")
     assert asked["ids"] == ["d4-5_D60_H75"] and asked["repeats"] == 1 and asked["tag"] == "suggest-region"
+    assert asked["seeds"] == "content"  # a design's points draw apart
     assert [rid for rid, _ in asked["points"]] == [1, 2, 3, 4]
     for p in post.index:
         xs = sorted(theta[p] for _, theta in asked["points"])
@@ -400,9 +401,16 @@ def test_the_command_to_rank_names_the_two_largest_gains_beyond_the_heaps():
     t = pd.DataFrame({"condition_id": ["a", "b", "c", "d", "e"], "info_gain_nats": [0.3, 0.9, np.nan, 0.5, 2.0],
                       "beyond_heaps": ["grain size 3", "fill 150", "cylinder 60", "grain size 6", ""]})
     assert to_simulate(t) == ["b", "d"]
-    assert simulate_command("calib suggest-conditions --run R --rig G", t) == (
-        f"calib suggest-conditions --run R --rig G --simulate b,d --heaps {REGION_HEAPS}")
-    assert simulate_command("x", t.assign(beyond_heaps="")) == "" and to_simulate(t.drop(columns="beyond_heaps")) == []
+    fallback = "calib suggest-conditions --run R --rig G"
+    assert simulate_command("calib suggest-conditions --run 'my run' --rig G --top 3", t, fallback) == (
+        f"calib suggest-conditions --run 'my run' --rig G --top 3 --simulate b,d --heaps {REGION_HEAPS}")
+    # the candidates simulated before stay named (their sensitivities are read only where named; cached)
+    assert simulate_command("calib suggest-conditions --run R --simulate a,d --heaps 4 --rig G --simulate=e", t,
+                            fallback) == f"calib suggest-conditions --run R --rig G --simulate a,d,e,b --heaps {REGION_HEAPS}"
+    # a ranking made from a notebook records its script's command line: the fallback is named instead
+    assert simulate_command("nb.py --x", t, fallback) == f"{fallback} --simulate b,d --heaps {REGION_HEAPS}"
+    assert simulate_command("x", t.assign(beyond_heaps=""), fallback) == ""
+    assert to_simulate(t.drop(columns="beyond_heaps")) == []
 
 
 def test_each_candidate_effect_is_given_the_condition_that_best_separates_it(ranked):

@@ -4,6 +4,7 @@ perturb."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -12,8 +13,8 @@ from ..heaps.runner import run_campaign
 from ..dem.heap import LAWS
 from ..errors import CalibError
 from ..model import EFFECTS, Model, load_model
-from ..heaps.inputs import (Pairs, build_requests, given_pairs, heap_engine, heap_precision, heap_preset, parse_params,
-                            table_conditions)
+from ..heaps.inputs import (Pairs, build_requests, condition_seed, content_seed, given_pairs, heap_engine, heap_precision,
+                            heap_preset, parse_params, table_conditions)
 from ..stages.common import bbd_fixed, resolve_settings
 from .stats import per_condition
 
@@ -78,22 +79,31 @@ def _check_given(model: Model, given: dict[str, float]) -> None:
                          f"parameters are {', '.join(model.parameters)}{hint}")
 
 
-def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None):
+def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None, seeds="table"):
     """Mean, sd, n of the simulated angle per condition at parameters theta, on the run's engine."""
     rows = simulate_points(run, model, [(0, theta)], conds, preset, repeats, workers, tag, seed, shear_modulus,
-                           by_condition=True)
+                           by_condition=True, seeds=seeds)
     return per_condition(rows, conds["condition_id"]), rows
 
 
+#: how :func:`simulate_points` seeds a heap: by its condition's row in ``conds`` (compare's and diagnose's, on the
+#: measured table), by the condition's values (:func:`condition_seed`: a finite difference's common draws, any
+#: order), or by everything it simulates (:func:`content_seed`: a design's points draw apart)
+SEEDINGS = {"table": None, "condition": lambda base, q: condition_seed(base, q.condition, q.repeat),
+            "content": lambda base, q: content_seed(base, q.params, q.condition, q.repeat)}
+
+
 def simulate_points(run, model, points, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None,
-                    by_condition=False):
+                    by_condition=False, seeds="table"):
     """The results rows of every point (run id, parameters) under every condition of ``conds``, ``repeats``
-    heaps each, on the run's engine; numbered by point (a design's), or ``by_condition`` (one point's, as
-    compare's)."""
+    heaps each, on the run's engine, seeded as ``seeds`` says (:data:`SEEDINGS`); numbered by point (a
+    design's), or ``by_condition`` (one point's, as compare's)."""
     cfg = resolve_settings(run, None, None)
     engine = heap_engine(cfg)
     pre = heap_preset(preset, shear_modulus, heap_precision(cfg, engine))
     reqs = build_requests([(rid, model.pin(theta)) for rid, theta in points], table_conditions(pre.condition, conds),
                           pre.numerics, seed=seed, repeats=repeats, preset=preset, design=tag, model=model.hash,
                           label_by_condition=by_condition, engine=engine)
+    if SEEDINGS[seeds] is not None:
+        reqs = [replace(q, seed=SEEDINGS[seeds](seed, q)) for q in reqs]
     return run_campaign(reqs, run, workers, rows_suffice=True)

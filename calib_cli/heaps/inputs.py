@@ -283,6 +283,14 @@ def request_from_row(row) -> Request:
                    model=row["model"])
 
 
+def condition_seed(base: int, condition: HeapCondition, repeat: int) -> int:
+    """A heap's seed from its condition's values and its repeat alone: the heaps of one condition at several
+    parameter points draw alike (common random numbers, as a finite difference wants), whatever the
+    condition's place in a table (a candidate named beside others is the same heap, and cached)."""
+    h = art.hash_obj({"condition": condition_dict(condition), "repeat": int(repeat)})
+    return derive_seed(base, int(h[:7], 16), repeat)
+
+
 def content_seed(base: int, params: Mapping[str, float], condition: HeapCondition, repeat: int) -> int:
     """A heap's seed from what it simulates (its parameters, its condition's values and its repeat),
     not from a design row or a conditions table's order: the same heap in another round, run or

@@ -307,8 +307,9 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     bound (on the cohesive LAMMPS lab surface energy's interval, 0.22-0.51 J/m2 with static friction and
     restitution at their boxes' tops, missed the truth 0.6; docs/method.md, "A box that cuts the
     posterior"). ``off``: of a posterior averaged over an effect on and off (:func:`averaged`), its parameter,
-    name, neutral value, P(off) and its interval with the effect on; where the data favour it off the
-    averaged interval is the neutral value's, and the verdict says so rather than "90 % between 0 and 0"."""
+    name, neutral value, P(off), its interval with the effect on and whether the data favour it off; then
+    the averaged interval is the neutral value's: the verdict says so rather than "90 % between 0 and 0",
+    and the parameter is not called identified."""
     owner = {e.parameter: e for e in EFFECTS.values()}
     added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
              for p in table["parameter"]]
@@ -324,20 +325,23 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     table["box_cut"] = ", ".join(f"{p} {e}" for p, e in zip(table.loc[pressed, "parameter"],
                                                              table.loc[pressed, "edge"]))
     table["identified"] = table["identified"] & (not unsure) & (not pressed.any())
-    table["verdict"] = [_words(r, owner, unsure, prior, _off_words(r, off)) for r in table.itertuples()]
+    if off and off["favoured"]:  # its narrow interval is the off model's neutral value, not an identification
+        table.loc[table["parameter"] == off["parameter"], "identified"] = False
+    table["verdict"] = [_words(r, owner, unsure, prior, _off_words(r, off, unsure)) for r in table.itertuples()]
     return table
 
 
-def _off_words(r, off: Optional[dict]) -> str:
-    """For the parameter of an effect the data favour off (P(off) at a Bayes factor of BF_OFF or more) in a
-    posterior averaged over it (``off``), what its interval is: the neutral value's, and the interval with
-    the effect on; "" for any other row."""
-    if off and r.parameter == off["parameter"] and off["p_off"] >= BF_OFF / (1.0 + BF_OFF):
-        at = (f"so 90 % of the averaged draws sit at {off['neutral']:g}" if r.q05 == r.q95
-              else f"averaged, 90 % between {r.q05:.3g} and {r.q95:.3g}")
-        return (f"off with probability {off['p_off']:.2g}, {at} (with {off['effect']} on, 90 % between "
-                f"{off['q05_on']:.3g} and {off['q95_on']:.3g})")
-    return ""
+def _off_words(r, off: Optional[dict], unsure: bool) -> str:
+    """For the parameter of an effect the data favour off (``off["favoured"]``: a Bayes factor of off above
+    BF_OFF) in a posterior averaged over it (``off``), what its interval is: P(off) of the draws at the
+    neutral value, and the interval with the effect on ("off" only where the surrogate is sure); "" for
+    any other row."""
+    if not (off and off["favoured"] and r.parameter == off["parameter"]):
+        return ""
+    share = (f"{100 * off['p_off']:.0f} % of the averaged draws sit at {off['neutral']:g} (with {off['effect']} on, "
+             f"90 % between {off['q05_on']:.3g} and {off['q95_on']:.3g})")
+    return (f"averaged over {off['effect']} on and off, {share}" if unsure
+            else f"off with probability {off['p_off']:.2g}, so {share}")
 
 
 #: the answer's columns a result's ``summary()`` shows (posterior/summary.parquet holds more: ranges, draws'
@@ -635,11 +639,11 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
                            p_off, seed)
     name = next(e.name for e in EFFECTS.values() if e.parameter == r.parameter)
     said = {"parameter": r.parameter, "effect": name, "neutral": float(r.neutral), "p_off": p_off,
-            "q05_on": float(r.q05), "q95_on": float(r.q95)}
+            "q05_on": float(r.q05), "q95_on": float(r.q95), "favoured": bool(r.bf_off > BF_OFF)}
     table = verdicts(summarise(draws, bounds, t), res.samples_, fit.ratios["combined"],
                      fit.evidence.get("prior", "settings"), off=said)
     table["p_off"] = np.where(table["parameter"] == r.parameter, p_off, np.nan)
-    own = p_off < BF_OFF / (1.0 + BF_OFF)  # else its verdict says so already
+    own = not said["favoured"]  # else its verdict says so already
     table["verdict"] = [w + (f"; the intervals average {name} on and off (probability off {p_off:.2g})"
                              if p == r.parameter and own else "") for p, w in zip(table["parameter"], table["verdict"])]
     say(f"the answer averages {name} on and off: the data give it off a probability of {p_off:.2g}")

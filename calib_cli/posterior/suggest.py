@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import shlex
 from dataclasses import dataclass
 
 import numpy as np
@@ -305,7 +306,7 @@ def any_ranked(table: pd.DataFrame) -> bool:
 
 
 #: heaps ``suggest-conditions --heaps`` is advised to spread over the posterior at a candidate (on the
-#: hidden-cohesion lab 12 took the surrogate's sd at the best two to 1.6 and 1.3 deg, docs/tutorial-hidden-effect.md)
+#: hidden-cohesion lab 12 took the surrogate's sd at the best two to 1.4 and 1.3 deg, docs/tutorial-hidden-effect.md)
 REGION_HEAPS = 12
 
 
@@ -319,11 +320,29 @@ def to_simulate(table: pd.DataFrame, n: int = 2) -> list[str]:
     return guess.sort_values("info_gain_nats", ascending=False, kind="stable")["condition_id"].astype(str).head(n).tolist()
 
 
-def simulate_command(command: str, table: pd.DataFrame) -> str:
-    """``command`` (a ranking's own, from its provenance) with the ``--simulate`` and ``--heaps`` that would
-    rank its best unranked candidates (:func:`to_simulate`), or "" where there are none."""
+def simulate_command(command: str, table: pd.DataFrame, fallback: str) -> str:
+    """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or "" where
+    there are none: ``command`` (the ranking's own, ``calib suggest-conditions ...``; else ``fallback``) with
+    the candidates it simulated already and these in one ``--simulate`` (those are cached), and ``--heaps``."""
     ids = to_simulate(table)
-    return f"{command} --simulate {','.join(ids)} --heaps {REGION_HEAPS}" if ids else ""
+    if not ids:
+        return ""
+    args = shlex.split(command) if command else []
+    if args[:2] != ["calib", "suggest-conditions"]:
+        args = shlex.split(fallback)
+    kept, named, skip = [], [], False
+    for a, nxt in zip(args, [*args[1:], ""]):
+        if skip:
+            skip = False
+        elif a in ("--simulate", "--heaps"):
+            named += nxt.split(",") if a == "--simulate" else []
+            skip = True
+        elif a.startswith(("--simulate=", "--heaps=")):
+            named += a.partition("=")[2].split(",") if a.startswith("--simulate=") else []
+        else:
+            kept.append(a)
+    every = list(dict.fromkeys([n.strip() for n in named if n.strip()] + ids))
+    return shlex.join([*kept, "--simulate", ",".join(every), "--heaps", str(REGION_HEAPS)])
 
 
 def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shlex
 
 import numpy as np
 import pandas as pd
@@ -192,7 +193,8 @@ def _effect_badge(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
 def _simulate_hint(f: RunFiles, ranking: pd.DataFrame) -> str:
     """The end of "Measure next"'s note where nothing is ranked: the command (the ranking's own, from its
     provenance) that simulates heaps at the two candidates with the largest unranked gains."""
-    cmd = simulate_command(str(f.prov("suggest/ranking.parquet").get("command", "")), ranking)
+    cmd = simulate_command(str(f.prov("suggest/ranking.parquet").get("command", "")), ranking,
+                           f"calib suggest-conditions --run {shlex.quote(str(f.run))} --rig RIG.toml")
     return f". To rank the two largest gains, simulate heaps there: <code>{esc(cmd)}</code>." if cmd else "."
 
 

@@ -192,12 +192,13 @@ def _loose_clause(f: RunFiles) -> str:
 
 def favoured_off(post: pd.DataFrame) -> np.ndarray:
     """Per row of a posterior summary, whether it is an effect the data favour off (P(off) at a Bayes factor of
-    off of BF_OFF or more): its averaged interval is then the neutral value's, not an identification."""
+    off above BF_OFF, as the verdict's words): its averaged interval is then the neutral value's, not an
+    identification."""
     from ..posterior.evidence import BF_OFF
 
     if "p_off" not in post.columns:
         return np.zeros(len(post), bool)
-    return post["p_off"].fillna(0.0).to_numpy(float) >= BF_OFF / (1 + BF_OFF)
+    return post["p_off"].fillna(0.0).to_numpy(float) > BF_OFF / (1 + BF_OFF)
 
 
 def _posterior_clause(post: pd.DataFrame) -> str:

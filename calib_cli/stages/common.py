@@ -61,10 +61,11 @@ R = TypeVar("R")
 #: parameter is identified and no effect gets a verdict (the `box_cut` column)
 #: posterior 12, calibrate-answer 7: an effect whose Bayes factor the box cuts is not averaged on and off
 #: (answers locked at 11 / 6 before that change could still hold the average)
-#: posterior 13, calibrate-answer 8: the verdict of an effect the data favour off says off, not "0 to 0"
+#: posterior 13, calibrate-answer 8: the verdict of an effect the data favour off says off, not "0 to 0";
+#: 14 / 9: nor is that parameter called identified (its narrow interval is the off model's neutral value)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 13, "suggest": 5, "calibrate": 4,
-                 "calibrate-answer": 8, "synth-lab": 1}
+                 "diagnose": 2, "posterior": 14, "suggest": 5, "calibrate": 4,
+                 "calibrate-answer": 9, "synth-lab": 1}
 
 
 def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwargs) -> art.Stage:

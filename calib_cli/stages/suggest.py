@@ -6,6 +6,7 @@ effect from what the current parameters absorb (through diagnose's sensitivities
 from __future__ import annotations
 
 import math
+import shlex
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -210,11 +211,14 @@ def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset
     n = (1 + len(model.parameters) + len(tested) + two_sided) * len(picks) * repeats
     say(f"simulating diagnose's sensitivities at {len(picks)} candidate condition(s): {n} heaps at most "
         "(cached ones are reused)" + (f", and {heaps * len(picks)} over the posterior's 90 % intervals" if heaps else ""))
-    _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested)
+    # seeded by each candidate's values, not its place among those named: naming another one later finds these cached
+    _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested,
+                                  seeds="condition")
     if heaps:
         design = region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps)
         points = [(int(r["run_id"]), {p: float(r[p]) for p in model.parameters}) for _, r in design.iterrows()]
-        simulate_points(run, model, points, picks, preset, 1, workers, "suggest-region", shear_modulus=shear_modulus)
+        simulate_points(run, model, points, picks, preset, 1, workers, "suggest-region", shear_modulus=shear_modulus,
+                        seeds="content")
     out = pd.DataFrame(index=cand.index)
     for k, e in enumerate(model.effects):
         out.loc[picks["index"], f"d_{EFFECTS[e].parameter}"] = J[k]
@@ -320,8 +324,8 @@ def _conditions_csv(table: pd.DataFrame, top: int, piles: int) -> str:
 def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int,
                    command: str) -> list[str]:
     """What limits a ranking: a surrogate less sure than a measured mean even where there are heaps, gains or
-    separations carried beyond the heaps or the measured range (shown, not ranked), and the ``command``
-    (this ranking's) that would simulate heaps at the best of those."""
+    separations carried beyond the heaps or the measured range (shown, not ranked), and the command that
+    would simulate heaps at the best of those (this one's, else ``command``, when called from a library)."""
     notes = []
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
         notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
@@ -331,7 +335,7 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
                      "extrapolation and is not ranked: simulate heaps there first; at the two largest, "
-                     f"`{simulate_command(command, table)}`")
+                     f"`{simulate_command(art.command_line(), table, command)}`")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
@@ -419,7 +423,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles,
-                            f"calib suggest-conditions --run {run} --rig {rig}")
+                            shlex.join(["calib", "suggest-conditions", "--run", str(run), "--rig", str(rig)]))
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
