@@ -387,10 +387,24 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
         assert post.loc[p, "q05"] <= xs[0] and xs[-1] <= post.loc[p, "q95"]
         # a Latin hypercube: one point in each quarter of the interval
         assert len({int(4 * (x - post.loc[p, "q05"]) / (post.loc[p, "q95"] - post.loc[p, "q05"])) for x in xs}) == 4
+    # another --heaps is another ranking (the stage reruns), its design numbered after any made before
+    r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=6, **quiet)
+    assert not r.skipped and len(asked["points"]) == 6
     for bad, match in (({"heaps": 4}, "--heaps choose the heaps --simulate makes"),
                        ({"heaps": 1, "simulate": ["d4-5_D60_H75"]}, "--heaps must be 0 or at least 2")):
         with pytest.raises(CalibError, match=match):
             st.suggest_conditions(mine, rig, **bad, **quiet)
+
+
+def test_a_later_region_design_is_numbered_after_the_heaps_of_one_before(tmp_path):
+    from calib_cli import artifacts as art
+    from calib_cli.heaps.index import RESULTS
+    from calib_cli.stages.suggest import REGION, next_run_id
+
+    assert next_run_id(tmp_path, REGION) == 1
+    (tmp_path / RESULTS).parent.mkdir(parents=True)
+    art.write_table(tmp_path / RESULTS, pd.DataFrame({"design": [REGION, REGION, "compare"], "run_id": [3, 12, 40]}))
+    assert next_run_id(tmp_path, REGION) == 13 and next_run_id(tmp_path, "bbd") == 1
 
 
 def test_the_command_to_rank_names_the_two_largest_gains_beyond_the_heaps():

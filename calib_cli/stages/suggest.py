@@ -186,6 +186,19 @@ def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
     return model_and_theta(run, set_)
 
 
+#: the design label of the heaps ``--heaps`` spreads over the posterior at the candidates
+REGION = "suggest-region"
+
+
+def next_run_id(run: Path, design: str) -> int:
+    """The run id after the largest a ``design``'s heaps hold in the run's results index (1 where none): a
+    later design of the same label is numbered on, so that design and run id name one point."""
+    made = art.read_table(run / RESULTS) if (run / RESULTS).is_file() else pd.DataFrame()
+    if not {"design", "run_id"} <= set(made.columns) or not (made["design"] == design).any():
+        return 1
+    return 1 + int(made.loc[made["design"] == design, "run_id"].max())
+
+
 def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
                          workers: int, shear_modulus: Optional[float], say: Say, heaps: int = 0) -> pd.DataFrame:
     """diagnose's sensitivities simulated at the candidates ``ids``: one row per candidate (NaN where not
@@ -215,9 +228,10 @@ def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset
     _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested,
                                   seeds="condition")
     if heaps:
-        design = region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps)
+        design = region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps,
+                               first_id=next_run_id(run, REGION))
         points = [(int(r["run_id"]), {p: float(r[p]) for p in model.parameters}) for _, r in design.iterrows()]
-        simulate_points(run, model, points, picks, preset, 1, workers, "suggest-region", shear_modulus=shear_modulus,
+        simulate_points(run, model, points, picks, preset, 1, workers, REGION, shear_modulus=shear_modulus,
                         seeds="content")
     out = pd.DataFrame(index=cand.index)
     for k, e in enumerate(model.effects):
