@@ -403,7 +403,8 @@ def test_a_later_region_design_is_numbered_after_the_heaps_of_one_before(tmp_pat
 
     assert next_run_id(tmp_path, REGION) == 1
     (tmp_path / RESULTS).parent.mkdir(parents=True)
-    art.write_table(tmp_path / RESULTS, pd.DataFrame({"design": [REGION, REGION, "compare"], "run_id": [3, 12, 40]}))
+    art.write_table(tmp_path / RESULTS, pd.DataFrame({"design": [REGION, REGION, "compare"], "run_id": [3, 12, 40],
+                                                      "repose_angle": [30.0, 31.0, 29.0]}))
     assert next_run_id(tmp_path, REGION) == 13 and next_run_id(tmp_path, "bbd") == 1
 
 

@@ -292,12 +292,17 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
 
 
+def _beyond(table: pd.DataFrame) -> np.ndarray:
+    """Per candidate, whether it sets a condition variable beyond the simulated heaps' range (its gain the
+    surrogate's extrapolation); False throughout in a ranking written before the column existed."""
+    return table["beyond_heaps"].fillna("").astype(bool).to_numpy() if "beyond_heaps" in table \
+        else np.zeros(len(table), bool)
+
+
 def _ranked(table: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
     """The information gains and separations that rank a candidate: NaN where the surrogate extrapolates
     (a gain beyond the heaps, a separation from extrapolated sensitivities) or cannot tell."""
-    beyond = table["beyond_heaps"].fillna("").astype(bool).to_numpy() if "beyond_heaps" in table \
-        else np.zeros(len(table), bool)
-    return table["info_gain_nats"].where(~beyond), table["best_separation"].where(~table["extrapolated"])
+    return table["info_gain_nats"].where(~_beyond(table)), table["best_separation"].where(~table["extrapolated"])
 
 
 def any_ranked(table: pd.DataFrame) -> bool:
@@ -314,9 +319,7 @@ def to_simulate(table: pd.DataFrame, n: int = 2) -> list[str]:
     """The ``n`` candidates whose information gain is largest among those not ranked because it lies beyond
     the simulated heaps' range: where heaps (``suggest-conditions --simulate ID --heaps N``) would first
     turn a guess into a ranking."""
-    if "beyond_heaps" not in table:
-        return []
-    guess = table[table["beyond_heaps"].fillna("").astype(bool) & np.isfinite(table["info_gain_nats"].astype(float))]
+    guess = table[_beyond(table) & np.isfinite(table["info_gain_nats"].astype(float))]
     return guess.sort_values("info_gain_nats", ascending=False, kind="stable")["condition_id"].astype(str).head(n).tolist()
 
 

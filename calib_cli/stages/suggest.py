@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..heaps.index import RESULTS
+from ..heaps.index import RESULTS, load_results
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
@@ -193,7 +193,7 @@ REGION = "suggest-region"
 def next_run_id(run: Path, design: str) -> int:
     """The run id after the largest a ``design``'s heaps hold in the run's results index (1 where none): a
     later design of the same label is numbered on, so that design and run id name one point."""
-    made = art.read_table(run / RESULTS) if (run / RESULTS).is_file() else pd.DataFrame()
+    made = load_results(run)
     if not {"design", "run_id"} <= set(made.columns) or not (made["design"] == design).any():
         return 1
     return 1 + int(made.loc[made["design"] == design, "run_id"].max())
@@ -346,10 +346,10 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
                      f"the measured conditions, against {mean_sd:.1f} for a measured mean of {piles} piles: simulating "
                      "heaps where the posterior lies (a design over its 90 % intervals) will teach more than any new "
                      "condition until it falls")
-    if (table["beyond_heaps"].astype(bool) & np.isfinite(table["info_gain_nats"])).any():
+    to_rank = simulate_command(art.command_line(), table, command)  # "" where no gain lies beyond the heaps
+    if to_rank:
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
-                     "extrapolation and is not ranked: simulate heaps there first; at the two largest, "
-                     f"`{simulate_command(art.command_line(), table, command)}`")
+                     f"extrapolation and is not ranked: simulate heaps there first; at the two largest, `{to_rank}`")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
