@@ -153,6 +153,19 @@ def test_the_joint_prediction_is_scikit_learns_covariance_without_the_piles_scat
         assert np.allclose(np.sqrt(np.diag(cov[g])), gp.predict(X[g], return_std=True)[1])
 
 
+def test_latent_draws_have_the_processs_mean_and_covariance(gp):
+    """sample_latent: joint draws of f whose mean and covariance are predict's and latent_cov's; seeded, and
+    points that coincide (a covariance not positive definite) still draw."""
+    X = np.array([[0.2, 0.5, 60.0], [0.25, 0.6, 60.0], [0.8, 1.5, 90.0]])
+    mean, F = gp.sample_latent(X, 20000, seed=3)
+    assert F.shape == (20000, 3) and np.allclose(mean, gp.predict(X))
+    assert np.allclose(F.mean(axis=0), mean, atol=0.05 * np.sqrt(np.diag(gp.latent_cov(X))).max())
+    assert np.allclose(np.cov(F.T), gp.latent_cov(X), rtol=0.06, atol=0.06 * np.diag(gp.latent_cov(X)).max())
+    assert np.array_equal(gp.sample_latent(X, 5, seed=3)[1], gp.sample_latent(X, 5, seed=3)[1])
+    twice = gp.sample_latent(np.vstack([X, X[:1]]), 2000, seed=1)[1]
+    assert np.all(np.isfinite(twice)) and np.allclose(twice[:, 0], twice[:, 3], atol=1e-3)
+
+
 def test_conditions_that_add_nothing_are_not_inputs():
     rows = pd.DataFrame({"d_min": [4.0, 5.0, 4.0, 5.0], "d_max": [5.0, 6.0, 5.0, 6.0], "D": [40.0] * 4,
                          "H": [50.0, 50.0, 100.0, 100.0]})

@@ -239,6 +239,18 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     assert "90 % interval" in page and "Measure next" in page and "To tell cohesion apart" in page
     assert r.table["condition_id"].iloc[0] in page
     assert "given each condition&#x27;s mean angle" in page
+    assert "`" not in page.split("Measure next")[1].split("</div>")[0]  # a reason's commands are set as code
+    # where the largest gain is open, the report names the candidates in contention, as the command's note does
+    from calib_cli.posterior.suggest import unsettled_words
+    from calib_cli.report.html import RunFiles
+
+    t = r.table.assign(p_best_gain=[0.6, 0.4] + [np.nan] * (len(r.table) - 2),
+                       gain_regret_q90=[0.3, 0.5] + [np.nan] * (len(r.table) - 2))
+    read = RunFiles.table
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(RunFiles, "table", lambda self, rel, *a, **k: t if rel == "suggest/ranking.parquet"
+                   else read(self, rel, *a, **k))
+        assert unsettled_words(t) and "Which condition teaches the most is within the surrogate" in build_report(run)
 
 
 def _evidence_for_ranking():
@@ -353,7 +365,7 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
 
 def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_intervals(ranked, tmp_path, monkeypatch):
     """--heaps N: beside diagnose's steps, N heaps at each named candidate at parameters spread over the
-    posterior's 90 % intervals (a Latin hypercube), one pile each, numbered as a design's; refused without
+    posterior's 90 % intervals (a scrambled Sobol sequence's first N), one pile each, numbered as a design's; refused without
     --simulate, and at 1 (no design)."""
     import shutil
 
@@ -387,13 +399,87 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
         assert post.loc[p, "q05"] <= xs[0] and xs[-1] <= post.loc[p, "q95"]
         # a Latin hypercube: one point in each quarter of the interval
         assert len({int(4 * (x - post.loc[p, "q05"]) / (post.loc[p, "q95"] - post.loc[p, "q05"])) for x in xs}) == 4
-    # another --heaps is another ranking (the stage reruns), its design numbered after any made before
+    # another --heaps is another ranking (the stage reruns); a larger design keeps the smaller one's points
+    first = [theta for _, theta in asked["points"]]
     r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=6, **quiet)
-    assert not r.skipped and len(asked["points"]) == 6
+    assert not r.skipped and len(asked["points"]) == 6 and [t for _, t in asked["points"][:4]] == first
     for bad, match in (({"heaps": 4}, "--heaps choose the heaps --simulate makes"),
                        ({"heaps": 1, "simulate": ["d4-5_D60_H75"]}, "--heaps must be 0 or at least 2")):
         with pytest.raises(CalibError, match=match):
             st.suggest_conditions(mine, rig, **bad, **quiet)
+
+
+def test_a_region_design_run_again_reuses_its_run_ids_and_a_new_point_is_numbered_on(tmp_path):
+    """region_ids: a point the index holds for the region design keeps its run id (a rerun of --heaps finds
+    its heaps cached and adds no row); new points take the ids after the largest; region_heaps counts them."""
+    from calib_cli import artifacts as art
+    from calib_cli.heaps.index import RESULTS
+    from calib_cli.posterior.suggest import region_design
+    from calib_cli.stages.suggest import REGION, region_heaps, region_ids
+
+    summ = pd.DataFrame({"parameter": ["a", "b"], "q05": [0.1, 1.0], "q95": [0.3, 2.0]})
+    d4, d6 = region_design(summ, 4, nested=True), region_design(summ, 6, nested=True)
+    assert d6.iloc[:4].equals(d4)
+    (tmp_path / RESULTS).parent.mkdir(parents=True)
+    made = d4.iloc[[0, 2]].assign(run_id=[7, 9], design=REGION, condition_id="c1", repose_angle=30.0)
+    other = d4.iloc[[1]].assign(run_id=[3], design="compare", condition_id="c1", repose_angle=30.0)
+    art.write_table(tmp_path / RESULTS, pd.concat([made, other], ignore_index=True))
+    assert region_ids(tmp_path, d6, ["a", "b"])["run_id"].tolist() == [7, 10, 9, 11, 12, 13]
+    cand = pd.DataFrame({"condition_id": ["c1", "c2"]})
+    assert region_heaps(tmp_path, cand).tolist() == [2, 0]
+    assert region_heaps(tmp_path / "none", cand).tolist() == [0, 0]
+
+
+def test_the_surrogates_learn_a_heap_two_designs_name_once(tmp_path):
+    """model_rows: the same simulation (run hash) under two designs is one pile, not two; rows without a
+    hash (an index calib did not write) are all kept."""
+    from calib_cli import artifacts as art
+    from calib_cli.heaps.index import RESULTS
+    from calib_cli.model import Model
+    from calib_cli.posterior.evidence import model_rows
+
+    (tmp_path / RESULTS).parent.mkdir(parents=True)
+    rows = pd.DataFrame({"run_hash": ["h1", "h1", "h2"], "design": ["suggest-region", "bbd", "bbd"],
+                         "run_id": [1, 5, 6], "repeat": 0, "condition_id": "c", "static_friction": [0.4, 0.4, 0.5],
+                         "rolling_friction": 0.2, "restitution": 0.3, "repose_angle": [30.0, 30.0, 31.0],
+                         "status": "ok"})
+    art.write_table(tmp_path / RESULTS, rows)
+    model = Model(("sliding_friction", "rolling_friction", "restitution"))
+    assert sorted(model_rows(tmp_path, model)["run_hash"]) == ["h1", "h2"]
+    art.write_table(tmp_path / RESULTS, rows.assign(run_hash=np.nan))
+    assert len(model_rows(tmp_path, model)) == 3
+
+
+def test_the_gains_spread_is_the_plug_in_gain_where_the_surrogate_is_sure():
+    """gain_spread: realisations that all equal the mean leave every gain at the plug-in one, the largest
+    ranked gain the best for certain and nothing to lose there; an unranked candidate gets a range but no
+    chance; realisations that disagree widen the range around the plug-in gain and lower the chance."""
+    from calib_cli.posterior.suggest import gain_spread, information_gain, unsettled, unsettled_words
+
+    rng = np.random.default_rng(0)
+    mu = np.stack([rng.normal(0, s, 100) for s in (1.0, 2.0, 2.2)])  # three candidates, 100 draws
+    U = np.array([[1.0]])
+    plug = [information_gain(m[:, None], U) for m in mu]
+    same = np.broadcast_to(mu, (50, 3, 100))
+    q05, q95, p, lose = gain_spread(mu, same, U, np.array([True, True, False]))
+    assert np.allclose(q05, plug) and np.allclose(q95, plug)
+    assert p.tolist()[:2] == [0.0, 1.0] and np.isnan(p[2]) and lose[1] == 0 and lose[0] > 0 and np.isnan(lose[2])
+    noisy = mu + rng.normal(0, 1.5, (200, 3, 100)) * rng.normal(0, 1, (200, 3, 1))  # each realisation its own error
+    q05, q95, p, lose = gain_spread(mu, noisy, U, np.ones(3, bool))
+    assert np.all(q05 < plug) and np.all(plug < q95) and p.sum() == pytest.approx(1.0) and 0.5 < p[2] < 0.9
+    t = pd.DataFrame({"condition_id": ["a", "b", "c"], "info_gain_nats": plug, "p_best_gain": p,
+                      "gain_regret_q90": lose})
+    lead, most, close = unsettled(t)
+    assert lead == "c" and most == lose[2] > 0.1 and close[0][0] == "c" and "choose among them" in unsettled_words(t)
+    assert unsettled(t.assign(gain_regret_q90=0.05)) is None and unsettled_words(t.drop(columns="gain_regret_q90")) == ""
+
+
+def test_the_heaps_advised_at_a_candidate_add_to_those_it_has():
+    from calib_cli.posterior.suggest import REGION_HEAPS, heaps_for
+
+    t = pd.DataFrame({"condition_id": ["a", "b", "c"], "region_heaps": [0, 12, 24]})
+    assert heaps_for(t, ["a"]) == REGION_HEAPS and heaps_for(t, ["a", "b"]) == 12 + REGION_HEAPS
+    assert heaps_for(t.drop(columns="region_heaps"), ["c"]) == REGION_HEAPS
 
 
 def test_a_later_region_design_is_numbered_after_the_heaps_of_one_before(tmp_path):

@@ -171,8 +171,9 @@ def suggest_conditions(
                                                           "simulate diagnose's sensitivities instead of carrying "
                                                           "them from the measured conditions.")] = None,
     heaps: Annotated[int, typer.Option(min=0, help="With --simulate: heaps at each named candidate spread over "
-                                       "the posterior's 90 % intervals (a Latin hypercube), so the surrogate learns "
-                                       "the candidate where the posterior lies, not only at diagnose's point.")] = 0,
+                                       "the posterior's 90 % intervals, so the surrogate learns the candidate where "
+                                       "the posterior lies, not only at diagnose's point. The first N of one "
+                                       "sequence: run again, it finds them cached; a larger N adds to them.")] = 0,
     set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3, workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
     force: ForceOpt = False,
@@ -193,6 +194,9 @@ def suggest_conditions(
     (--repeats heaps a step, at the parameters diagnose used, or --set), into
     RUN/suggest/sensitivities.parquet, and ranks them; --heaps N adds N heaps at each over the
     posterior's intervals, where the surrogate must be sure for the gain to hold.
+
+    Each gain comes with its 90 % range over the surrogate's own uncertainty; where that leaves
+    the largest gain open, a note names the conditions in contention.
     """
     from ..stages import suggest as suggest_stage
 

@@ -83,7 +83,11 @@ def model_rows(run: Path, model: Model, judged: bool = False, views: bool = Fals
         if name not in model.effects and eff.parameter in rows.columns:
             v = rows[eff.parameter]
             keep = keep & (v.isna() | (v == eff.neutral)).to_numpy()
-    rows = rows[keep].copy()
+    # one simulation once: a heap that two designs name (the same run hash) is one pile, not two
+    rows = rows[keep]
+    if "run_hash" in rows.columns:
+        rows = rows[~(rows["run_hash"].notna() & rows["run_hash"].duplicated())]
+    rows = rows.copy()
     for name in model.effects:
         eff = EFFECTS[name]
         tied = eff.parameter.replace("wall_", "") if eff.two_sided else None

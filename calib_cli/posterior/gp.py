@@ -363,6 +363,20 @@ class GPSurrogate:
         v = solve_triangular(self.gp_.L_, self.latent_(Xs, self.gp_.X_train_).T, lower=True, check_finite=False)
         return self.y_sd_ ** 2 * (self.latent_(Xs) - v.T @ v)
 
+    def sample_latent(self, X, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """The latent mean at the points of X (N, k in ``inputs_`` order) and ``n`` joint draws of f there
+        (n, N): functions the heaps so far cannot tell from the mean. A jitter of 1e-8 of the mean variance
+        keeps the covariance's Cholesky factor finite where points nearly coincide."""
+        X = np.asarray(X, float)
+        mean, C = self.predict(X), self.latent_cov(X)
+        C[np.diag_indices_from(C)] += 1e-8 * max(float(np.mean(np.diag(C))), 1e-12)
+        try:
+            L = np.linalg.cholesky(C)
+        except np.linalg.LinAlgError:  # not positive definite in floating point: its clipped eigenbasis
+            w, V = np.linalg.eigh(C)
+            L = V * np.sqrt(np.clip(w, 0.0, None))
+        return mean, mean + (L @ np.random.default_rng(seed).standard_normal((len(mean), n))).T
+
     def predict_joint(self, X) -> tuple[np.ndarray, np.ndarray]:
         """The latent mean (b, m) and covariance (b, m, m) of f at b groups of m points (X: (b, m, k) in
         ``inputs_`` order), cov_g = k(X_g, X_g) - k(X_g, X)(K + sigma^2 I)^-1 k(X, X_g): a point's

@@ -173,6 +173,44 @@ def information_gain(M: np.ndarray, U: np.ndarray) -> float:
     return 0.5 * float(np.linalg.slogdet(np.eye(len(C)) + C)[1])
 
 
+def gain_spread(mu: np.ndarray, F: np.ndarray, U: np.ndarray, ranked: np.ndarray) -> tuple[
+        np.ndarray, np.ndarray, np.ndarray]:
+    """How far the surrogate's own uncertainty leaves each candidate's information gain: its 5th and 95th
+    percentiles, and the probability that its gain is the largest among the ``ranked`` candidates (NaN
+    elsewhere), and what measuring it may lose against the best of them (the 90th percentile of the best
+    gain less its own, nats). ``mu``: the surrogate's mean responses at the posterior's draws (n, S) or (n, S, m);
+    ``F``: K joint realisations of the latent responses at a subset of those draws (K, n, s[, m]) where
+    the realisations were drawn (NaN elsewhere). A realisation's responses vary more over the draws than
+    the function they stand for (its roughness is the process's prior's), so its own gain runs high; its
+    deviation from the realisations' mean is carried onto the mean's: Cov_k = Cov_S(mu) + Cov_s(F_k) -
+    mean_k Cov_s(F_k), clipped to its non-negative part, gain_k = 1/2 log det(I + U^-1 Cov_k) (on a stand-in
+    lab, ``benchmarks/gain_spread.py``, the 90 % range held the true gain in 94-98 % of the cases, and the
+    realisations' own gains ran 0.13-0.39 nats above it)."""
+    mu = np.asarray(mu, float).reshape(*np.shape(mu)[:2], -1)
+    F = np.asarray(F, float).reshape(*np.shape(F)[:3], -1)
+    K, n = F.shape[0], mu.shape[0]
+    Li = np.linalg.inv(np.linalg.cholesky(np.asarray(U, float)))
+    G = np.full((K, n), np.nan)
+    for j in range(n):
+        if not (np.all(np.isfinite(mu[j])) and np.all(np.isfinite(F[:, j]))):
+            continue
+        covs = np.array([np.atleast_2d(np.cov(F[k, j].T, bias=True)) for k in range(K)])
+        base = np.atleast_2d(np.cov(mu[j].T, bias=True))
+        for k in range(K):
+            w, V = np.linalg.eigh(Li @ (base + covs[k] - covs.mean(axis=0)) @ Li.T)
+            G[k, j] = 0.5 * float(np.sum(np.log1p(np.clip(w, 0.0, None))))
+    q05, q95 = (np.full(n, np.nan), np.full(n, np.nan))
+    ok = np.isfinite(G).all(axis=0)
+    q05[ok], q95[ok] = np.quantile(G[:, ok], [0.05, 0.95], axis=0)
+    p_best, regret = np.full(n, np.nan), np.full(n, np.nan)
+    live = np.asarray(ranked, bool) & ok
+    if live.any():
+        best = np.flatnonzero(live)[np.argmax(G[:, live], axis=1)]
+        p_best[live] = np.bincount(best, minlength=n)[live] / K
+        regret[live] = np.quantile(G[:, live].max(axis=1, keepdims=True) - G[:, live], 0.9, axis=0)
+    return q05, q95, p_best, regret
+
+
 def _widths(draws: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Each column's weighted 90 % interval width (5th to 95th weighted percentile)."""
     out = []
@@ -226,7 +264,7 @@ class Evidence:
 
 
 def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: np.ndarray, piles: int,
-                    variables, simulated: pd.DataFrame | None = None) -> pd.DataFrame:
+                    variables, simulated: pd.DataFrame | None = None, F: np.ndarray | None = None) -> pd.DataFrame:
     """One row per candidate (not yet measured): the expected information gain about the parameters
     (nats) and each one's interval shrinkage, from the surrogate's angle at every posterior draw
     ``mu`` (candidates, draws; or (candidates, draws, 2) with the profile's fullness as well, measured
@@ -241,7 +279,9 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     (information, best separation); a separation extrapolated beyond the measured range is shown but
     not ranked (a straight line through a few noisy sensitivities is a guess out there), and so is an
     information gain where ``candidates``' column ``beyond_heaps`` is set (beyond the simulated heaps'
-    range the gain is the surrogate's own extrapolation)."""
+    range the gain is the surrogate's own extrapolation). With ``F``, the surrogate's realisations
+    (:func:`gain_spread`), each gain's 90 % range over them (``info_gain_q05``, ``info_gain_q95``) and its
+    chance of being the largest ranked one (``p_best_gain``)."""
     u2 = np.full(len(candidates), ev.scatter**2 / piles)
     U = ev.mean_cov(piles)
     pairs = [parameter_gain(m, ev.draws, U) for m in mu]
@@ -251,6 +291,9 @@ def rank_conditions(ev: Evidence, candidates: pd.DataFrame, mu: np.ndarray, vp: 
     if np.ndim(mu) == 3:  # the profile too: what the angle alone would teach, beside it
         out["info_gain_angle_nats"] = [information_gain(m[:, :1], U[:1, :1]) if np.all(np.isfinite(m)) else np.nan
                                        for m in mu]
+    if F is not None:
+        out["info_gain_q05"], out["info_gain_q95"], out["p_best_gain"], out["gain_regret_q90"] = gain_spread(
+            mu, F, U, ~_beyond(out) & np.isfinite(gains))
     for k, p in enumerate(ev.params):
         out[f"shrink_{p}"] = shrink[:, k]
     Jc, known, extrapolated = extrapolate(ev.measured, ev.J, candidates, variables)
@@ -323,11 +366,49 @@ def to_simulate(table: pd.DataFrame, n: int = 2) -> list[str]:
     return guess.sort_values("info_gain_nats", ascending=False, kind="stable")["condition_id"].astype(str).head(n).tolist()
 
 
-def simulate_command(command: str, table: pd.DataFrame, fallback: str) -> str:
-    """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or "" where
-    there are none: ``command`` (the ranking's own, ``calib suggest-conditions ...``; else ``fallback``) with
-    the candidates it simulated already and these in one ``--simulate`` (those are cached), and ``--heaps``."""
-    ids = to_simulate(table)
+#: what measuring the largest ranked gain may lose against the best (nats, 90 %) above which the ranking says
+#: the best is not settled: a tenth of a nat is a parameter's interval about 10 % less narrowed
+SETTLED_NATS = 0.1
+
+
+def unsettled(table: pd.DataFrame, at_least: float = 0.05) -> tuple[str, float, list[tuple[str, float]]] | None:
+    """Where the surrogate's uncertainty leaves the best condition open: the candidate with the largest
+    ranked gain, what measuring it may lose against the best (``gain_regret_q90``, above SETTLED_NATS),
+    and (condition_id, chance of the largest gain) of each candidate with at least ``at_least`` of it,
+    likeliest first; None where it is settled or no spread was computed."""
+    if "gain_regret_q90" not in table or not table["gain_regret_q90"].notna().any():
+        return None
+    ranked = table[table["gain_regret_q90"].notna()]
+    lead = ranked.loc[ranked["info_gain_nats"].astype(float).idxmax()]
+    if not lead["gain_regret_q90"] > SETTLED_NATS:
+        return None
+    t = ranked[ranked["p_best_gain"] >= at_least].sort_values("p_best_gain", ascending=False, kind="stable")
+    return (str(lead["condition_id"]), float(lead["gain_regret_q90"]),
+            list(zip(t["condition_id"].astype(str), t["p_best_gain"].astype(float))))
+
+
+def unsettled_words(table: pd.DataFrame) -> str:
+    """The sentence that says which candidates are in contention for the largest gain (:func:`unsettled`), or
+    "" where the surrogate settles it. More heaps there narrow it slowly (docs/method.md): what helps is
+    knowing that any of them will do."""
+    open_ = unsettled(table)
+    if not open_:
+        return ""
+    lead, lose, close = open_
+    chances = ", ".join(f"{cid} ({p:.2f})" for cid, p in close[:4]) + (
+        f" and {len(close) - 4} more" if len(close) > 4 else "")
+    return (f"which condition teaches the most is within the surrogate's own uncertainty: each of {chances} may be "
+            f"the best (the chance of each), and measuring {lead}, the largest gain, may teach up to {lose:.2f} nats "
+            "less (90 %): choose among them by what the rig makes most easily")
+
+
+def simulate_command(command: str, table: pd.DataFrame, fallback: str, ids: list[str] | None = None) -> str:
+    """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or simulate
+    heaps at ``ids`` where given, or "" where there are none: ``command`` (the ranking's own, ``calib
+    suggest-conditions ...``; else ``fallback``) with the candidates it simulated already and these in one
+    ``--simulate`` (those are cached), and ``--heaps`` (REGION_HEAPS more than the most a named candidate has,
+    ``region_heaps``: the design keeps those)."""
+    ids = to_simulate(table) if ids is None else list(ids)
     if not ids:
         return ""
     args = shlex.split(command) if command else []
@@ -345,7 +426,14 @@ def simulate_command(command: str, table: pd.DataFrame, fallback: str) -> str:
         else:
             kept.append(a)
     every = list(dict.fromkeys([n.strip() for n in named if n.strip()] + ids))
-    return shlex.join([*kept, "--simulate", ",".join(every), "--heaps", str(REGION_HEAPS)])
+    return shlex.join([*kept, "--simulate", ",".join(every), "--heaps", str(heaps_for(table, every))])
+
+
+def heaps_for(table: pd.DataFrame, ids) -> int:
+    """The ``--heaps`` that adds REGION_HEAPS at each of ``ids``: more than the most any has (``region_heaps``)."""
+    had = table.loc[table["condition_id"].astype(str).isin(list(ids)), "region_heaps"] if "region_heaps" in table \
+        else pd.Series(dtype=float)
+    return REGION_HEAPS + int(np.nan_to_num(had.max())) if len(had) else REGION_HEAPS
 
 
 def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:
@@ -394,18 +482,28 @@ def _ratio(value, measured: pd.Series) -> str:
     return f"{value / m:.2g}x"
 
 
-def region_design(summary: pd.DataFrame, points: int, seed: int = 0, first_id: int = 1) -> pd.DataFrame:
+def region_design(summary: pd.DataFrame, points: int, seed: int = 0, first_id: int = 1,
+                  nested: bool = False) -> pd.DataFrame:
     """``points`` parameter points spread over the posterior's 90 % box (each parameter's q05 to q95 in
     ``summary``): a Latin hypercube (scipy's, seeded), so that every interval is cut into ``points``
-    slices each sampled once. Where the posterior lies is where the surrogate must be sure; heaps
-    simulated there, at the measured conditions, teach it (docs/tutorial-hidden-effect.md, section 10).
-    Columns ``run_id`` (from ``first_id``) and one per parameter, as ``simulate-heap --design`` reads."""
+    slices each sampled once; ``nested``: the first ``points`` of a scrambled Sobol sequence, so that a
+    larger design keeps a smaller one's points (more heaps add to those simulated, not beside them).
+    Where the posterior lies is where the surrogate must be sure; heaps simulated there, at the measured
+    conditions, teach it (docs/tutorial-hidden-effect.md, section 10). Columns ``run_id`` (from
+    ``first_id``) and one per parameter, as ``simulate-heap --design`` reads."""
+    import warnings
+
     from scipy.stats import qmc
 
     if points < 2:
         raise CalibError(f"a posterior-region design needs at least 2 points, got {points}")
     lo, hi = summary["q05"].to_numpy(float), summary["q95"].to_numpy(float)
-    u = qmc.LatinHypercube(d=len(summary), seed=seed).random(points)
+    if nested:
+        with warnings.catch_warnings():  # a count not a power of 2 loses Sobol's balance, not its spread
+            warnings.simplefilter("ignore", UserWarning)
+            u = qmc.Sobol(d=len(summary), scramble=True, seed=seed).random(points)
+    else:
+        u = qmc.LatinHypercube(d=len(summary), seed=seed).random(points)
     x = lo + u * (hi - lo)
     return pd.DataFrame({"run_id": np.arange(first_id, first_id + points),
                          **{p: x[:, k] for k, p in enumerate(summary["parameter"])}})

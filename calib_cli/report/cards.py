@@ -10,9 +10,9 @@ import pandas as pd
 
 from ..model import EFFECTS
 from ..posterior.evidence import bf_text, box_cuts, cut_words, edges, effect_verdict
-from ..posterior.suggest import any_ranked, best_per_effect, simulate_command
+from ..posterior.suggest import any_ranked, best_per_effect, simulate_command, unsettled_words
 from .chart import fit_chart, legend
-from .html import RunFiles, badge, deg, esc, note, num, rows_table
+from .html import RunFiles, badge, deg, esc, note, num, prose, rows_table
 from .summary import PINNED, Fit, favoured_off, solution_params
 
 
@@ -307,7 +307,9 @@ def posterior_card(f: RunFiles) -> str:
             "Not ranked yet: at each condition the rig offers, the gain and the separation are extrapolated beyond "
             "the simulated heaps and the measured conditions. Below, the first three in the rig's order, each with "
             "what to simulate first" + _simulate_hint(f, nxt), "prov")) + "".join(
-            f"<p class=prov><b>{esc(r.condition_id)}</b>: {esc(r.reason)}</p>" for r in nxt.head(3).itertuples())
+            f"<p class=prov><b>{esc(r.condition_id)}</b>: {prose(r.reason)}</p>" for r in nxt.head(3).itertuples())
+        open_ = unsettled_words(nxt)
+        body += note(prose(open_[:1].upper() + open_[1:]) + ".", "prov") if open_ else ""
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
                         f"({sep:.2g} chi-square units, sensitivities {how})</p>"
                         for e, cid, sep, how in best_per_effect(nxt))

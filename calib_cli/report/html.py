@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import html
 import math
+import re
 from pathlib import Path
 from typing import Optional
 
@@ -15,6 +16,11 @@ from .. import artifacts as art
 
 def esc(x) -> str:
     return html.escape(str(x))
+
+
+def prose(x) -> str:
+    """A sentence of the library's (a ranking's reason, a note) escaped, its `backticked` commands as code."""
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", esc(x))
 
 
 def num(v, digits: int = 4) -> str:

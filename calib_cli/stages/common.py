@@ -63,8 +63,10 @@ R = TypeVar("R")
 #: (answers locked at 11 / 6 before that change could still hold the average)
 #: posterior 13, calibrate-answer 8: the verdict of an effect the data favour off says off, not "0 to 0";
 #: 14 / 9: nor is that parameter called identified (its narrow interval is the off model's neutral value)
+#: suggest 6: each gain's 90 % range over the surrogate's own uncertainty, its chance of being the largest and
+#: what it may lose against the best (info_gain_q05/q95, p_best_gain, gain_regret_q90), and region_heaps
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 14, "suggest": 5, "calibrate": 4,
+                 "diagnose": 2, "posterior": 14, "suggest": 6, "calibrate": 4,
                  "calibrate-answer": 9, "synth-lab": 1}
 
 

@@ -20,8 +20,8 @@ from ..heaps.index import RESULTS, load_results
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
-from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, parse_rig, rank_conditions,
-                                 region_design, simulate_command)
+from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, heaps_for, parse_rig,
+                                 rank_conditions, region_design, simulate_command, unsettled_words)
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
@@ -109,8 +109,7 @@ def _surrogate_at(gp: GPSurrogate, draws: pd.DataFrame, cand: pd.DataFrame) -> t
     S = len(draws)
     mu, var = np.zeros((len(cand), S)), np.zeros(len(cand))
     for i in range(len(cand)):
-        X = draws.assign(**{c: float(cand[c].iloc[i]) for c in gp.inputs_ if c not in draws.columns})
-        m, sd = gp.predict(X, return_std=True)
+        m, sd = gp.predict(_inputs(gp, draws, cand.iloc[i]), return_std=True)
         mu[i], var[i] = m, float(np.mean(sd**2))
     unknown = np.zeros(len(cand), bool)
     for c, v in gp.constants_.items():
@@ -120,15 +119,41 @@ def _surrogate_at(gp: GPSurrogate, draws: pd.DataFrame, cand: pd.DataFrame) -> t
     return mu, var
 
 
+def _inputs(gp: GPSurrogate, draws: pd.DataFrame, cond: pd.Series) -> pd.DataFrame:
+    """The surrogate's inputs at every draw under one condition (``cond``: a candidate's row)."""
+    return draws.assign(**{c: float(cond[c]) for c in gp.inputs_ if c not in draws.columns})[gp.inputs_]
+
+
 def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measured: pd.DataFrame,
-                cand: pd.DataFrame, mu: np.ndarray) -> np.ndarray:
+                cand: pd.DataFrame, mu: np.ndarray) -> tuple[np.ndarray, GPSurrogate]:
     """With a posterior that weighed the heap profile: the fullness's surrogate at every draw under each
-    candidate stacked on the angle's ``mu`` (candidates, draws, 2), and ``ev`` given the photographs'
-    fullness scatter and its correlation with the angle, as a new condition would be measured."""
+    candidate stacked on the angle's ``mu`` (candidates, draws, 2), and that surrogate; ``ev`` is given the
+    photographs' fullness scatter and its correlation with the angle, as a new condition would be measured."""
     table, rho = measured_fullness(run, measured)
     ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(table["sd"].to_numpy(float) ** 2))), rho
-    mu_f, _ = _surrogate_at(model_surrogate(rows, model, response=FULLNESS, scale=_scale(run)), ev.draws_frame(), cand)
-    return np.stack([mu, mu_f], axis=2)
+    gp = model_surrogate(rows, model, response=FULLNESS, scale=_scale(run))
+    mu_f, _ = _surrogate_at(gp, ev.draws_frame(), cand)
+    return np.stack([mu, mu_f], axis=2), gp
+
+
+#: the surrogate's joint realisations a gain's spread is read from, and how many of the draws they are drawn at
+#: (per candidate: the covariance is of every candidate's draws together, so that the chance of being the
+#: best compares like with like)
+REALISATIONS, SPREAD_DRAWS = 200, 100
+
+
+def _realisations(gps: list[GPSurrogate], draws: pd.DataFrame, cand: pd.DataFrame, live: np.ndarray) -> np.ndarray:
+    """REALISATIONS joint draws of each surrogate's latent response (the angle's, the fullness's) at
+    SPREAD_DRAWS of the posterior's draws under every ``live`` candidate: (K, candidates, draws, responses),
+    NaN at a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
+    sub = draws.iloc[:: max(1, len(draws) // SPREAD_DRAWS)]
+    idx = np.flatnonzero(live)
+    F = np.full((REALISATIONS, len(cand), len(sub), len(gps)), np.nan)
+    for r, gp in enumerate(gps):
+        if len(idx):
+            X = np.vstack([_inputs(gp, sub, cand.iloc[i]).to_numpy(float) for i in idx])
+            F[..., r][:, idx] = gp.sample_latent(X, REALISATIONS, seed=r)[1].reshape(REALISATIONS, len(idx), len(sub))
+    return F
 
 
 @dataclass
@@ -147,6 +172,9 @@ class SuggestResult(Result):
     def summary(self) -> pd.DataFrame:
         cols = ["condition_id", "info_gain_nats", "best_effect", "best_separation", "sensitivities", "surrogate_sd"]
         t = self.table.head(self.top)
+        if "info_gain_q05" in t:  # the gain with its 90 % range over the surrogate's uncertainty
+            t = t.assign(info_gain_nats=[f"{g:.2f} ({a:.2f}-{b:.2f})" if np.isfinite(a) else f"{g:.3g}" for g, a, b
+                                         in zip(t["info_gain_nats"], t["info_gain_q05"], t["info_gain_q95"])])
         if "simulated" in t and any(c.startswith("separation_") for c in t):  # where they come from
             t = t.assign(sensitivities=np.select([t["simulated"], ~t["known"], t["extrapolated"]],
                                                  ["simulated", "unknown", "extrapolated"], "interpolated"))
@@ -190,13 +218,44 @@ def _theta(run: Path, set_: Pairs) -> tuple[Model, dict[str, float]]:
 REGION = "suggest-region"
 
 
+def _made(run: Path, design: str) -> pd.DataFrame:
+    """The rows a ``design``'s heaps hold in the run's results index (none where it has none)."""
+    made = load_results(run)
+    if not {"design", "run_id"} <= set(made.columns):
+        return made.iloc[:0]
+    return made[made["design"] == design]
+
+
 def next_run_id(run: Path, design: str) -> int:
     """The run id after the largest a ``design``'s heaps hold in the run's results index (1 where none): a
     later design of the same label is numbered on, so that design and run id name one point."""
-    made = load_results(run)
-    if not {"design", "run_id"} <= set(made.columns) or not (made["design"] == design).any():
-        return 1
-    return 1 + int(made.loc[made["design"] == design, "run_id"].max())
+    made = _made(run, design)
+    return 1 + int(made["run_id"].max()) if len(made) else 1
+
+
+def region_ids(run: Path, design: pd.DataFrame, params: list[str]) -> pd.DataFrame:
+    """``design`` with each point's run id: that of the same parameters among the REGION heaps made
+    before (a design run again, or grown, finds them cached and adds no row), else numbered on."""
+    made = _made(run, REGION)
+    ids, new = [], next_run_id(run, REGION)
+    for _, r in design.iterrows():
+        same = np.ones(len(made), bool)
+        for p in params:
+            same &= np.isclose(made[p].to_numpy(float), float(r[p]), rtol=1e-12, atol=0.0) if p in made else False
+        if same.any():
+            ids.append(int(made.loc[same, "run_id"].iloc[0]))
+        else:
+            ids.append(new)
+            new += 1
+    return design.assign(run_id=ids)
+
+
+def region_heaps(run: Path, cand: pd.DataFrame) -> np.ndarray:
+    """How many REGION heaps (``--heaps``) each candidate has: the points simulated there, over any posterior."""
+    made = _made(run, REGION)
+    counts = made.groupby(made["condition_id"].astype(str))["run_id"].nunique() \
+        if len(made) and "condition_id" in made else pd.Series(dtype=int)
+    return counts.reindex(cand["condition_id"].astype(str)).fillna(0).astype(int).to_numpy()
 
 
 def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
@@ -228,8 +287,9 @@ def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset
     _, J, G, G_se, _ = signatures(run, model, theta, picks, preset, repeats, workers, shear_modulus, tested,
                                   seeds="condition")
     if heaps:
-        design = region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps,
-                               first_id=next_run_id(run, REGION))
+        # nested: a larger --heaps keeps these points, and a design run again is found cached, adding no rows
+        design = region_ids(run, region_design(art.read_table(run / "posterior" / "summary.parquet"), heaps,
+                                               nested=True), model.parameters)
         points = [(int(r["run_id"]), {p: float(r[p]) for p in model.parameters}) for _, r in design.iterrows()]
         simulate_points(run, model, points, picks, preset, 1, workers, REGION, shear_modulus=shear_modulus,
                         seeds="content")
@@ -309,7 +369,8 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
         sd = row["surrogate_sd"]
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
-                    f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain")
+                    f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain "
+                    f"(`--simulate {row['condition_id']} --heaps {heaps_for(table, [row['condition_id']])}`)")
         out.append(why)
     return out
 
@@ -338,8 +399,9 @@ def _conditions_csv(table: pd.DataFrame, top: int, piles: int) -> str:
 def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: float, piles: int,
                    command: str) -> list[str]:
     """What limits a ranking: a surrogate less sure than a measured mean even where there are heaps, gains or
-    separations carried beyond the heaps or the measured range (shown, not ranked), and the command that
-    would simulate heaps at the best of those (this one's, else ``command``, when called from a library)."""
+    separations carried beyond the heaps or the measured range (shown, not ranked), the command that
+    would simulate heaps at the best of those (this one's, else ``command``, when called from a library), and
+    the candidates in contention for the largest gain where the surrogate leaves it open."""
     notes = []
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
         notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
@@ -350,6 +412,8 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     if to_rank:
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
                      f"extrapolation and is not ranked: simulate heaps there first; at the two largest, `{to_rank}`")
+    if unsettled_words(table):
+        notes.append(f"[yellow]note:[/] {unsettled_words(table)}")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
@@ -429,11 +493,15 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
         + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
     draws = ev.draws_frame()
     mu, vp = _surrogate_at(gp, draws, cand)
+    gps = [gp]
     if profile:
-        mu = _profile_at(run, profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
+        mu, gp_f = _profile_at(run, profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
+        gps.append(gp_f)
+    F = _realisations(gps, draws, cand, np.isfinite(vp))
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
-    table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand)), mu, vp, piles, SUGGEST_VARS, sims)
+    table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand), region_heaps=region_heaps(run, cand)),
+                            mu, vp, piles, SUGGEST_VARS, sims, F)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles,
