@@ -474,6 +474,24 @@ def test_the_gains_spread_is_the_plug_in_gain_where_the_surrogate_is_sure():
     assert unsettled(t.assign(gain_regret_q90=0.05)) is None and unsettled_words(t.drop(columns="gain_regret_q90")) == ""
 
 
+def test_an_effect_no_condition_separates_says_so_in_the_command_and_the_report(ranked):
+    """Below one chi-square unit even at its best condition, an effect's line says no condition will settle it,
+    in the command's words and the report's alike (unsettling)."""
+    from calib_cli.posterior.suggest import SEPARATES, unsettling
+    from calib_cli.report.html import RunFiles
+    from calib_cli.report import build_report
+
+    run, _, r = ranked
+    assert unsettling(SEPARATES) == "" and "no condition the rig offers" in unsettling(0.4)
+    weak = r.table.assign(**{c: 0.4 for c in r.table.columns if c.startswith("separation_")})
+    read = RunFiles.table
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(RunFiles, "table", lambda self, rel, *a, **k: weak if rel == "suggest/ranking.parquet"
+                   else read(self, rel, *a, **k))
+        page = build_report(run)
+    assert "To tell cohesion apart" in page and unsettling(0.4) in page
+
+
 def test_the_heaps_advised_at_a_candidate_add_to_those_it_has():
     from calib_cli.posterior.suggest import REGION_HEAPS, heaps_for
 

@@ -436,6 +436,16 @@ def heaps_for(table: pd.DataFrame, ids) -> int:
     return REGION_HEAPS + int(np.nan_to_num(had.max())) if len(had) else REGION_HEAPS
 
 
+#: the expected rise of the score test's statistic below which a condition does not separate an effect
+#: (one unit of chi-square: the test's own scale)
+SEPARATES = 1.0
+
+
+def unsettling(sep: float) -> str:
+    """What follows an effect's best condition where even that one would not separate it (below SEPARATES)."""
+    return "" if sep >= SEPARATES else ": below one unit, so no condition the rig offers is expected to settle it"
+
+
 def best_per_effect(table: pd.DataFrame) -> list[tuple[str, str, float, str]]:
     """For each candidate effect of a ranking, (effect, condition_id, separation, "simulated" or
     "interpolated"): the condition that would best tell it from what the parameters absorb, among those

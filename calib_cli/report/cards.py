@@ -10,7 +10,7 @@ import pandas as pd
 
 from ..model import EFFECTS
 from ..posterior.evidence import bf_text, box_cuts, cut_words, edges, effect_verdict
-from ..posterior.suggest import any_ranked, best_per_effect, simulate_command, unsettled_words
+from ..posterior.suggest import any_ranked, best_per_effect, simulate_command, unsettled_words, unsettling
 from .chart import fit_chart, legend
 from .html import RunFiles, badge, deg, esc, note, num, prose, rows_table
 from .summary import PINNED, Fit, favoured_off, solution_params
@@ -311,6 +311,6 @@ def posterior_card(f: RunFiles) -> str:
         open_ = unsettled_words(nxt)
         body += note(prose(open_[:1].upper() + open_[1:]) + ".", "prov") if open_ else ""
         body += "".join(f"<p class=prov>To tell {esc(e.replace('_', ' '))} apart: <b>{esc(cid)}</b> "
-                        f"({sep:.2g} chi-square units, sensitivities {how})</p>"
+                        f"({sep:.2g} chi-square units, sensitivities {how}){esc(unsettling(sep))}</p>"
                         for e, cid, sep, how in best_per_effect(nxt))
     return card(title, body)

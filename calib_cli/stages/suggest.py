@@ -21,7 +21,8 @@ from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate
 from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, heaps_for, parse_rig,
-                                 rank_conditions, region_design, simulate_command, unsettled_words)
+                                 rank_conditions, region_design, simulate_command, unsettled_words,
+                                 SEPARATES, unsettling)
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
@@ -197,8 +198,7 @@ class SuggestResult(Result):
         """For each candidate effect, the condition that would best tell it apart (:func:`best_per_effect`):
         what to measure to settle that one effect."""
         return shown([f"{e.replace('_', ' ')}: best told apart at [bold]{cid}[/] ({sep:.2g} chi-square units, "
-                f"sensitivities {how})" + ("" if sep >= SEPARATES else ": below one unit, so no condition the rig "
-                                           "offers is expected to settle it")
+                f"sensitivities {how})" + unsettling(sep)
                 for e, cid, sep, how in best_per_effect(self.table)], markup)
 
 
@@ -336,9 +336,6 @@ def _evidence(run: Path, model: Model, measured: pd.DataFrame, samples: pd.DataF
     return ev, notes
 
 
-#: the expected rise of the score test's statistic below which a condition does not separate an effect
-#: (one unit of chi-square: the test's own scale)
-SEPARATES = 1.0
 #: how the reasons name the condition variables
 WORDS = {"particle_d_min_mm": "grain size", "particle_d_max_mm": "grain size", "cylinder_diameter_mm":
          "cylinder diameter", "fill_height_mm": "fill height", "lift_speed_mm_s": "lift speed"}
