@@ -222,6 +222,9 @@ def test_after_a_posterior_that_weighed_the_profile_the_ranking_counts_it_too(tm
     r = suggest_conditions(run, rig, top=1, say=lambda m, **k: said.append(m))
     t = r.table.set_index("condition_id")
     assert t.loc["d4-5_D40_H75", "info_gain_nats"] > t.loc["d4-5_D40_H75", "info_gain_angle_nats"] > 0
+    # the gain's range over both processes' realisations holds the gain of both responses
+    assert t.loc["d4-5_D40_H75", "info_gain_q05"] <= t.loc["d4-5_D40_H75", "info_gain_nats"] \
+        <= t.loc["d4-5_D40_H75", "info_gain_q95"]
     assert art.read_provenance(run / "suggest" / "ranking.parquet")["profile"] is True
     assert "profiles" in json.loads((run / "suggest" / "rank.lock.json").read_text())["inputs"]
     assert "angle and profile" in " ".join(said)
@@ -239,7 +242,14 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     assert "90 % interval" in page and "Measure next" in page and "To tell cohesion apart" in page
     assert r.table["condition_id"].iloc[0] in page
     assert "given each condition&#x27;s mean angle" in page
-    assert "`" not in page.split("Measure next")[1].split("</div>")[0]  # a reason's commands are set as code
+    with pytest.MonkeyPatch.context() as mp:  # a reason's commands are set as code
+        from calib_cli.report.html import RunFiles
+        read = RunFiles.table
+        odd = r.table.assign(reason="simulate heaps there (`--simulate x --heaps 12`)")
+        mp.setattr(RunFiles, "table", lambda self, rel, *a, **k: odd if rel == "suggest/ranking.parquet"
+                   else read(self, rel, *a, **k))
+        shown = build_report(run).split("Measure next")[1].split("</div>")[0]
+    assert "<code>--simulate x --heaps 12</code>" in shown and "`" not in shown
     # where the largest gain is open, the report names the candidates in contention, as the command's note does
     from calib_cli.posterior.suggest import unsettled_words
     from calib_cli.report.html import RunFiles
@@ -250,7 +260,7 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(RunFiles, "table", lambda self, rel, *a, **k: t if rel == "suggest/ranking.parquet"
                    else read(self, rel, *a, **k))
-        assert unsettled_words(t) and "Which condition teaches the most is within the surrogate" in build_report(run)
+        assert unsettled_words(t) and "The largest gain is not settled by the surrogate" in build_report(run)
 
 
 def _evidence_for_ranking():
@@ -397,7 +407,7 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
     for p in post.index:
         xs = sorted(theta[p] for _, theta in asked["points"])
         assert post.loc[p, "q05"] <= xs[0] and xs[-1] <= post.loc[p, "q95"]
-        # a Latin hypercube: one point in each quarter of the interval
+        # a scrambled Sobol sequence's first 4 (a power of 2): one point in each quarter of the interval
         assert len({int(4 * (x - post.loc[p, "q05"]) / (post.loc[p, "q95"] - post.loc[p, "q05"])) for x in xs}) == 4
     # another --heaps is another ranking (the stage reruns); a larger design keeps the smaller one's points
     first = [theta for _, theta in asked["points"]]
@@ -411,7 +421,7 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
 
 def test_a_region_design_run_again_reuses_its_run_ids_and_a_new_point_is_numbered_on(tmp_path):
     """region_ids: a point the index holds for the region design keeps its run id (a rerun of --heaps finds
-    its heaps cached and adds no row); new points take the ids after the largest; region_heaps counts them."""
+    its heaps cached and adds no row); new points take the ids after the largest."""
     from calib_cli import artifacts as art
     from calib_cli.heaps.index import RESULTS
     from calib_cli.posterior.suggest import region_design
@@ -425,9 +435,11 @@ def test_a_region_design_run_again_reuses_its_run_ids_and_a_new_point_is_numbere
     other = d4.iloc[[1]].assign(run_id=[3], design="compare", condition_id="c1", repose_angle=30.0)
     art.write_table(tmp_path / RESULTS, pd.concat([made, other], ignore_index=True))
     assert region_ids(tmp_path, d6, ["a", "b"])["run_id"].tolist() == [7, 10, 9, 11, 12, 13]
+    # region_heaps counts the current posterior's design points a candidate has: an earlier posterior's do not
     cand = pd.DataFrame({"condition_id": ["c1", "c2"]})
-    assert region_heaps(tmp_path, cand).tolist() == [2, 0]
-    assert region_heaps(tmp_path / "none", cand).tolist() == [0, 0]
+    assert region_heaps(tmp_path, cand, summ).tolist() == [2, 0]
+    assert region_heaps(tmp_path, cand, summ.assign(q05=[0.11, 1.0])).tolist() == [0, 0]
+    assert region_heaps(tmp_path / "none", cand, summ).tolist() == [0, 0]
 
 
 def test_the_surrogates_learn_a_heap_two_designs_name_once(tmp_path):
@@ -469,9 +481,16 @@ def test_the_gains_spread_is_the_plug_in_gain_where_the_surrogate_is_sure():
     assert np.all(q05 < plug) and np.all(plug < q95) and p.sum() == pytest.approx(1.0) and 0.5 < p[2] < 0.9
     t = pd.DataFrame({"condition_id": ["a", "b", "c"], "info_gain_nats": plug, "p_best_gain": p,
                       "gain_regret_q90": lose})
-    lead, most, close = unsettled(t)
-    assert lead == "c" and most == lose[2] > 0.1 and close[0][0] == "c" and "choose among them" in unsettled_words(t)
+    # c leads but may lose 0.25 nats; b may be the best too but may lose 0.62: not a safe alternative
+    lead, close = unsettled(t)
+    assert lead == "c" and [c for c, *_ in close] == ["c"] and lose[2] > 0.1 and lose[1] > lose[2] + 0.1
+    assert "c has it (chance 0.73" in unsettled_words(t) and "choose among them" not in unsettled_words(t)
+    near = t.assign(gain_regret_q90=[lose[0], lose[2] + 0.05, lose[2]])  # b's own loss within 0.1 of c's: in
+    assert [c for c, *_ in unsettled(near)[1]] == ["c", "b"]
+    assert f"none expected to lose more than {lose[2] + 0.05:.2f}: choose among them" in unsettled_words(near)
     assert unsettled(t.assign(gain_regret_q90=0.05)) is None and unsettled_words(t.drop(columns="gain_regret_q90")) == ""
+    with pytest.raises(CalibError, match="do not match"):  # realisations of the angle alone against two responses
+        gain_spread(np.stack([mu, mu], axis=2), noisy, U, np.ones(3, bool))
 
 
 def test_an_effect_no_condition_separates_says_so_in_the_command_and_the_report(ranked):
@@ -529,6 +548,8 @@ def test_the_command_to_rank_names_the_two_largest_gains_beyond_the_heaps():
     # a ranking made from a notebook records its script's command line: the fallback is named instead
     assert simulate_command("nb.py --x", t, fallback) == f"{fallback} --simulate b,d --heaps {REGION_HEAPS}"
     assert simulate_command("x", t.assign(beyond_heaps=""), fallback) == ""
+    assert simulate_command("calib suggest-conditions --run R --force --rig G", t, fallback) == (
+        f"calib suggest-conditions --run R --rig G --simulate b,d --heaps {REGION_HEAPS}")  # no --force carried
     assert to_simulate(t.drop(columns="beyond_heaps")) == []
 
 

@@ -173,7 +173,8 @@ def suggest_conditions(
     heaps: Annotated[int, typer.Option(min=0, help="With --simulate: heaps at each named candidate spread over "
                                        "the posterior's 90 % intervals, so the surrogate learns the candidate where "
                                        "the posterior lies, not only at diagnose's point. The first N of one "
-                                       "sequence: run again, it finds them cached; a larger N adds to them.")] = 0,
+                                       "sequence over the posterior's intervals: run again while the posterior is "
+                                       "unchanged, it finds them cached; a larger N adds to them.")] = 0,
     set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3, workers: WorkersOpt = 1,
     shear_modulus: ShearModulusOpt = None,
     force: ForceOpt = False,

@@ -174,7 +174,7 @@ def information_gain(M: np.ndarray, U: np.ndarray) -> float:
 
 
 def gain_spread(mu: np.ndarray, F: np.ndarray, U: np.ndarray, ranked: np.ndarray) -> tuple[
-        np.ndarray, np.ndarray, np.ndarray]:
+        np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How far the surrogate's own uncertainty leaves each candidate's information gain: its 5th and 95th
     percentiles, and the probability that its gain is the largest among the ``ranked`` candidates (NaN
     elsewhere), and what measuring it may lose against the best of them (the 90th percentile of the best
@@ -183,11 +183,14 @@ def gain_spread(mu: np.ndarray, F: np.ndarray, U: np.ndarray, ranked: np.ndarray
     the realisations were drawn (NaN elsewhere). A realisation's responses vary more over the draws than
     the function they stand for (its roughness is the process's prior's), so its own gain runs high; its
     deviation from the realisations' mean is carried onto the mean's: Cov_k = Cov_S(mu) + Cov_s(F_k) -
-    mean_k Cov_s(F_k), clipped to its non-negative part, gain_k = 1/2 log det(I + U^-1 Cov_k) (on a stand-in
-    lab, ``benchmarks/gain_spread.py``, the 90 % range held the true gain in 94-98 % of the cases, and the
-    realisations' own gains ran 0.13-0.39 nats above it)."""
+    mean_k Cov_s(F_k) (S all the draws, s the subset), clipped to its non-negative part, gain_k = 1/2 log
+    det(I + U^-1 Cov_k). On two stand-in labs (``benchmarks/gain_spread.py``) the 90 % range held the true
+    gain in 91-100 % of the cases, and the realisations' own gains ran 0.03-0.41 nats above it."""
     mu = np.asarray(mu, float).reshape(*np.shape(mu)[:2], -1)
     F = np.asarray(F, float).reshape(*np.shape(F)[:3], -1)
+    if F.shape[1] != mu.shape[0] or F.shape[3] != mu.shape[2]:
+        raise CalibError(f"gain_spread: realisations of shape {F.shape} do not match the means' {mu.shape} "
+                         "(candidates and responses)")
     K, n = F.shape[0], mu.shape[0]
     Li = np.linalg.inv(np.linalg.cholesky(np.asarray(U, float)))
     G = np.full((K, n), np.nan)
@@ -195,9 +198,9 @@ def gain_spread(mu: np.ndarray, F: np.ndarray, U: np.ndarray, ranked: np.ndarray
         if not (np.all(np.isfinite(mu[j])) and np.all(np.isfinite(F[:, j]))):
             continue
         covs = np.array([np.atleast_2d(np.cov(F[k, j].T, bias=True)) for k in range(K)])
-        base = np.atleast_2d(np.cov(mu[j].T, bias=True))
+        shifted = np.atleast_2d(np.cov(mu[j].T, bias=True)) - covs.mean(axis=0)
         for k in range(K):
-            w, V = np.linalg.eigh(Li @ (base + covs[k] - covs.mean(axis=0)) @ Li.T)
+            w = np.linalg.eigvalsh(Li @ (shifted + covs[k]) @ Li.T)
             G[k, j] = 0.5 * float(np.sum(np.log1p(np.clip(w, 0.0, None))))
     q05, q95 = (np.full(n, np.nan), np.full(n, np.nan))
     ok = np.isfinite(G).all(axis=0)
@@ -353,8 +356,9 @@ def any_ranked(table: pd.DataFrame) -> bool:
     return any(s.notna().any() for s in _ranked(table))
 
 
-#: heaps ``suggest-conditions --heaps`` is advised to spread over the posterior at a candidate (on the
-#: hidden-cohesion lab 12 took the surrogate's sd at the best two to 1.4 and 1.3 deg, docs/tutorial-hidden-effect.md)
+#: heaps ``suggest-conditions --heaps`` is advised to spread over the posterior at a candidate: on the hidden-cohesion
+#: lab 12 took the surrogate's sd at the best two to 1.4-1.6 and 1.3 deg (a measured mean's 1.3), on the control to
+#: 0.48 and 0.44 (0.5); docs/method.md
 REGION_HEAPS = 12
 
 
@@ -371,43 +375,52 @@ def to_simulate(table: pd.DataFrame, n: int = 2) -> list[str]:
 SETTLED_NATS = 0.1
 
 
-def unsettled(table: pd.DataFrame, at_least: float = 0.05) -> tuple[str, float, list[tuple[str, float]]] | None:
+def unsettled(table: pd.DataFrame, at_least: float = 0.05) -> tuple[str, list[tuple[str, float, float]]] | None:
     """Where the surrogate's uncertainty leaves the best condition open: the candidate with the largest
-    ranked gain, what measuring it may lose against the best (``gain_regret_q90``, above SETTLED_NATS),
-    and (condition_id, chance of the largest gain) of each candidate with at least ``at_least`` of it,
-    likeliest first; None where it is settled or no spread was computed."""
+    ranked gain where what measuring it may lose against the best (``gain_regret_q90``) is above SETTLED_NATS,
+    and (condition_id, chance of the largest gain, loss) of the leader and of each other candidate with at least
+    ``at_least`` of that chance whose own loss is within SETTLED_NATS of the leader's, likeliest first (one
+    that may be best but may also lose much more is not a safe choice); None where it is settled or no
+    spread was computed."""
     if "gain_regret_q90" not in table or not table["gain_regret_q90"].notna().any():
         return None
     ranked = table[table["gain_regret_q90"].notna()]
     lead = ranked.loc[ranked["info_gain_nats"].astype(float).idxmax()]
     if not lead["gain_regret_q90"] > SETTLED_NATS:
         return None
-    t = ranked[ranked["p_best_gain"] >= at_least].sort_values("p_best_gain", ascending=False, kind="stable")
-    return (str(lead["condition_id"]), float(lead["gain_regret_q90"]),
-            list(zip(t["condition_id"].astype(str), t["p_best_gain"].astype(float))))
+    close = (ranked["condition_id"] == lead["condition_id"]) | (
+        (ranked["p_best_gain"] >= at_least) & (ranked["gain_regret_q90"] <= lead["gain_regret_q90"] + SETTLED_NATS))
+    t = ranked[close].sort_values("p_best_gain", ascending=False, kind="stable")
+    return str(lead["condition_id"]), list(zip(t["condition_id"].astype(str), t["p_best_gain"].astype(float),
+                                                t["gain_regret_q90"].astype(float)))
 
 
 def unsettled_words(table: pd.DataFrame) -> str:
     """The sentence that says which candidates are in contention for the largest gain (:func:`unsettled`), or
     "" where the surrogate settles it. More heaps there narrow it slowly (docs/method.md): what helps is
-    knowing that any of them will do."""
+    knowing which will do about as well."""
     open_ = unsettled(table)
     if not open_:
         return ""
-    lead, lose, close = open_
-    chances = ", ".join(f"{cid} ({p:.2f})" for cid, p in close[:4]) + (
-        f" and {len(close) - 4} more" if len(close) > 4 else "")
-    return (f"which condition teaches the most is within the surrogate's own uncertainty: each of {chances} may be "
-            f"the best (the chance of each), and measuring {lead}, the largest gain, may teach up to {lose:.2f} nats "
-            "less (90 %): choose among them by what the rig makes most easily")
+    lead, close = open_
+    p_lead, lose = next((p, r) for cid, p, r in close if cid == lead)
+    head = (f"the largest gain is not settled by the surrogate's own uncertainty: {lead} has it (chance "
+            f"{p_lead:.2f} of being the best) but may teach up to {lose:.2f} nats less than the best (90th percentile)")
+    others = [(cid, p, r) for cid, p, r in close if cid != lead]
+    if not others:
+        return head
+    more = f" and {len(others) - 3} more" if len(others) > 3 else ""
+    return (f"{head}; {', '.join(f'{cid} ({p:.2f})' for cid, p, _ in others[:3])}{more} may be the best too (their "
+            f"chances), none expected to lose more than {max(r for *_, r in close):.2f}: choose among them by what "
+            "the rig makes most easily")
 
 
 def simulate_command(command: str, table: pd.DataFrame, fallback: str, ids: list[str] | None = None) -> str:
     """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or simulate
     heaps at ``ids`` where given, or "" where there are none: ``command`` (the ranking's own, ``calib
     suggest-conditions ...``; else ``fallback``) with the candidates it simulated already and these in one
-    ``--simulate`` (those are cached), and ``--heaps`` (REGION_HEAPS more than the most a named candidate has,
-    ``region_heaps``: the design keeps those)."""
+    ``--simulate`` (those are cached), and ``--heaps`` (REGION_HEAPS more than the most any of ``ids`` has,
+    ``region_heaps``; one named before keeps its own, the design being nested)."""
     ids = to_simulate(table) if ids is None else list(ids)
     if not ids:
         return ""
@@ -423,14 +436,15 @@ def simulate_command(command: str, table: pd.DataFrame, fallback: str, ids: list
             skip = True
         elif a.startswith(("--simulate=", "--heaps=")):
             named += a.partition("=")[2].split(",") if a.startswith("--simulate=") else []
-        else:
+        elif a != "--force":  # the heaps are new inputs: the ranking reruns without it
             kept.append(a)
     every = list(dict.fromkeys([n.strip() for n in named if n.strip()] + ids))
-    return shlex.join([*kept, "--simulate", ",".join(every), "--heaps", str(heaps_for(table, every))])
+    return shlex.join([*kept, "--simulate", ",".join(every), "--heaps", str(heaps_for(table, ids))])
 
 
 def heaps_for(table: pd.DataFrame, ids) -> int:
-    """The ``--heaps`` that adds REGION_HEAPS at each of ``ids``: more than the most any has (``region_heaps``)."""
+    """The ``--heaps`` that adds REGION_HEAPS at each of ``ids``: more than the most any has of the current
+    posterior's design (``region_heaps``)."""
     had = table.loc[table["condition_id"].astype(str).isin(list(ids)), "region_heaps"] if "region_heaps" in table \
         else pd.Series(dtype=float)
     return REGION_HEAPS + int(np.nan_to_num(had.max())) if len(had) else REGION_HEAPS

@@ -141,20 +141,38 @@ def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measu
 #: (per candidate: the covariance is of every candidate's draws together, so that the chance of being the
 #: best compares like with like)
 REALISATIONS, SPREAD_DRAWS = 200, 100
+#: at most this many points in one joint covariance (its Cholesky factor costs their cube): a larger rig draws
+#: fewer draws a candidate
+SPREAD_POINTS = 4000
 
 
 def _realisations(gps: list[GPSurrogate], draws: pd.DataFrame, cand: pd.DataFrame, live: np.ndarray) -> np.ndarray:
     """REALISATIONS joint draws of each surrogate's latent response (the angle's, the fullness's) at
     SPREAD_DRAWS of the posterior's draws under every ``live`` candidate: (K, candidates, draws, responses),
     NaN at a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
-    sub = draws.iloc[:: max(1, len(draws) // SPREAD_DRAWS)]
     idx = np.flatnonzero(live)
+    per = max(10, min(SPREAD_DRAWS, SPREAD_POINTS // max(1, len(idx))))
+    sub = draws.iloc[:: max(1, len(draws) // per)]
     F = np.full((REALISATIONS, len(cand), len(sub), len(gps)), np.nan)
     for r, gp in enumerate(gps):
         if len(idx):
             X = np.vstack([_inputs(gp, sub, cand.iloc[i]).to_numpy(float) for i in idx])
             F[..., r][:, idx] = gp.sample_latent(X, REALISATIONS, seed=r)[1].reshape(REALISATIONS, len(idx), len(sub))
     return F
+
+
+def _responses(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measured: pd.DataFrame, cand: pd.DataFrame,
+               gp: GPSurrogate, cond_vars=None, say: Optional[Say] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The surrogates' means at every draw under each candidate (the angle's; with ``cond_vars``, a posterior
+    that weighed the profile, the fullness's stacked on it), the angle's own variance there, and their joint
+    realisations (:func:`_realisations`)."""
+    draws = ev.draws_frame()
+    mu, vp = _surrogate_at(gp, draws, cand)
+    gps = [gp]
+    if cond_vars is not None:
+        mu, gp_f = _profile_at(run, profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
+        gps.append(gp_f)
+    return mu, vp, _realisations(gps, draws, cand, np.isfinite(vp))
 
 
 @dataclass
@@ -250,12 +268,24 @@ def region_ids(run: Path, design: pd.DataFrame, params: list[str]) -> pd.DataFra
     return design.assign(run_id=ids)
 
 
-def region_heaps(run: Path, cand: pd.DataFrame) -> np.ndarray:
-    """How many REGION heaps (``--heaps``) each candidate has: the points simulated there, over any posterior."""
+#: how far into the current posterior's design :func:`region_heaps` looks for points simulated before
+REGION_SPAN = 256
+
+
+def region_heaps(run: Path, cand: pd.DataFrame, summary: pd.DataFrame) -> np.ndarray:
+    """How many of the current posterior's ``--heaps`` points (the first REGION_SPAN of its nested design over
+    ``summary``'s intervals) each candidate has: what a larger --heaps keeps. Points of an earlier posterior
+    do not count, since its design is no longer the current one's prefix."""
     made = _made(run, REGION)
-    counts = made.groupby(made["condition_id"].astype(str))["run_id"].nunique() \
-        if len(made) and "condition_id" in made else pd.Series(dtype=int)
-    return counts.reindex(cand["condition_id"].astype(str)).fillna(0).astype(int).to_numpy()
+    params = list(summary["parameter"])
+    if not len(made) or "condition_id" not in made or not set(params) <= set(made.columns):
+        return np.zeros(len(cand), int)
+    design = region_design(summary, REGION_SPAN, nested=True)[params].to_numpy(float)
+    out = []
+    for cid in cand["condition_id"].astype(str):
+        at = made.loc[made["condition_id"].astype(str) == cid, params].to_numpy(float)
+        out.append(int(sum(np.isclose(at, x, rtol=1e-12, atol=0.0).all(axis=1).any() for x in design)) if len(at) else 0)
+    return np.array(out, int)
 
 
 def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
@@ -367,9 +397,16 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
                     f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain "
-                    f"(`--simulate {row['condition_id']} --heaps {heaps_for(table, [row['condition_id']])}`)")
+                    f"(`--simulate {_named(table, row['condition_id'])} --heaps {heaps_for(table, [row['condition_id']])}`)")
         out.append(why)
     return out
+
+
+def _named(table: pd.DataFrame, cid: str) -> str:
+    """``--simulate``'s list to simulate at ``cid``: the candidates simulated for this ranking too, whose
+    sensitivities a ranking reads only where they are named."""
+    done = table.loc[table["simulated"], "condition_id"].astype(str).tolist() if "simulated" in table else []
+    return ",".join(dict.fromkeys([*done, str(cid)]))
 
 
 def _beyond_heaps(gp: GPSurrogate, cand: pd.DataFrame) -> list[str]:
@@ -409,8 +446,9 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     if to_rank:
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
                      f"extrapolation and is not ranked: simulate heaps there first; at the two largest, `{to_rank}`")
-    if unsettled_words(table):
-        notes.append(f"[yellow]note:[/] {unsettled_words(table)}")
+    open_ = unsettled_words(table)
+    if open_:
+        notes.append(f"[yellow]note:[/] {open_}")
     if len(ev.G.columns) and table["extrapolated"].any() and not table["simulated"].any():
         notes.append("[yellow]note:[/] a separation beyond the measured conditions' range is a straight line carried "
                      "out from them and is not ranked; `--simulate ID,...` simulates the sensitivities there")
@@ -489,15 +527,11 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
         f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)"
         + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
     draws = ev.draws_frame()
-    mu, vp = _surrogate_at(gp, draws, cand)
-    gps = [gp]
-    if profile:
-        mu, gp_f = _profile_at(run, profile_rows(run, rows, model, cond_vars, say), model, ev, measured, cand, mu)
-        gps.append(gp_f)
-    F = _realisations(gps, draws, cand, np.isfinite(vp))
+    mu, vp, F = _responses(run, rows, model, ev, measured, cand, gp, cond_vars if profile else None, say)
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
-    table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand), region_heaps=region_heaps(run, cand)),
+    had = region_heaps(run, cand, art.read_table(run / "posterior" / "summary.parquet"))
+    table = rank_conditions(ev, cand.assign(beyond_heaps=_beyond_heaps(gp, cand), region_heaps=had),
                             mu, vp, piles, SUGGEST_VARS, sims, F)
     mean_sd = ev.scatter / math.sqrt(piles)  # the sd of a measured mean
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
