@@ -338,7 +338,8 @@ def test_where_nothing_is_ranked_the_table_does_not_say_best_first():
 
 def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, tmp_path, monkeypatch):
     """--simulate: diagnose's finite differences at the named candidates (a stand-in here records what it
-    was asked), at the parameters diagnose's table names; they are ranked and written out."""
+    was asked), at the parameters diagnose's table names; they are ranked and written out, and a later
+    ranking that does not name them says it does not read them."""
     import shutil
 
     from calib_cli import artifacts as art
@@ -369,6 +370,11 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
     out = art.read_table(mine / "suggest" / "sensitivities.parquet")
     assert out["condition_id"].tolist() == ["d4-5_D60_H75"] and out["d_rolling_friction"].tolist() == [40.0]
     assert "sensitivities" in r.summary().columns
+    # a ranking that no longer names it reads the measured conditions' there, and says so once
+    plain = st.suggest_conditions(mine, rig, top=2, **quiet)
+    assert not plain.table.set_index("condition_id").loc["d4-5_D60_H75", "simulated"]
+    assert any("simulated before at d4-5_D60_H75" in n for n in plain.notes)
+    assert not any("simulated before" in n for n in st.suggest_conditions(mine, rig, top=3, **quiet).notes)
     with pytest.raises(CalibError, match="the candidates are"):
         st.suggest_conditions(mine, rig, simulate=["d4-5_D40_H50"], **quiet)  # measured already
 

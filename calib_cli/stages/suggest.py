@@ -455,6 +455,19 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     return notes
 
 
+def _unnamed(run: Path, simulate: list[str]) -> list[str]:
+    """A note where an earlier ``--simulate`` made sensitivities at candidates this ranking does not name: it
+    reads them only where named, so they fall back to the measured conditions' (their heaps stay cached)."""
+    path = run / "suggest" / "sensitivities.parquet"
+    before = art.read_table(path)["condition_id"].astype(str).tolist() if path.is_file() else []
+    left = [c for c in before if c not in simulate]
+    if not left:
+        return []
+    return [f"[yellow]note:[/] diagnose's sensitivities were simulated before at {', '.join(left)}, which this ranking "
+            f"does not name, so there they are carried from the measured conditions: add them to `--simulate` (their "
+            "heaps are cached)"]
+
+
 def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: bool, heap_options: bool) -> None:
     """Refuses counts out of range, and options that choose heaps (``heap_options``: --set, --preset,
     --shear-modulus; and --heaps) without --simulate, which alone makes them."""
@@ -537,6 +550,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     table["reason"] = _reasons(ev, table, sd_measured, mean_sd, piles)
     notes += _ranking_notes(ev, table, sd_measured, mean_sd, piles,
                             shlex.join(["calib", "suggest-conditions", "--run", str(run), "--rig", str(rig)]))
+    notes += _unnamed(run, simulate)
     with st.commit() as out:
         out.text("conditions.csv", _conditions_csv(table, top, piles))
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
