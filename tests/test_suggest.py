@@ -260,7 +260,7 @@ def test_the_report_shows_the_posterior_and_what_to_measure_next(ranked):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(RunFiles, "table", lambda self, rel, *a, **k: t if rel == "suggest/ranking.parquet"
                    else read(self, rel, *a, **k))
-        assert unsettled_words(t) and "The largest gain is not settled by the surrogate" in build_report(run)
+        assert unsettled_words(t) and "The surrogate&#x27;s own uncertainty leaves open" in build_report(run)
 
 
 def _evidence_for_ranking():
@@ -375,6 +375,9 @@ def test_suggest_simulates_the_named_candidates_at_diagnoses_parameters(ranked, 
     assert not plain.table.set_index("condition_id").loc["d4-5_D60_H75", "simulated"]
     assert any("simulated before at d4-5_D60_H75" in n for n in plain.notes)
     assert not any("simulated before" in n for n in st.suggest_conditions(mine, rig, top=3, **quiet).notes)
+    # a file its lock does not record (an interrupted ranking's) is no reason to stop: the ranking replaces it
+    (mine / "suggest" / "sensitivities.parquet").write_bytes(b"not parquet")
+    assert st.suggest_conditions(mine, rig, top=4, **quiet).table is not None
     with pytest.raises(CalibError, match="the candidates are"):
         st.suggest_conditions(mine, rig, simulate=["d4-5_D40_H50"], **quiet)  # measured already
 
@@ -490,10 +493,14 @@ def test_the_gains_spread_is_the_plug_in_gain_where_the_surrogate_is_sure():
     # c leads but may lose 0.25 nats; b may be the best too but may lose 0.62: not a safe alternative
     lead, close = unsettled(t)
     assert lead == "c" and [c for c, *_ in close] == ["c"] and lose[2] > 0.1 and lose[1] > lose[2] + 0.1
-    assert "c has it (chance 0.73" in unsettled_words(t) and "choose among them" not in unsettled_words(t)
+    assert "c has the largest gain (chance 0.73" in unsettled_words(t) and "choose among them" not in unsettled_words(t)
     near = t.assign(gain_regret_q90=[lose[0], lose[2] + 0.05, lose[2]])  # b's own loss within 0.1 of c's: in
     assert [c for c, *_ in unsettled(near)[1]] == ["c", "b"]
-    assert f"none expected to lose more than {lose[2] + 0.05:.2f}: choose among them" in unsettled_words(near)
+    assert (f"; b (chance {p[1]:.2f}) may be the best too, and each of these 2 may lose up to {lose[2] + 0.05:.2f} "
+            "nats (90th percentile): choose among them") in unsettled_words(near)
+    five = pd.DataFrame({"condition_id": list("abcdef"), "info_gain_nats": [0.9, 0.8, 0.8, 0.8, 0.8, 0.8],
+                         "p_best_gain": [0.3, 0.2, 0.2, 0.1, 0.1, 0.1], "gain_regret_q90": 0.3})
+    assert "b (chance 0.20), c (chance 0.20), d (chance 0.10) and 2 more may be the best too" in unsettled_words(five)
     assert unsettled(t.assign(gain_regret_q90=0.05)) is None and unsettled_words(t.drop(columns="gain_regret_q90")) == ""
     with pytest.raises(CalibError, match="do not match"):  # realisations of the angle alone against two responses
         gain_spread(np.stack([mu, mu], axis=2), noisy, U, np.ones(3, bool))

@@ -379,10 +379,10 @@ def unsettled(table: pd.DataFrame, at_least: float = 0.05) -> tuple[str, list[tu
     """Where the surrogate's uncertainty leaves the best condition open: the candidate with the largest
     ranked gain where what measuring it may lose against the best (``gain_regret_q90``) is above SETTLED_NATS,
     and (condition_id, chance of the largest gain, loss) of the leader and of each other candidate with at least
-    ``at_least`` of that chance whose own loss is within SETTLED_NATS of the leader's, likeliest first (one
-    that may be best but may also lose much more is not a safe choice); None where it is settled or no
+    ``at_least`` of that chance whose own loss is at most SETTLED_NATS more than the leader's, likeliest first
+    (one that may be best but may also lose much more is not a safe choice); None where it is settled or no
     spread was computed."""
-    if "gain_regret_q90" not in table or not table["gain_regret_q90"].notna().any():
+    if not {"gain_regret_q90", "p_best_gain"} <= set(table.columns) or not table["gain_regret_q90"].notna().any():
         return None
     ranked = table[table["gain_regret_q90"].notna()]
     lead = ranked.loc[ranked["info_gain_nats"].astype(float).idxmax()]
@@ -404,15 +404,17 @@ def unsettled_words(table: pd.DataFrame) -> str:
         return ""
     lead, close = open_
     p_lead, lose = next((p, r) for cid, p, r in close if cid == lead)
-    head = (f"the largest gain is not settled by the surrogate's own uncertainty: {lead} has it (chance "
-            f"{p_lead:.2f} of being the best) but may teach up to {lose:.2f} nats less than the best (90th percentile)")
-    others = [(cid, p, r) for cid, p, r in close if cid != lead]
+    head = (f"the surrogate's own uncertainty leaves open which condition teaches the most: {lead} has the largest "
+            f"gain (chance {p_lead:.2f} of being the best) but may teach up to {lose:.2f} nats less than the best "
+            "(90th percentile)")
+    others = [f"{cid} (chance {p:.2f})" for cid, p, _ in close if cid != lead]
     if not others:
         return head
-    more = f" and {len(others) - 3} more" if len(others) > 3 else ""
-    return (f"{head}; {', '.join(f'{cid} ({p:.2f})' for cid, p, _ in others[:3])}{more} may be the best too (their "
-            f"chances), none expected to lose more than {max(r for *_, r in close):.2f}: choose among them by what "
-            "the rig makes most easily")
+    listed = others[:3] + ([f"{len(others) - 3} more"] if len(others) > 3 else [])
+    names = listed[0] if len(listed) == 1 else ", ".join(listed[:-1]) + " and " + listed[-1]
+    return (f"{head}; {names} may be the best too, and each of these {len(close)} may lose up to "
+            f"{max(r for *_, r in close):.2f} nats (90th percentile): choose among them by what the rig makes "
+            "most easily")
 
 
 def simulate_command(command: str, table: pd.DataFrame, fallback: str, ids: list[str] | None = None) -> str:

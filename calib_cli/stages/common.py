@@ -65,8 +65,9 @@ R = TypeVar("R")
 #: 14 / 9: nor is that parameter called identified (its narrow interval is the off model's neutral value)
 #: suggest 6: each gain's 90 % range over the surrogate's own uncertainty, its chance of being the largest and
 #: what it may lose against the best (info_gain_q05/q95, p_best_gain, gain_regret_q90), and region_heaps
+#: suggest 7: the realisations read at evenly spaced draws (a stride gave up to twice the points asked)
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 14, "suggest": 6, "calibrate": 4,
+                 "diagnose": 2, "posterior": 14, "suggest": 7, "calibrate": 4,
                  "calibrate-answer": 9, "synth-lab": 1}
 
 

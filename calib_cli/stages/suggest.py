@@ -14,6 +14,8 @@ from typing import Optional
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from .. import artifacts as art
 from ..heaps.index import RESULTS, load_results
@@ -148,11 +150,12 @@ SPREAD_POINTS = 4000
 
 def _realisations(gps: list[GPSurrogate], draws: pd.DataFrame, cand: pd.DataFrame, live: np.ndarray) -> np.ndarray:
     """REALISATIONS joint draws of each surrogate's latent response (the angle's, the fullness's) at
-    SPREAD_DRAWS of the posterior's draws under every ``live`` candidate: (K, candidates, draws, responses),
-    NaN at a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
+    SPREAD_DRAWS of the posterior's draws (evenly spaced; fewer where the live candidates would pass
+    SPREAD_POINTS, 10 at the least) under every ``live`` candidate: (K, candidates, draws, responses), NaN at
+    a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
     idx = np.flatnonzero(live)
-    per = max(10, min(SPREAD_DRAWS, SPREAD_POINTS // max(1, len(idx))))
-    sub = draws.iloc[:: max(1, len(draws) // per)]
+    per = min(len(draws), max(10, min(SPREAD_DRAWS, SPREAD_POINTS // max(1, len(idx)))))
+    sub = draws.iloc[np.unique(np.linspace(0, len(draws) - 1, per).round().astype(int))]
     F = np.full((REALISATIONS, len(cand), len(sub), len(gps)), np.nan)
     for r, gp in enumerate(gps):
         if len(idx):
@@ -280,7 +283,8 @@ def region_heaps(run: Path, cand: pd.DataFrame, summary: pd.DataFrame) -> np.nda
     params = list(summary["parameter"])
     if not len(made) or "condition_id" not in made or not set(params) <= set(made.columns):
         return np.zeros(len(cand), int)
-    design = region_design(summary, REGION_SPAN, nested=True)[params].to_numpy(float)
+    span = max(REGION_SPAN, int(made["run_id"].nunique()))  # an earlier --heaps beyond the span still counts
+    design = region_design(summary, span, nested=True)[params].to_numpy(float)
     out = []
     for cid in cand["condition_id"].astype(str):
         at = made.loc[made["condition_id"].astype(str) == cid, params].to_numpy(float)
@@ -384,7 +388,7 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
             why = explain(ev, row, row["best_effect"], SUGGEST_VARS, WORDS)
             if row["extrapolated"]:
                 why = (f"may separate, by a straight line carried beyond the measured conditions (not ranked; "
-                       f"`--simulate {row['condition_id']}` simulates it): " + why)
+                       f"`--simulate {_named(table, row['condition_id'])}` simulates it): " + why)
         elif ranked:
             why = "narrows " + ", ".join(f"{p.replace('_', ' ')}'s interval by {shr[p]:.0%}" for p in ranked[:2])
             if row["best_effect"]:
@@ -459,7 +463,10 @@ def _unnamed(run: Path, simulate: list[str]) -> list[str]:
     """A note where an earlier ``--simulate`` made sensitivities at candidates this ranking does not name: it
     reads them only where named, so they fall back to the measured conditions' (their heaps stay cached)."""
     path = run / "suggest" / "sensitivities.parquet"
-    before = art.read_table(path)["condition_id"].astype(str).tolist() if path.is_file() else []
+    try:  # a note only: a file its lock does not record (an interrupted ranking) is the commit's to replace
+        before = pq.read_table(path, columns=["condition_id"]).column(0).to_pylist() if path.is_file() else []
+    except (OSError, ValueError, KeyError, pa.ArrowException):
+        before = []
     left = [c for c in before if c not in simulate]
     if not left:
         return []
