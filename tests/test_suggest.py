@@ -418,6 +418,13 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
         assert post.loc[p, "q05"] <= xs[0] and xs[-1] <= post.loc[p, "q95"]
         # a scrambled Sobol sequence's first 4 (a power of 2): one point in each quarter of the interval
         assert len({int(4 * (x - post.loc[p, "q05"]) / (post.loc[p, "q95"] - post.loc[p, "q05"])) for x in xs}) == 4
+    # advice to simulate at another candidate keeps this one named (its sensitivities are read only where named)
+    t = art.read_table(mine / "suggest" / "ranking.parquet")
+    assert st._named(t, "d4-5_D40_H75") == "d4-5_D60_H75,d4-5_D40_H75" and st._named(t, "d4-5_D60_H75") == "d4-5_D60_H75"
+    assert st._named(t.drop(columns="simulated"), "x") == "x"
+    assert st._advice(t, "d4-5_D40_H75") == ("`--simulate d4-5_D60_H75,d4-5_D40_H75 --heaps 12`; --heaps tops up "
+                                              "every candidate named")
+    assert st._advice(t, "d4-5_D60_H75") == "`--simulate d4-5_D60_H75 --heaps 12`"
     # another --heaps is another ranking (the stage reruns); a larger design keeps the smaller one's points
     first = [theta for _, theta in asked["points"]]
     r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=6, **quiet)

@@ -401,9 +401,17 @@ def _reasons(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_sd: flo
         if np.isfinite(sd) and (sd > 1.25 * sd_measured or sd > mean_sd):
             why += (f"; the surrogate is unsure here (sd {sd:.1f} deg at the posterior's draws, against "
                     f"{mean_sd:.1f} for a mean of {piles} piles): simulate heaps there before trusting the gain "
-                    f"(`--simulate {_named(table, row['condition_id'])} --heaps {heaps_for(table, [row['condition_id']])}`)")
+                    f"({_advice(table, row['condition_id'])})")
         out.append(why)
     return out
+
+
+def _advice(table: pd.DataFrame, cid: str) -> str:
+    """The options that add REGION_HEAPS heaps at ``cid`` (:func:`heaps_for`), naming the candidates simulated
+    before too; --heaps then tops those up as well, which it says."""
+    named = _named(table, cid)
+    return (f"`--simulate {named} --heaps {heaps_for(table, [cid])}`"
+            + ("; --heaps tops up every candidate named" if "," in named else ""))
 
 
 def _named(table: pd.DataFrame, cid: str) -> str:
