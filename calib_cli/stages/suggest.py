@@ -200,7 +200,9 @@ class SuggestResult(Result):
         if "simulated" in t and any(c.startswith("separation_") for c in t):  # where they come from
             t = t.assign(sensitivities=np.select([t["simulated"], ~t["known"], t["extrapolated"]],
                                                  ["simulated", "unknown", "extrapolated"], "interpolated"))
-        return t[[c for c in cols if c in t]]
+        t = t[[c for c in cols if c in t]]
+        # the parenthesis says what it is: the gain's 90 % range over the surrogate's own uncertainty
+        return t.rename(columns={"info_gain_nats": "info_gain_nats (90 %)"}) if "info_gain_q05" in self.table else t
 
     def title(self) -> str:
         """The table's heading: ranked best first, or (no candidate's gain or separation ranked, each the
