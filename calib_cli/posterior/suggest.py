@@ -417,13 +417,13 @@ def unsettled_words(table: pd.DataFrame) -> str:
             "most easily")
 
 
-def simulate_command(command: str, table: pd.DataFrame, fallback: str, ids: list[str] | None = None) -> str:
-    """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or simulate
-    heaps at ``ids`` where given, or "" where there are none: ``command`` (the ranking's own, ``calib
-    suggest-conditions ...``; else ``fallback``) with the candidates it simulated already and these in one
-    ``--simulate`` (those are cached), and ``--heaps`` (REGION_HEAPS more than the most any of ``ids`` has,
-    ``region_heaps``; one named before keeps its own, the design being nested)."""
-    ids = to_simulate(table) if ids is None else list(ids)
+def simulate_command(command: str, table: pd.DataFrame, fallback: str) -> str:
+    """The command that would rank ``table``'s best unranked candidates (:func:`to_simulate`), or "" where
+    there are none: ``command`` (the ranking's own, ``calib suggest-conditions ...``; else ``fallback``) with
+    the candidates it simulated already and these in one ``--simulate`` (those are cached), and ``--heaps``
+    (REGION_HEAPS more than the most any of these has, ``region_heaps``; one named before keeps its own, the
+    design being nested)."""
+    ids = to_simulate(table)
     if not ids:
         return ""
     args = shlex.split(command) if command else []

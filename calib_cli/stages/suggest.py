@@ -14,8 +14,6 @@ from typing import Optional
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from .. import artifacts as art
 from ..heaps.index import RESULTS, load_results
@@ -252,19 +250,29 @@ def _made(run: Path, design: str) -> pd.DataFrame:
 def next_run_id(run: Path, design: str) -> int:
     """The run id after the largest a ``design``'s heaps hold in the run's results index (1 where none): a
     later design of the same label is numbered on, so that design and run id name one point."""
-    made = _made(run, design)
+    return _next_id(_made(run, design))
+
+
+def _next_id(made: pd.DataFrame) -> int:
+    """The run id after the largest among a design's rows (1 where there are none)."""
     return 1 + int(made["run_id"].max()) if len(made) else 1
+
+
+def _same_point(made: pd.DataFrame, params: list[str], x) -> np.ndarray:
+    """Per row of ``made``, whether its parameters are the point ``x`` (a design's values, in ``params``'
+    order; exact but for the round trip through Parquet); False throughout where a parameter is not a column."""
+    if not set(params) <= set(made.columns):
+        return np.zeros(len(made), bool)
+    return np.isclose(made[params].to_numpy(float), np.asarray(x, float), rtol=1e-12, atol=0.0).all(axis=1)
 
 
 def region_ids(run: Path, design: pd.DataFrame, params: list[str]) -> pd.DataFrame:
     """``design`` with each point's run id: that of the same parameters among the REGION heaps made
     before (a design run again, or grown, finds them cached and adds no row), else numbered on."""
     made = _made(run, REGION)
-    ids, new = [], next_run_id(run, REGION)
-    for _, r in design.iterrows():
-        same = np.ones(len(made), bool)
-        for p in params:
-            same &= np.isclose(made[p].to_numpy(float), float(r[p]), rtol=1e-12, atol=0.0) if p in made else False
+    ids, new = [], _next_id(made)
+    for x in design[params].to_numpy(float):
+        same = _same_point(made, params, x)
         if same.any():
             ids.append(int(made.loc[same, "run_id"].iloc[0]))
         else:
@@ -287,11 +295,9 @@ def region_heaps(run: Path, cand: pd.DataFrame, summary: pd.DataFrame) -> np.nda
         return np.zeros(len(cand), int)
     span = max(REGION_SPAN, int(made["run_id"].nunique()))  # an earlier --heaps beyond the span still counts
     design = region_design(summary, span, nested=True)[params].to_numpy(float)
-    out = []
-    for cid in cand["condition_id"].astype(str):
-        at = made.loc[made["condition_id"].astype(str) == cid, params].to_numpy(float)
-        out.append(int(sum(np.isclose(at, x, rtol=1e-12, atol=0.0).all(axis=1).any() for x in design)) if len(at) else 0)
-    return np.array(out, int)
+    where = made["condition_id"].astype(str)
+    return np.array([sum(_same_point(made[where == cid], params, x).any() for x in design)
+                     for cid in cand["condition_id"].astype(str)], int)
 
 
 def _simulate_candidates(run: Path, cand: pd.DataFrame, ids, set_: Pairs, preset: Optional[str], repeats: int,
@@ -473,9 +479,9 @@ def _unnamed(run: Path, simulate: list[str]) -> list[str]:
     """A note where an earlier ``--simulate`` made sensitivities at candidates this ranking does not name: it
     reads them only where named, so they fall back to the measured conditions' (their heaps stay cached)."""
     path = run / "suggest" / "sensitivities.parquet"
-    try:  # a note only: a file its lock does not record (an interrupted ranking) is the commit's to replace
-        before = pq.read_table(path, columns=["condition_id"]).column(0).to_pylist() if path.is_file() else []
-    except (OSError, ValueError, KeyError, pa.ArrowException):
+    try:  # a note only: a file its lock does not vouch for (an interrupted ranking) is the commit's to replace
+        before = art.read_table(path, ["condition_id"])["condition_id"].astype(str).tolist() if path.is_file() else []
+    except CalibError:
         before = []
     left = [c for c in before if c not in simulate]
     if not left:
