@@ -111,6 +111,19 @@ def test_the_variance_rule_goes_where_the_posterior_lies_and_the_heaps_do_not():
         acquire([(gp, v)], samples, measured, 6, rule="best")
 
 
+def test_a_draw_the_chain_repeated_is_one_pair_not_two():
+    """A chain's draws repeat where it rejected a move: two picks of one (draw, condition) would be one cached
+    heap that the budget pays for twice, so each pair of a round is a different point."""
+    rng = np.random.default_rng(1)
+    gp = _gp_on(rng.random((40, 2)) * [0.5, 1.0])
+    few = pd.DataFrame({"a": rng.normal(0.8, 0.05, 8), "b": rng.random(8)})
+    samples = few.iloc[rng.integers(0, 8, 500)].reset_index(drop=True)  # 8 points, each drawn ~60 times
+    measured = pd.DataFrame({"condition_id": ["H75"], "fill_height_mm": [75.0], "mean": [34.0], "sd": 1.0, "n": 10})
+    for rule in ("variance", "max-sd"):
+        d = acquire([(gp, np.array([0.1]))], samples, measured, 8, repeats=2, rule=rule, seed=0)
+        assert len(d) == 8 and not d.duplicated().any(), rule
+
+
 def test_the_stop_rule_needs_stable_intervals_verdicts_and_a_sure_surrogate():
     t0 = pd.DataFrame({"parameter": ["a"], "q05": [0.2], "q95": [0.6], "low": [0.0], "high": [1.0]})
     t1 = t0.assign(q05=0.23, q95=0.58)
@@ -286,6 +299,28 @@ def test_heaps_added_after_a_calibration_leave_it_as_it_went_and_those_before_it
     assert forced.rounds["heaps"].iloc[0] == r.rounds["heaps"].iloc[0] + 24
 
 
+def test_a_round_learns_only_from_its_own_designs_not_another_calibrations_heaps(lab):
+    """Heaps labelled as this model's calibration but not of its designs (another --seed's, or of a round
+    designed again at a smaller budget after a kill) share its run ids; they stay out of its rounds."""
+    from calib_cli.model import load_model
+    from calib_cli.posterior.evidence import model_rows
+    from calib_cli.stages import calibrate as cal
+
+    run, _ = lab
+    cal.calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    model = load_model(run)
+    before = {k: cal._until_round(run, model_rows(run, model), model, k) for k in (0, 1, None)}
+    rows = pd.read_parquet(run / "simulate" / "results.parquet")
+    stray = rows[rows["run_id"] < 1010].assign(run_hash=lambda r: "stray" + r["run_hash"],
+                                               static_friction=lambda r: r["static_friction"] + 0.01)
+    append_index(run, stray.to_dict("records"))
+    assert len(model_rows(run, model)) == len(rows) + len(stray)
+    for k, b in before.items():
+        now = cal._until_round(run, model_rows(run, model), model, k)
+        assert set(now["run_hash"]) == set(b["run_hash"]), k
+    assert len(before[0]) == 60 and len(before[None]) == 100
+
+
 def test_heaps_that_form_no_heap_are_made_up_by_a_space_filling_top_up(lab, monkeypatch):
     """A fifth of the prior box stands as a column: round 0's 40 heaps leave the surrogate short of its 40
     (10 per input), so round 1 adds space-filling heaps before any posterior; a budget that cannot make
@@ -320,6 +355,10 @@ def test_calibrate_refuses_a_budget_too_small_an_unknown_rule_and_an_unusable_sa
     # refused before round 0 is designed or a heap runs, not when the first posterior is fitted
     with pytest.raises(CalibError, match="emcee needs at least"):
         calibrate(run, walkers=2, **QUIET)
+    with pytest.raises(CalibError, match="--batch 3 with --repeats 2 gives a later round fewer than 2 points"):
+        calibrate(run, batch=3, **QUIET)
+    with pytest.raises(CalibError, match="at most 999 points"):  # a round's run ids are its thousand
+        calibrate(run, first=2000, budget=3000, **QUIET)
     with pytest.raises(CalibError, match="--first 500 is more than --budget 10"):
         calibrate(run, first=500, budget=10, **QUIET)
     with pytest.raises(CalibError, match="not a scheduler address"):

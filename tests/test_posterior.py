@@ -764,8 +764,12 @@ def test_no_verdict_while_the_surrogate_is_unsure_where_the_posterior_lies():
     assert "call for it" not in " ".join(unsure["verdict"])
     u = unsure.set_index("parameter").loc["surface_energy"]
     assert effect_verdict(u["bf_off"], u["bf_upper"], u["decided"]) == "undecided"
-    # a bound above 3 cannot favour the effect off: it only says B01 is below it
+    # a bound above 3 cannot favour the effect off: it only says B01 is below it, in the word and the words
     assert effect_verdict(5.0, True, True) == "open" and effect_verdict(5.0, False, True) == "off"
+    short = verdicts(_table([0.2, 0.13]).assign(n_eff=[4000.0, 40.0]), samples, ratio=0.4)
+    few = short.set_index("parameter").loc["surface_energy"]
+    assert few["bf_upper"] and few["bf_off"] > 3 and effect_verdict(few["bf_off"], True, True) == "open"
+    assert "the data do not decide" in few["verdict"] and "favour it off" not in few["verdict"]
 
 
 def test_the_surrogate_ratio_falls_as_heaps_teach_the_surrogate(gp):

@@ -106,16 +106,26 @@ def acquire(surrogates: Sequence[tuple[object, np.ndarray]], samples: pd.DataFra
         pick = rng.permutation(n_cand)[:pairs] if pairs <= n_cand else rng.choice(n_cand, pairs)
         cond = (np.arange(len(pick)) + rng.integers(C)) % C
         return _frame(theta[pick], names, measured, cond)
+    # a chain's draws repeat (a rejected move): a pair picked twice would be one cached heap, paid for twice
+    twin = np.repeat(_repeated(theta[:n_cand]), C)
     P, w, tau2 = [], [], []
     for gp, v in surrogates:
         XE, XC = _points(gp, theta, names, measured), _points(gp, theta[:n_cand], names, measured)
         P.append(gp.latent_cov(np.vstack([XE, XC])))
         iv = 1.0 / np.maximum(v, 1e-12)
-        w.append(np.r_[np.tile(iv, n_eval) / (n_eval * C), np.tile(iv, n_cand)])
-        tau2.append(gp.heap_sd(XC) ** 2 / repeats)  # what a heap teaches: its views' mean where fitted so
+        w.append(np.r_[np.tile(iv, n_eval) / (n_eval * C), np.where(twin, 0.0, np.tile(iv, n_cand))])
+        # what a heap teaches: its views' mean where fitted so; a twin's infinite noise teaches nothing
+        tau2.append(np.where(twin, np.inf, gp.heap_sd(XC) ** 2 / repeats))
     chosen = _greedy(P, w, tau2, n_eval * C, pairs, integrated=rule == "variance")
     idx = np.array(chosen)
     return _frame(theta[:n_cand][idx // C], names, measured, idx % C)
+
+
+def _repeated(theta: np.ndarray) -> np.ndarray:
+    """Per row, whether an earlier row is the same point."""
+    later = np.ones(len(theta), bool)
+    later[np.unique(theta, axis=0, return_index=True)[1]] = False
+    return later
 
 
 def _frame(theta: np.ndarray, names: list[str], measured: pd.DataFrame, cond: np.ndarray) -> pd.DataFrame:

@@ -424,7 +424,8 @@ def _words(r, owner, unsure: bool, prior: str = "settings", off: str = "") -> st
     if not math.isnan(r.bf_off):
         name = owner[r.parameter].name
         say = ("undecided" if unsure else "the data call for it" if r.bf_off < BF_NEEDED
-               else "the data favour it off" if r.bf_off > BF_OFF else "the data do not decide")
+               else "the data favour it off" if r.bf_off > BF_OFF and not r.bf_upper
+               else "the data do not decide")  # a bound above BF_OFF: no draw near off, nothing favours it
         if r.box_cut and not unsure:
             say = f"no verdict while the box cuts the posterior (inside it: {say})"
         w += (f"; {name} off ({r.parameter} = {r.neutral:g}) against on: Bayes factor "

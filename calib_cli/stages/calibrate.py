@@ -162,6 +162,10 @@ def _requests(design: pd.DataFrame, model: Model, conds: pd.DataFrame, setup: di
     return out
 
 
+#: the most points a round designs: its run ids are 1000 (k + 1) onwards, one thousand a round
+MAX_POINTS = 999
+
+
 def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Round], conds: pd.DataFrame,
                   plan: Plan, say: Say) -> pd.DataFrame:
     """Round k's pairs (locked): space-filling until a posterior exists (round 0, and a top-up where too few
@@ -178,7 +182,7 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
     else:
         design = acquire(_surrogates(run, model, prev, conds, plan), prev.samples, conds, pairs, plan.repeats,
                          plan.rule, plan.seed + k)
-    design.insert(0, "run_id", np.arange(pairs) + 1000 * (k + 1))
+    design.insert(0, "run_id", np.arange(pairs) + (MAX_POINTS + 1) * (k + 1))
     with st.commit() as out:
         out.table(path.relative_to(st.dir).as_posix(), design, model_revision=model.revision, round=k)
         if k == 0:  # kept where a changed setting redesigns round 0: heaps added since stay out
@@ -194,7 +198,7 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
     if prev.fit is not None:
         gp, second = prev.fit.gp, prev.fit.second
     else:
-        rows = in_box(_until_round(model_rows(run, model, views=plan.views), model, prev.index, _reused(run, model)),
+        rows = in_box(_until_round(run, model_rows(run, model, views=plan.views), model, prev.index),
                       plan.bounds)
         gp = model_surrogate(rows, model, plan.seed, scale=plan.bounds)
         second = None
@@ -226,9 +230,8 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
                      plan: Plan, force: bool, say: Say, first: bool = False) -> Round:
     """The posterior after round k (locked): every heap of the model so far, the surrogates' held-out
     error scored for the Gaussian processes alone (the last round's is scored for every surrogate)."""
-    reused = _reused(run, model)
-    rows = _until_round(model_rows(run, model, views=plan.views), model, k, reused)
-    judged = _until_round(model_rows(run, model, judged=True), model, k, reused)
+    rows = _until_round(run, model_rows(run, model, views=plan.views), model, k)
+    judged = _until_round(run, model_rows(run, model, judged=True), model, k)
     cond_vars = informative_conditions(rows, COND_VARS)
     prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns, judged)
     mfile = run / MODEL_FILE
@@ -263,13 +266,16 @@ def _own(rows: pd.DataFrame, model: Model) -> np.ndarray:
     return ((rows["design"] == DESIGN) & (rows["model"] == model.hash)).to_numpy()
 
 
-def _until_round(rows: pd.DataFrame, model: Model, k: Optional[int], reused: Optional[pd.DataFrame]) -> pd.DataFrame:
+def _until_round(run: Path, rows: pd.DataFrame, model: Model, k: Optional[int]) -> pd.DataFrame:
     """The heaps a round's posterior learns from (``k`` None: the whole calibration's): those at hand when the
-    calibration began (``reused``, recorded by round 0; None: every heap not its own) and its own rounds' up
-    to round k. Heaps that compare, diagnose or a later command add do not join, so a calibration resumed or
-    run again after them goes as it went (``--force``, or a new model revision, begins from every heap at hand)."""
+    calibration began (recorded by round 0; before it, every heap not a calibration's own) and the points of
+    this calibration's designs up to round k (:func:`_designed`). Heaps that compare, diagnose or a later
+    command add do not join, nor another calibration's of the same model (another --seed, a round designed
+    again at a smaller --budget after a kill), so a calibration resumed or run again goes as it went
+    (``--force``, or a new model revision, begins from every heap at hand)."""
+    reused = _reused(run, model)
     own = _own(rows, model)
-    keep = own if k is None or not own.any() else own & (rows["run_id"] < 1000 * (k + 2)).to_numpy()
+    keep = own & _in_designs(rows, _designed(run, model, k), model.parameters)
     if reused is None:
         keep = keep | ~own
     elif len(rows):
@@ -277,6 +283,31 @@ def _until_round(rows: pd.DataFrame, model: Model, k: Optional[int], reused: Opt
         at_hand = rows[keys].merge(reused[keys].drop_duplicates(), how="left", on=keys, indicator=True)
         keep = keep | ((at_hand["_merge"] == "both").to_numpy() & ~own)
     return rows[keep].reset_index(drop=True)
+
+
+def _designed(run: Path, model: Model, k: Optional[int]) -> pd.DataFrame:
+    """The points of this calibration's rounds 0 to ``k`` as their locked designs hold them (None: every
+    round on disk): run_id, condition_id and the parameters."""
+    cols = ["run_id", "condition_id", *model.parameters]
+    frames, j = [], 0
+    while (k is None or j <= k) and (path := _dir(run, model, j) / "design.parquet").is_file():
+        frames.append(art.read_table(path, cols)[cols])
+        j += 1
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=cols)
+
+
+def _in_designs(rows: pd.DataFrame, designed: pd.DataFrame, params: list[str]) -> np.ndarray:
+    """Per row, whether it is a point of ``designed``: its run id and condition, and its parameters exactly
+    (but for the round trip through Parquet)."""
+    if not len(rows) or not len(designed) or not {"run_id", "condition_id", *params} <= set(rows.columns):
+        return np.zeros(len(rows), bool)
+    left = pd.DataFrame({"run_id": pd.to_numeric(rows["run_id"], errors="coerce").to_numpy(float),
+                         "condition_id": rows["condition_id"].astype(str).to_numpy()})
+    right = designed.assign(run_id=designed["run_id"].astype(float), condition_id=designed["condition_id"].astype(str))
+    m = left.merge(right.drop_duplicates(["run_id", "condition_id"]), how="left", on=["run_id", "condition_id"])
+    got, want = rows[params].to_numpy(float), m[params].to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        return np.isclose(got, want, rtol=1e-12, atol=0.0).all(axis=1)
 
 
 def _reused(run: Path, model: Model) -> Optional[pd.DataFrame]:
@@ -346,14 +377,20 @@ def _plan(model: Model, conds: pd.DataFrame, budget: int, first: Optional[int], 
         raise CalibError(f"--rule must be one of {', '.join(RULES)}, got {plan.rule!r}")
     if plan.repeats < 1 or plan.first < 1 or plan.batch < 1:
         raise CalibError("--repeats, --first and --batch must be at least 1")
+    if plan.batch // plan.repeats < 2:
+        raise CalibError(f"--batch {plan.batch} with --repeats {plan.repeats} gives a later round fewer than 2 points: "
+                         f"give a --batch of at least {2 * plan.repeats}")
+    if max(plan.first, plan.batch) // plan.repeats > MAX_POINTS:
+        raise CalibError(f"--first and --batch make at most {MAX_POINTS} points of --repeats {plan.repeats} piles a "
+                         f"round, got {max(plan.first, plan.batch) // plan.repeats}: run more rounds instead")
     if first and plan.first > plan.budget:
         raise CalibError(f"--first {plan.first} is more than --budget {plan.budget}: round 0 spends the budget's "
                          "heaps, so give a --budget of at least --first")
     check_sampler(len(model.parameters), plan.walkers, plan.steps)
     if min(plan.first, plan.budget) // plan.repeats < 2:
-        raise CalibError(f"--budget {plan.budget} leaves round 0 fewer than 2 points of {plan.repeats} heaps: "
-                         f"give at least {2 * plan.repeats} (a surrogate of {inputs} inputs wants {heaps_needed(model, [])} "
-                         "or more)")
+        which = f"--first {plan.first}" if plan.first < plan.budget else f"--budget {plan.budget}"
+        raise CalibError(f"{which} leaves round 0 fewer than 2 points of {plan.repeats} heaps: give at least "
+                         f"{2 * plan.repeats} (a surrogate of {inputs} inputs wants {need} or more)")
     return plan
 
 
@@ -376,12 +413,12 @@ def _final_stage(run: Path, model: Model, plan: Plan, setup: dict, rows: Optiona
 
 def _judged_rows(run: Path, model: Model) -> pd.DataFrame:
     """Every heap the calibration judges (those that stood as columns too): :func:`_until_round`'s."""
-    return _until_round(model_rows(run, model, judged=True), model, None, _reused(run, model))
+    return _until_round(run, model_rows(run, model, judged=True), model, None)
 
 
 def _current_rows(run: Path, model: Model) -> Optional[pd.DataFrame]:
     try:
-        return _until_round(model_rows(run, model), model, None, _reused(run, model))
+        return _until_round(run, model_rows(run, model), model, None)
     except CalibError:  # no heaps yet
         return None
 
@@ -454,8 +491,8 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         pairs = _next_pairs(plan, k, spent, short)
         if pairs < 2:
             if not rounds:
-                raise CalibError(f"only {need - short} of the {spent} heaps simulated formed a heap; the surrogate "
-                                 f"needs {need}: raise --budget")
+                raise CalibError(f"only {need - short} heaps of the model formed a heap ({spent} simulated by this "
+                                 f"calibration); the surrogate needs {need}: raise --budget")
             return rounds, spent, (f"budget: {spent} of the {plan.budget} heaps simulated, too few left for "
                                    f"another round")
         prev = rounds[-1] if rounds else None
@@ -464,7 +501,7 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         spent += len(design) * plan.repeats
         say(f"round {k}: {len(design)} points x {plan.repeats} piles ({rule})")
         _simulate(run, design, model, conds, setup, plan, workers, dask, on_heap)
-        have = len(in_box(_until_round(model_rows(run, model), model, k, _reused(run, model)), plan.bounds))
+        have = len(in_box(_until_round(run, model_rows(run, model), model, k), plan.bounds))
         short = max(need - have, 0)
         if short:
             say(f"round {k}: {have} heaps of the model formed a heap, the surrogate needs {need}: another "
@@ -495,7 +532,7 @@ def _stop(rounds: list[Round], plan: Plan, rnd: Round) -> str:
 
 #: the final posterior (the answer) samples FINAL_LONGER times a round's steps, longer still where an effect's
 #: Bayes factor is only bounded above BF_RESOLUTION (no draw near its neutral value, and too few draws to say
-#: the bound is below Jeffreys' 0.1), at most MAX_LONGER times: on the hidden-cohesion lab a round's 3000 steps
+#: the bound is below BF_RESOLUTION, half Jeffreys' 0.1, where a bound's verdict is safe), at most MAX_LONGER times: on the hidden-cohesion lab a round's 3000 steps
 #: moved an interval's end by up to 0.03 against 18000 steps
 FINAL_LONGER, BF_RESOLUTION, MAX_LONGER = 3, 0.05, 6
 
@@ -511,9 +548,8 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
                            say: Say) -> pd.DataFrame:
     """RUN/posterior/: the last round's heaps and evidence, sampled longer (:func:`_final_steps`), with every
     surrogate's held-out error; returns its draws."""
-    reused = _reused(run, model)
-    rows = _until_round(model_rows(run, model, views=plan.views), model, last.index, reused)
-    judged = _until_round(model_rows(run, model, judged=True), model, last.index, reused)
+    rows = _until_round(run, model_rows(run, model, views=plan.views), model, last.index)
+    judged = _until_round(run, model_rows(run, model, judged=True), model, last.index)
     cond_vars = informative_conditions(in_box(rows, plan.bounds), COND_VARS)
     steps = _final_steps(last, plan)
     say(f"the answer: the last round's posterior sampled {steps} steps (a round's {plan.steps}), with every "
