@@ -90,6 +90,55 @@ def test_a_rig_lists_every_combination_in_the_labs_naming():
     assert "d4-5_D40_H100" in c["condition_id"].tolist() and "d2-3_D60_H100" in c["condition_id"].tolist()
 
 
+def test_two_conditions_one_name_would_give_are_refused():
+    rig = parse_rig({"rig": {"particle_sizes_mm": [[4, 5]], "fill_height_mm": [100, 100.0001]}})
+    with pytest.raises(CalibError, match="d4-5_H100 are two that its name rounds alike"):
+        rig.conditions()
+
+
+def _measured(**kw):
+    """Two measured conditions as a conditions table of whole numbers gives them (integers)."""
+    return pd.DataFrame({"condition_id": ["d4-5_D40_H50", "d4-5_D40_H100"], "particle_d_min_mm": [4, 4],
+                         "particle_d_max_mm": [5, 5], "cylinder_diameter_mm": [40, 40], "fill_height_mm": [50, 100],
+                         "lift_speed_mm_s": [50, 50], **kw})
+
+
+def test_a_measured_condition_is_left_out_whether_its_table_holds_integers_or_floats():
+    from calib_cli.stages.suggest import _candidates
+
+    rig = parse_rig({"rig": {"particle_sizes_mm": [[4, 5]], "cylinder_diameter_mm": [40],
+                             "fill_height_mm": [50, 75, 100], "lift_speed_mm_s": [50]}})
+    for measured in (_measured(), _measured().astype({"fill_height_mm": float, "cylinder_diameter_mm": float})):
+        assert _candidates(rig, measured)["condition_id"].tolist() == ["d4-5_D40_H75"]
+    # the rig holds the lift speed at 30, which its names leave out: d4-5_D40_H50 there is not the measured one
+    slow = parse_rig({"rig": {"particle_sizes_mm": [[4, 5]], "cylinder_diameter_mm": [40], "fill_height_mm": [50],
+                              "lift_speed_mm_s": [30]}})
+    with pytest.raises(CalibError, match="measured condition has that name with other values"):
+        _candidates(slow, _measured())
+
+
+def test_a_condition_variable_the_heaps_vary_and_a_rig_cannot_set_comes_from_the_measured_conditions():
+    from calib_cli.stages.suggest import _complete
+
+    cand = pd.DataFrame({"condition_id": ["x"], "fill_height_mm": [75.0]})
+    done = _complete(cand, _measured(floor_static_friction=[0.4, 0.4]), ["fill_height_mm", "floor_static_friction"])
+    assert done["floor_static_friction"].tolist() == [0.4]
+    with pytest.raises(CalibError, match="vary floor_static_friction, which a rig file does not set, and the "
+                                         "measured conditions differ in it"):
+        _complete(cand, _measured(floor_static_friction=[0.4, 0.6]), ["floor_static_friction"])
+    with pytest.raises(CalibError, match="do not give it"):
+        _complete(cand, _measured(), ["floor_static_friction"])
+
+
+def test_a_rig_of_more_candidates_than_one_covariance_holds_gets_no_spread(monkeypatch):
+    from calib_cli.stages import suggest as st
+
+    monkeypatch.setattr(st, "SPREAD_POINTS", 40)  # 5 candidates x 8 draws < SPREAD_FEWEST draws each
+    draws = pd.DataFrame({"a": np.linspace(0, 1, 50)})
+    F = st._realisations([None], draws, pd.DataFrame({"condition_id": list("abcde")}), np.ones(5, bool))
+    assert F.shape[1] == 5 and np.isnan(F).all()
+
+
 @pytest.mark.parametrize("bad, words", [
     ({"particle_sizes_mm": [[5, 4]]}, "d_min <= d_max"),
     ({"particle_sizes_mm": [4, 5]}, "pair [d_min, d_max]"),
@@ -100,6 +149,8 @@ def test_a_rig_lists_every_combination_in_the_labs_naming():
     ({"particle_sizes_mm": [[4, 5]], "floor": ["steel"]}, "unknown key(s) floor"),
     ({"particle_sizes_mm": [[4, 5]], "piles": 0}, "piles must be a whole number of at least 1"),
     ({"particle_sizes_mm": [[4, 5]], "piles": 2.7}, "piles must be a whole number"),  # not cut to 2
+    ({"particle_sizes_mm": [[4, 5]], "fill_height_mm": [50, 50]}, "fill_height_mm lists a value twice"),
+    ({"particle_sizes_mm": [[4, 5], [4, 5]]}, "particle_sizes_mm lists a pair twice"),
 ])
 def test_a_bad_rig_file_is_a_one_line_error(bad, words):
     with pytest.raises(CalibError) as e:
@@ -165,6 +216,7 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
 
     from typer.testing import CliRunner
 
+    from calib_cli import artifacts as art
     from calib_cli.cli import app
 
     run, rig, _ = ranked
@@ -182,6 +234,16 @@ def test_the_command_prints_the_ranking_and_refuses_bad_input(ranked, tmp_path):
     for opt in (["--set", "static_friction=abc"], ["--preset", "bogus"]):  # options of heaps it would not make
         r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig), "--force", *opt])
         assert r.exit_code == 2 and "choose the heaps --simulate makes" in " ".join(r.output.split()), r.output
+    r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig), "--simulate",
+                                 "d4-5_D40_H75", "--repeats", "1"])
+    assert r.exit_code == 2 and "--repeats must be at least 2 with --simulate" in " ".join(r.output.split())
+    conds = mine / "measure" / "conditions.parquet"
+    kept = art.read_table(conds)
+    for sd in (0.0, np.nan):  # piles of one angle, or one pile a condition: a gain has no unit
+        art.write_table(conds, kept.assign(sd=sd, n=1 if np.isnan(sd) else kept["n"]))
+        r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig), "--force"])
+        assert r.exit_code == 2 and "scatter is unknown or zero" in " ".join(r.output.split()), r.output
+    art.write_table(conds, kept)
     shutil.rmtree(mine / "posterior")
     r = CliRunner().invoke(app, ["suggest-conditions", "--run", str(mine), "--rig", str(rig)])
     assert r.exit_code == 2 and "calibrate-posterior" in r.output

@@ -63,6 +63,10 @@ class Rig:
         df = pd.DataFrame(rows)
         single = {k for k, v in self.values.items() if len(v) == 1 and k == "lift_speed_mm_s"}
         df.insert(0, "condition_id", [_cid(r, single) for r in rows])
+        twice = df["condition_id"][df["condition_id"].duplicated()]
+        if len(twice):  # the names are the photographs' file names: two conditions cannot share one
+            raise CalibError(f"the rig's conditions {twice.iloc[0]} are two that its name rounds alike: give values "
+                             "that differ in their first six digits")
         return df
 
 
@@ -92,6 +96,8 @@ def parse_rig(d: dict, where: str = "rig file") -> Rig:
         if not vs:
             raise CalibError(f"{where}: {k} needs at least one value")
         values[k] = tuple(check(k, v, f"{where}, {k}") for v in vs)
+        if len(set(values[k])) < len(values[k]):
+            raise CalibError(f"{where}: {k} lists a value twice ({', '.join(f'{v:g}' for v in values[k])})")
     piles = rig.get("piles", 10)
     if isinstance(piles, bool) or not isinstance(piles, int) or piles < 1:
         raise CalibError(f"{where}: piles must be a whole number of at least 1, got {piles!r}")
@@ -104,6 +110,8 @@ def _rig_sizes(pairs, where: str) -> tuple[tuple[float, float], ...]:
         raise CalibError(f"{where}: particle_sizes_mm must list at least one pair [d_min, d_max], got {pairs!r}")
     sizes = tuple((check("particle_d_min_mm", a, f"{where}, particle_sizes_mm"),
                    check("particle_d_max_mm", b, f"{where}, particle_sizes_mm")) for a, b in pairs)
+    if len(set(sizes)) < len(sizes):
+        raise CalibError(f"{where}: particle_sizes_mm lists a pair twice")
     if any(a > b for a, b in sizes):
         raise CalibError(f"{where}: particle_sizes_mm must list pairs [d_min, d_max] with d_min <= d_max")
     return sizes

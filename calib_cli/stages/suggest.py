@@ -26,7 +26,7 @@ from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, exp
 from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
-from ..posterior.evidence import RESPONSE, check_rows, in_box, model_rows, model_surrogate, profile_rows
+from ..posterior.evidence import RESPONSE, check_measured, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
 from ..discrepancy.point import model_and_theta, simulate_points
 from ..discrepancy.sensitivity import signatures
@@ -73,8 +73,28 @@ def _candidates(rig: Rig, measured: pd.DataFrame) -> pd.DataFrame:
                                  f"{'differ in it' if len(vals) else 'do not say it'}: list its values in the rig file")
             cand[v] = float(vals[0])
     same = [v for v in SUGGEST_VARS if v in measured]  # the variables a measured condition states
-    key = lambda df: df[same].round(6).astype(str).agg("|".join, axis=1)  # noqa: E731
-    return cand[~key(cand).isin(set(key(measured)))].reset_index(drop=True)
+    # as numbers: a conditions table of whole numbers reads as integers, and "50" is not "50.0"
+    key = lambda df: df[same].astype(float).round(6).astype(str).agg("|".join, axis=1)  # noqa: E731
+    cand = cand[~key(cand).isin(set(key(measured)))].reset_index(drop=True)
+    clash = sorted(set(cand["condition_id"].astype(str)) & set(measured["condition_id"].astype(str)))
+    if clash:
+        raise CalibError(f"the rig's condition {clash[0]} is not measured, but a measured condition has that name with "
+                         "other values (the name leaves out what the rig holds at one value): rename the measured "
+                         "condition in measure-angle's conditions table, or list that variable's values in the rig file")
+    return cand
+
+
+def _complete(cand: pd.DataFrame, measured: pd.DataFrame, learnt: list[str]) -> pd.DataFrame:
+    """The candidates with every condition variable the surrogate learnt that the rig does not set (a floor's
+    friction) at the measured conditions' value; refused where they differ in it or lack it."""
+    for v in (v for v in learnt if v not in cand):
+        vals = measured[v].dropna().unique() if v in measured else []
+        if len(vals) != 1:
+            raise CalibError(f"the simulated heaps vary {v}, which a rig file does not set, and the measured "
+                             f"conditions {'differ in it' if len(vals) else 'do not give it'}: rank the conditions "
+                             "of one value at a time (a run whose measured conditions share it)")
+        cand = cand.assign(**{v: float(vals[0])})
+    return cand
 
 
 def _diagnosed(run: Path, model: Model, measured: pd.DataFrame):
@@ -131,7 +151,11 @@ def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measu
     candidate stacked on the angle's ``mu`` (candidates, draws, 2), and that surrogate; ``ev`` is given the
     photographs' fullness scatter and its correlation with the angle, as a new condition would be measured."""
     table, rho = measured_fullness(run, measured)
-    ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(table["sd"].to_numpy(float) ** 2))), rho
+    sd = table["sd"].to_numpy(float)
+    ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else math.nan, rho
+    if not ev.profile_scatter > 0:
+        raise CalibError("the photographs' heap profiles scatter by nothing measurable (every condition one "
+                         "photograph, or all of one fullness): measure at least one condition with two or more piles")
     gp = model_surrogate(rows, model, response=FULLNESS, scale=_scale(run))
     mu_f, _ = _surrogate_at(gp, ev.draws_frame(), cand)
     return np.stack([mu, mu_f], axis=2), gp
@@ -144,15 +168,20 @@ REALISATIONS, SPREAD_DRAWS = 200, 100
 #: at most this many points in one joint covariance (its Cholesky factor costs their cube): a larger rig draws
 #: fewer draws a candidate
 SPREAD_POINTS = 4000
+#: the fewest draws a candidate's spread is read from: a rig of more candidates than SPREAD_POINTS / SPREAD_FEWEST
+#: gets its gains without their spread
+SPREAD_FEWEST = 10
 
 
 def _realisations(gps: list[GPSurrogate], draws: pd.DataFrame, cand: pd.DataFrame, live: np.ndarray) -> np.ndarray:
     """REALISATIONS joint draws of each surrogate's latent response (the angle's, the fullness's) at
     SPREAD_DRAWS of the posterior's draws (evenly spaced; fewer where the live candidates would pass
-    SPREAD_POINTS, 10 at the least) under every ``live`` candidate: (K, candidates, draws, responses), NaN at
-    a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
+    SPREAD_POINTS, SPREAD_FEWEST at the least, else none) under every ``live`` candidate: (K, candidates, draws,
+    responses), NaN at a candidate not live (:func:`calib_cli.posterior.suggest.gain_spread`)."""
     idx = np.flatnonzero(live)
-    per = min(len(draws), max(10, min(SPREAD_DRAWS, SPREAD_POINTS // max(1, len(idx)))))
+    per = min(len(draws), SPREAD_DRAWS, SPREAD_POINTS // max(1, len(idx)))
+    if per < SPREAD_FEWEST:  # too many candidates for one joint covariance: no spread (a note says so)
+        idx, per = idx[:0], min(len(draws), SPREAD_FEWEST)
     sub = draws.iloc[np.unique(np.linspace(0, len(draws) - 1, per).round().astype(int))]
     F = np.full((REALISATIONS, len(cand), len(sub), len(gps)), np.nan)
     for r, gp in enumerate(gps):
@@ -368,8 +397,11 @@ def _evidence(run: Path, model: Model, measured: pd.DataFrame, samples: pd.DataF
                      f"this model's parameters are missing (run `calib diagnose --run {run}`)")
         J, G = pd.DataFrame(index=range(len(measured))), pd.DataFrame(index=range(len(measured)))
     sd = measured["sd"].to_numpy(float)
-    scatter = float(np.sqrt(np.nanmean(sd**2)))
-    u = np.where(np.isfinite(sd), sd, scatter) / np.sqrt(measured["n"].to_numpy(float))
+    scatter = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else math.nan
+    if not scatter > 0:  # a gain is measured in units of it
+        raise CalibError("the measured piles' scatter is unknown or zero (every condition one pile, or piles of "
+                         "one angle): measure at least one condition with two or more piles")
+    u = np.where(np.isfinite(sd) & (sd > 0), sd, scatter) / np.sqrt(measured["n"].to_numpy(float))
     u, sim_var = _residual_uncertainty(run, measured, u)
     # a thinned subset of the draws: the preposterior reweights them once per simulated outcome
     sub = samples[params].iloc[:: max(1, len(samples) // DRAWS)].to_numpy(float)
@@ -496,6 +528,9 @@ def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: boo
     --shear-modulus; and --heaps) without --simulate, which alone makes them."""
     if piles < 1 or top < 1 or repeats < 1:
         raise CalibError("--piles, --top and --repeats must be at least 1")
+    if simulate and repeats < 2:
+        raise CalibError(f"--repeats must be at least 2 with --simulate (got {repeats}): a sensitivity's noise is "
+                         "taken from its repeated heaps")
     if heaps < 0 or heaps == 1:
         raise CalibError(f"--heaps must be 0 or at least 2 (a design over the posterior's intervals), got {heaps}")
     if not simulate and (heap_options or heaps):
@@ -559,11 +594,16 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
         return SuggestResult(st, True, top=top)
     ev, notes = _evidence(run, model, measured, samples)
     gp = model_surrogate(rows, model, scale=scale)
+    check_measured(measured, gp, run / "measure" / "conditions.parquet")  # as the posterior refused them
+    cand = _complete(cand, measured, cond_vars)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
         f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)"
         + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
     draws = ev.draws_frame()
     mu, vp, F = _responses(run, rows, model, ev, measured, cand, gp, cond_vars if profile else None, say)
+    if np.isfinite(vp).sum() * SPREAD_FEWEST > SPREAD_POINTS:
+        notes.append(f"[yellow]note:[/] the gains' 90 % ranges are left out: over {SPREAD_POINTS // SPREAD_FEWEST} "
+                     "candidates are too many for one joint covariance (list fewer values in the rig file)")
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
     had = region_heaps(run, cand, art.read_table(run / "posterior" / "summary.parquet"))
@@ -579,5 +619,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
         out.table("ranking.parquet", table, model_revision=model.revision, piles=piles, scatter=ev.scatter,
                   profile=profile)
         if sims is not None:
-            out.table("sensitivities.parquet", cand[["condition_id"]].join(sims).dropna().reset_index(drop=True))
+            # the candidates simulated: a column a step could not give (NaN) keeps its row
+            out.table("sensitivities.parquet", cand[["condition_id"]].join(sims).dropna(how="all", subset=list(sims.columns))
+                      .reset_index(drop=True))
     return SuggestResult(st, False, table, top, tuple(notes))
