@@ -321,6 +321,20 @@ def test_a_round_learns_only_from_its_own_designs_not_another_calibrations_heaps
     assert len(before[0]) == 60 and len(before[None]) == 100
 
 
+def test_heaps_of_another_preset_are_refused_before_any_runs(lab):
+    """The model's heaps at hand were simulated at the default preset: a calibration at another one would mix
+    two setups in one surrogate, refused before round 0 spends its heaps (not after them)."""
+    from calib_cli.stages.calibrate import calibrate
+
+    run, calls = lab
+    calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    n = len(calls)
+    with pytest.raises(CalibError, match="simulated at preset default at 5 MPa, and this calibration would "
+                                         "simulate at preset smoke at 5 MPa"):
+        calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, preset="smoke", force=True, **QUIET)
+    assert len(calls) == n
+
+
 def test_heaps_that_form_no_heap_are_made_up_by_a_space_filling_top_up(lab, monkeypatch):
     """A fifth of the prior box stands as a column: round 0's 40 heaps leave the surrogate short of its 40
     (10 per input), so round 1 adds space-filling heaps before any posterior; a budget that cannot make

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
-from ..heaps.index import RESULTS
+from ..heaps.index import RESULTS, heap_setups
 from ..heaps.keys import Request
 from ..heaps.runner import check_dask, run_campaign
 from ..errors import CalibError
@@ -462,6 +462,7 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
     final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     if final.up_to_date() and not force:
         return CalibrateResult(final, True)
+    _check_setup(run, model, setup)
     say(f"calibrating model revision {model.revision} ({', '.join(model.parameters)}) on {len(conds)} measured "
         f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
         f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}"
@@ -470,6 +471,22 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
         (_dir(run, model, 0) / "reused.parquet").unlink(missing_ok=True)
     rounds, spent, stop = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
     return _finish(run, model, conds, plan, setup, rounds, spent, stop, say)
+
+
+def _check_setup(run: Path, model: Model, setup: dict) -> None:
+    """Refuse, before a heap runs, heaps of another preset or shear modulus than the model's heaps at hand:
+    one surrogate would mix them (its fit refuses them, but only after a round of heaps)."""
+    if not (run / RESULTS).is_file():
+        return
+    rows = model_rows(run, model, judged=True)
+    if rows.empty:
+        return
+    have = heap_setups(rows)
+    mine = heap_setups(rows.head(1).assign(preset=setup["preset"], shear_modulus=setup["pre"].numerics.shear_modulus))
+    if have != mine:
+        raise CalibError(f"the heaps of model revision {model.revision} in {run} were simulated at {'; '.join(have)}, "
+                         f"and this calibration would simulate at {mine[0]}, which one surrogate would mix: give "
+                         "--preset and --shear-modulus as those heaps had them, or calibrate in another run directory")
 
 
 def _next_pairs(plan: Plan, k: int, spent: int, short: int = 0) -> int:
