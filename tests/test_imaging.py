@@ -324,3 +324,25 @@ def test_nothing_but_flagged_heaps_is_an_error_that_names_the_option(tmp_path):
     r = runner.invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--images", str(folder),
                             "--keep-flagged"])
     assert r.exit_code == 0, r.output
+
+
+def test_a_thumbnail_or_a_sliver_is_no_heap_not_a_crash():
+    """Images too small to hold a floor's ends and a heap's toes (a thumbnail left among the photographs),
+    and random small frames, give a status, never an exception; a background in one row fixes no
+    illumination field and is left as it is."""
+    from calib_cli.imaging.measure import _flatten
+
+    r = measure_image(cv2.resize(synth_heap(30, SynthOptions(), seed=0), (39, 30)))
+    assert r.status == "no_heap" and "too small" in r.message
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        h, w = int(rng.integers(3, 90)), int(rng.integers(3, 120))
+        img = np.full((h, w), 200.0)
+        img[int(h * 0.6):] = 60
+        img[int(h * 0.3):int(h * 0.6), w // 3:2 * w // 3] = 60
+        img = np.clip(img + rng.normal(0, rng.uniform(0, 30), img.shape), 0, 255).astype(np.uint8)
+        assert measure_image(img).status in ("ok", "blank", "no_heap", "cut", "column", "not_cone", "asymmetric")
+    fg = np.ones((11, 101), bool)
+    fg[5] = False  # the background: one row
+    gray = np.full((11, 101), 100.0)
+    assert _flatten(gray, fg) is gray

@@ -610,6 +610,22 @@ def test_the_profile_enters_as_a_second_response_with_its_inputs_and_surrogate(t
     assert r.table.set_index("parameter").loc["rolling_friction", "rel_width"] < 0.5
 
 
+def test_a_profile_not_asked_for_that_cannot_be_evidence_is_left_out_in_a_note(tmp_path):
+    """By default the profile is weighed wherever it can be: where a condition's photographs give no fullness
+    the posterior goes on without it and says why (asked for with --profile, it is refused)."""
+    run = _with_profiles(_tiny_run(tmp_path / "run"))
+    prof = art.read_table(run / "measure" / "profiles.parquet")
+    art.write_table(run / "measure" / "profiles.parquet", prof[prof["condition_id"] != "H100"])
+    said = []
+    r = posterior(run, walkers=8, steps=20, say=lambda m, **k: said.append(m))
+    note = " ".join(m for m in said if "profile is not evidence" in m)
+    assert "H100 have no photograph whose profile gives a fullness" in note and "drop --profile" not in note
+    assert art.read_provenance(run / "posterior" / "summary.parquet")["profile"] is False
+    assert set(r.surrogates["response"]) == {"repose_angle"}
+    with pytest.raises(CalibError, match="drop --profile"):
+        posterior(run, walkers=8, steps=20, profile=True, **QUIET)
+
+
 def test_a_heap_without_a_fullness_is_measured_on_its_side_view_or_left_out(tmp_path):
     from calib_cli.posterior.profiles import profiles_at_hand, simulated_fullness
 
@@ -857,6 +873,40 @@ def test_a_pile_that_stands_in_one_view_is_a_column_in_all(tmp_path):
     art.write_table(tmp_path / "measure" / "angles.parquet", out)
     k, n = measured_columns(tmp_path, pd.DataFrame({"condition_id": ["c1"]}))
     assert (k[0], n[0]) == (1.0, 3.0)
+
+
+def test_a_pile_label_is_one_conditions_and_a_blank_one_is_its_photographs_own(tmp_path):
+    """Piles numbered 1, 2, ... within each condition: condition A's pile 1 standing flags A's other views, not
+    B's pile 1; a blank pile cell is a pile of one photograph, counted in the share; whole numbers read as
+    float lose their '.0'."""
+    from calib_cli.posterior.evidence import measured_columns
+    from calib_cli.stages.measure import columns_by_pile
+
+    table = pd.DataFrame({"image": ["a1", "a2", "b1", "b2", "c1", "c2"], "condition_id": list("AABBCC"),
+                          "status": ["column", "ok", "ok", "ok", "column", "ok"], "message": ""})
+    cond = table[["image"]].assign(pile=[1.0, 1.0, 1.0, 2.0, np.nan, np.nan])
+    out, _ = columns_by_pile(table, cond, [])
+    assert out["status"].tolist() == ["column", "column", "ok", "ok", "column", "ok"]
+    assert out["pile"].tolist() == ["1", "1", "1", "2", "c1", "c2"]
+    art.write_table(tmp_path / "measure" / "angles.parquet", out.assign(pile=[*out["pile"][:4], None, None]))
+    k, n = measured_columns(tmp_path, pd.DataFrame({"condition_id": list("ABC")}))
+    assert k.tolist() == [1.0, 0.0, 1.0] and n.tolist() == [1.0, 2.0, 2.0]
+
+
+def test_several_views_of_a_pile_count_as_one_pile_in_its_conditions_mean():
+    """Four piles, three views each: n is 4 piles, the mean the piles' means' mean, the sd one photograph's
+    and the se sd / sqrt(4), not sd / sqrt(12); one view a pile gives describe()'s statistics."""
+    from calib_cli.imaging.stats import describe
+    from calib_cli.stages.measure import by_pile
+
+    rng = np.random.default_rng(3)
+    piles = np.repeat(["p1", "p2", "p3", "p4"], 3)
+    angles = pd.Series(np.repeat([30.0, 32.0, 34.0, 36.0], 3) + rng.normal(0, 0.5, 12))
+    got = by_pile(angles, pd.Series(piles))
+    assert got["n"] == 4 and got["sd"] == pytest.approx(angles.std())
+    assert got["mean"] == pytest.approx(angles.groupby(piles).mean().mean())
+    assert got["se"] == pytest.approx(angles.std() / 2)
+    assert by_pile(angles, pd.Series(np.arange(12).astype(str))) == describe(angles)
 
 
 # ------------------------------------------------------------------ averaging over an effect on and off

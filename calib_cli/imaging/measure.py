@@ -63,7 +63,7 @@ def _flatten(gray: np.ndarray, fg: np.ndarray) -> np.ndarray:
     """Divide out a quadratic illumination field fitted to the background pixels."""
     h, w = gray.shape
     ys, xs = np.nonzero(~fg)
-    if len(xs) < 50:
+    if len(xs) < 50 or len(np.unique(xs)) < 3 or len(np.unique(ys)) < 3:  # a quadratic needs 3 rows and columns
         return gray
     step = max(1, len(xs) // 20000)
     xs, ys = xs[::step], ys[::step]
@@ -71,13 +71,16 @@ def _flatten(gray: np.ndarray, fg: np.ndarray) -> np.ndarray:
     A = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
     b = gray[ys, xs].astype(float)
     # BLAS-free solves (profile.lstsq): a photograph's angle is the same on every machine
-    coef = lstsq(A, b)
-    for _ in range(3):  # reweight: drop pixels far from the fit (shadows, stray grains)
-        r = b - combine(A, coef)
-        keep = np.abs(r) < 2.5 * (np.median(np.abs(r)) * 1.4826 + 1e-9)
-        if keep.sum() < 20:
-            break
-        coef = lstsq(A[keep], b[keep])
+    try:
+        coef = lstsq(A, b)
+        for _ in range(3):  # reweight: drop pixels far from the fit (shadows, stray grains)
+            r = b - combine(A, coef)
+            keep = np.abs(r) < 2.5 * (np.median(np.abs(r)) * 1.4826 + 1e-9)
+            if keep.sum() < 20 or len(np.unique(xs[keep])) < 3 or len(np.unique(ys[keep])) < 3:
+                break
+            coef = lstsq(A[keep], b[keep])
+    except np.linalg.LinAlgError:  # a background in one row or column fixes no field: left as it is
+        return gray
     X, Y = np.meshgrid(np.arange(w) / w - 0.5, np.arange(h) / h - 0.5)
     field_ = coef[0] + coef[1] * X + coef[2] * Y + coef[3] * X * X + coef[4] * X * Y + coef[5] * Y * Y
     field_ = np.maximum(field_, 1.0)
@@ -210,6 +213,11 @@ def _flag(res: "ImageAngle", limits: ShapeLimits, wall: tuple[float, float],
                                                  "or camera yaw")
 
 
+#: the smallest photograph measured (rows, columns): the floor's ends and the toes are read from its
+#: outer 1/12 and 1/40 of the width, and a heap needs 15 px of height
+MIN_IMAGE_PX = (20, 40)
+
+
 def measure_image(gray: np.ndarray | None, band=DEFAULT_BAND, roll_warn_deg: float = 2.0,
                   min_height_px: float = 15.0, limits: ShapeLimits | None = ShapeLimits()) -> ImageAngle:
     """The repose angle of one photograph (module docstring). ``limits``: the checks that a measured
@@ -222,6 +230,9 @@ def measure_image(gray: np.ndarray | None, band=DEFAULT_BAND, roll_warn_deg: flo
     g = cv2.GaussianBlur(gray.astype(np.float64), (5, 5), 0)
     if g.std() < 2.0:
         return ImageAngle("blank", "the image is blank (no contrast)")
+    if gray.shape[0] < MIN_IMAGE_PX[0] or gray.shape[1] < MIN_IMAGE_PX[1]:  # a thumbnail left among the photographs
+        return ImageAngle("no_heap", f"the image is too small to measure ({gray.shape[1]} x {gray.shape[0]} px; at "
+                                     f"least {MIN_IMAGE_PX[1]} x {MIN_IMAGE_PX[0]})")
     seg = _segment(g)
     if seg is None:
         return ImageAngle("no_heap", "no foreground region")

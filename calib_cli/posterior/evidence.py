@@ -10,6 +10,7 @@ the run directory and writes nothing (docs/method.md, "The posterior").
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
@@ -17,7 +18,7 @@ from typing import Callable, Optional
 import numpy as np
 import pandas as pd
 
-from .. import pool
+from .. import artifacts as art, pool
 from ..heaps.index import RESULTS, current_results, heap_setups
 from ..errors import CalibError
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
@@ -243,10 +244,12 @@ def measured_columns(run: Path, conds: pd.DataFrame) -> Optional[tuple[np.ndarra
     path = run / "measure" / "angles.parquet"
     if not path.is_file():
         return None
-    a = pd.read_parquet(path)
+    a = art.read_table(path, columns=["image", "condition_id", "status"], what="measured angles")
     if a.empty or (a.get("message", pd.Series(dtype=str)) == "given").all():
         return None
-    a = a[a["status"].isin(JUDGED)].assign(pile=a["pile"] if "pile" in a.columns else a["image"])
+    # a blank pile (a table written before labels were filled in) is its own photograph's
+    pile = a["pile"].astype(object).where(a["pile"].notna(), a["image"]) if "pile" in a.columns else a["image"]
+    a = a.assign(pile=pile.astype(str))[a["status"].isin(JUDGED)]
     piles = a.groupby(["condition_id", "pile"])["status"].agg(lambda s: bool((s == "column").any()))
     per = piles.groupby(level=0).agg(["sum", "count"])
     ids = conds["condition_id"].astype(str)
@@ -262,6 +265,8 @@ def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, 
     lab = measured_columns(run, conds)
     if lab is None:
         return None, "the angles were not measured on photographs"
+    if not lab[1].sum():
+        return None, "no photographed pile of the measured conditions formed a heap or stood"
     rows = model_rows(run, model, judged=True) if judged is None else judged
     rows = in_box(rows, box) if box is not None and len(rows) else rows
     stands = (rows["status"] == "column").to_numpy() if "status" in rows.columns else np.zeros(0, bool)
@@ -533,6 +538,7 @@ def prior_bounds(model: Model, prior: str, rows: Optional[pd.DataFrame] = None,
 def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns, seed, say, scale, box, judged=None):
     """Which of the scatter, the profile and the column share the likelihood weighs (None: wherever they
     can be), the profile's second response and the column share; says why one is left out."""
+    asked = profile
     if profile is None:
         why = profile_available(run, rows, model, cond_vars)
         profile = not why
@@ -540,8 +546,16 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
             say(f"[yellow]note:[/] the heap profile is not evidence here: {why}")
     second = None
     if profile:
-        rows = profile_rows(run, rows, model, cond_vars, say)
-        second = second_response(run, rows, model, conds, seed, say, scale)
+        try:
+            with_profile = profile_rows(run, rows, model, cond_vars, say)
+            second = second_response(run, with_profile, model, conds, seed, say, scale)
+            rows = with_profile
+        except CalibError as e:  # asked for: refused; by default: left out, saying why
+            if asked:
+                raise
+            profile = False
+            why = re.sub(r"[,;:]?\s*(or\s+)?drop --profile.*$", "", str(e))  # advice to one who gave it
+            say(f"[yellow]note:[/] the heap profile is not evidence here: {why}")
     use_scatter = gp.scatter_ is not None and scatter is not False
     if scatter and gp.scatter_ is None:
         say("[yellow]note:[/] the simulated piles scatter alike over every parameter, so the lab's scatter tells "

@@ -88,11 +88,16 @@ def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, flo
     per_image = pd.DataFrame([{"image": im, "condition_id": str(g["condition_id"].iloc[0]),
                                FULLNESS: fullness(g["s_px"].to_numpy(), g["h_px"].to_numpy())}
                               for im, g in prof.groupby("image", sort=True)])
-    angles = art.read_table(run / "measure" / "angles.parquet", columns=["image", "repose_angle"])[
-        ["image", "repose_angle"]]
+    angles = art.read_table(run / "measure" / "angles.parquet", columns=["image", "repose_angle"])
+    angles = angles.assign(pile=angles["pile"].astype(object).where(angles["pile"].notna(), angles["image"])
+                           if "pile" in angles.columns else angles["image"])[["image", "repose_angle", "pile"]]
     per_image = per_image.merge(angles, on="image", how="left")
     per_image = per_image[np.isfinite(per_image[FULLNESS]) & np.isfinite(per_image["repose_angle"])]
-    stats = per_image.groupby("condition_id")[FULLNESS].agg(["mean", "std", "count"])
+    stats = per_image.groupby("condition_id")[FULLNESS].agg(["mean", "std"])
+    # a pile is one draw however many views it has (as measure-angle counts the angle's): its views' mean,
+    # and the piles counted; the sd stays one photograph's
+    piles = per_image.groupby(["condition_id", per_image["pile"].astype(str)])[FULLNESS].mean()
+    stats = stats.assign(mean=piles.groupby(level=0).mean(), count=piles.groupby(level=0).size())
     ids = conds["condition_id"].astype(str)
     missing = sorted(set(ids) - set(stats.index))
     if missing:

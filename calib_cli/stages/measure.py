@@ -10,6 +10,7 @@ from typing import Callable, Optional
 
 import numpy as np
 import pandas as pd
+from scipy.stats import t as student_t
 
 from .. import artifacts as art
 from ..conditions import condition_ids, read_conditions_csv
@@ -161,8 +162,10 @@ def used(angles: pd.DataFrame, keep_flagged: bool = False) -> pd.Series:
 def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None, keep_flagged: bool = False) -> pd.DataFrame:
     rows = []
     for cid, g in angles.groupby("condition_id", sort=True):
-        ok = g[used(g, keep_flagged)]["repose_angle"]
-        row = {"condition_id": cid, **describe(ok), "n_images": len(g)}
+        use = used(g, keep_flagged)
+        ok = g[use]["repose_angle"]
+        stats = describe(ok) if "pile" not in g.columns else by_pile(ok, g.loc[use, "pile"])
+        row = {"condition_id": cid, **stats, "n_images": len(g)}
         if cond is not None:
             first = cond[cond["condition_id"] == cid]
             for c in CONDITION_VARS:
@@ -170,6 +173,25 @@ def _aggregate(angles: pd.DataFrame, cond: pd.DataFrame | None, keep_flagged: bo
                     row[c] = first[c].iloc[0]
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def by_pile(values: pd.Series, piles: pd.Series) -> dict:
+    """A condition's statistics (:func:`describe`) where several photographs may show one pile: ``n`` counts
+    piles and the mean is their views' means' mean, since a pile is one draw of the pile-to-pile scatter
+    however many views it has (its views counted as piles made the mean look up to that many times surer);
+    ``sd`` stays one photograph's, the scatter a photograph and one simulated view show, so ``se`` = sd /
+    sqrt(piles) errs wide by what the views average out."""
+    v = pd.to_numeric(values, errors="coerce")
+    keep = np.isfinite(v.to_numpy(float))
+    means = v[keep].groupby(piles[keep].to_numpy()).mean()
+    out, n = describe(v[keep]), len(means)
+    if n == out["n"]:  # one photograph a pile
+        return out
+    mean = float(means.mean()) if n else np.nan
+    se = out["sd"] / np.sqrt(n) if n > 1 else np.nan
+    half = float(student_t.ppf(0.975, n - 1) * se) if n > 1 else np.nan
+    return {**out, "n": n, "mean": mean, "se": se, "ci95_low": mean - half, "ci95_high": mean + half,
+            "cv_percent": 100 * out["sd"] / mean if n > 1 else np.nan}
 
 
 def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, limits: ShapeLimits,
@@ -195,18 +217,32 @@ def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, li
 
 
 def columns_by_pile(table: pd.DataFrame, cond: pd.DataFrame, profiles: list) -> tuple[pd.DataFrame, list]:
-    """Several photographs of one pile (the conditions table's ``pile`` column): where any view stands as
-    a column the pile is a column as a whole, so its other views are flagged too (their stub's flanks
-    are no repose angle) and leave the statistics and the profiles. Adds the ``pile`` column."""
-    pile = dict(zip(cond["image"].astype(str), cond["pile"].astype(str)))
-    table = table.assign(pile=[pile.get(n, n) for n in table["image"]])
-    standing = table[table["status"] == "column"].groupby("pile")["image"].first()
-    hit = table["pile"].isin(standing.index) & (table["status"] != "column")
-    table.loc[hit, "message"] = [f"another view of this pile ({standing[p]}) stands as a column: the pile is a "
-                                 "column as a whole" for p in table.loc[hit, "pile"]]
+    """Several photographs of one pile (the conditions table's ``pile`` column, a label within each condition):
+    where any view stands as a column the pile is a column as a whole, so its other views are flagged too
+    (their stub's flanks are no repose angle) and leave the statistics and the profiles. Adds the ``pile``
+    column (:func:`pile_labels`)."""
+    table = table.assign(pile=pile_labels(table["image"], dict(zip(cond["image"].astype(str), cond["pile"]))))
+    key = table["condition_id"].astype(str) + "\x00" + table["pile"]  # pile 1 of A is not pile 1 of B
+    standing = table[table["status"] == "column"].assign(key=key).groupby("key")["image"].first()
+    hit = key.isin(standing.index) & (table["status"] != "column")
+    table.loc[hit, "message"] = [f"another view of this pile ({standing[k]}) stands as a column: the pile is a "
+                                 "column as a whole" for k in key[hit]]
     table.loc[hit, "status"] = "column"
     gone = set(table.loc[hit, "image"])
     return table, [p for p in profiles if not (len(p) and p["image"].iloc[0] in gone)]
+
+
+def pile_labels(images: pd.Series, pile: dict) -> list[str]:
+    """Each photograph's pile as text: its ``pile`` cell (a whole number without its ".0"), or the photograph
+    itself where the cell is blank or the table does not list it (a pile of one view)."""
+    out = []
+    for name in images.astype(str):
+        v = pile.get(name)
+        if v is None or (isinstance(v, float) and not np.isfinite(v)) or str(v).strip() in ("", "nan", "<NA>"):
+            out.append(name)
+        else:
+            out.append(str(int(v)) if isinstance(v, float) and v.is_integer() else str(v).strip())
+    return out
 
 
 def _left_out(angles: pd.DataFrame, keep_flagged: bool) -> dict[str, int]:
@@ -298,7 +334,10 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     if conditions is not None:
         inputs["conditions"] = conditions
         _check_matched(set(files) if table is None else set(table["image"]), cond)  # before any image is read
-    st = stage(run, "measure", "angles", inputs=inputs, settings=_settings(band, limits, keep_flagged))
+    settings = _settings(band, limits, keep_flagged)
+    if cond is not None and "pile" in cond.columns:  # the piles' counting moved (PILES); tables without piles keep their locks
+        settings["piles"] = PILES
+    st = stage(run, "measure", "angles", inputs=inputs, settings=settings)
     if st.up_to_date() and not force:
         return MeasureResult(st, True, keep_flagged=keep_flagged)
     profiles, overlays = [], {}
@@ -317,6 +356,11 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
         for name, img in overlays.items():
             out.bytes(f"overlays/{Path(name).stem}.png", art.png_bytes(img))
     return MeasureResult(st, False, table, per_condition, keep_flagged)
+
+
+#: how a table's ``pile`` column is read, raised when that moves a measurement: 2, a pile's views count once
+#: (:func:`by_pile`) and a label is one condition's (:func:`columns_by_pile`)
+PILES = 2
 
 
 def _settings(band, limits: ShapeLimits, keep_flagged: bool) -> dict:
