@@ -15,14 +15,47 @@ CONDITIONS = Path("measure") / "conditions.parquet"
 
 
 def measured_conditions(run: Path) -> pd.DataFrame:
-    """Every measured condition of ``run``; refuses one without a measured angle."""
+    """Every measured condition of ``run`` with an angle. One where every photographed pile stood as a column
+    has none and is left out here (the share of columns reads it: :func:`standing_conditions`); one without
+    an angle otherwise (every photograph unreadable or flagged) is refused."""
     p = Path(run) / CONDITIONS
     c = art.read_table(p, columns=["condition_id", "mean", "sd", "n"],
                        what="measured conditions (run `calib measure-angle` first)")
     _check_values(c, p)
-    if (c["n"] < 1).any():
-        raise CalibError(f"condition(s) {', '.join(c.loc[c['n'] < 1, 'condition_id'])} have no measured angle")
+    none = (c["n"] < 1).to_numpy()
+    if none.any():
+        stood = set(standing_conditions(run, c)["condition_id"])
+        other = c.loc[none & ~c["condition_id"].isin(stood), "condition_id"]
+        if len(other):
+            raise CalibError(f"condition(s) {', '.join(other)} have no measured angle")
+        if none.all():
+            raise CalibError(f"every pile of every measured condition in {p} stood as a column: there is no angle "
+                             "to calibrate on; measure a condition whose piles form heaps")
+        c = c[~none].reset_index(drop=True)
     return c
+
+
+def standing_conditions(run: Path, conds: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The measured conditions (``conds``: RUN/measure/conditions.parquet's rows) without an angle because every
+    photographed pile stood as a column, with their piles (``piles``; a pile is its ``pile`` label, else a
+    photograph): the strongest sign a fill stands there, which only the share of columns can weigh."""
+    if conds is None:
+        conds = art.read_table(Path(run) / CONDITIONS, columns=["condition_id", "n"], what="measured conditions")
+    none = conds[conds["n"] < 1]
+    path = Path(run) / "measure" / "angles.parquet"
+    if none.empty or not path.is_file():
+        return none.iloc[:0].assign(piles=pd.Series(dtype=float))
+    a = art.read_table(path, columns=["image", "condition_id", "status"], what="measured angles")
+    a = a[a["condition_id"].astype(str).isin(set(none["condition_id"].astype(str))) & a["status"].isin(("ok", "column"))]
+    if a.empty:
+        return none.iloc[:0].assign(piles=pd.Series(dtype=float))
+    pile = a["pile"].astype(object).where(a["pile"].notna(), a["image"]) if "pile" in a.columns else a["image"]
+    per = a.assign(pile=pile.astype(str)).groupby("condition_id").agg(
+        stood=("status", lambda s: bool((s == "column").all())), piles=("pile", "nunique"))
+    ids = per.index[per["stood"].to_numpy(bool)].astype(str)
+    out = none[none["condition_id"].astype(str).isin(set(ids))].copy()
+    out["piles"] = per.loc[out["condition_id"].astype(str), "piles"].to_numpy(float)
+    return out.reset_index(drop=True)
 
 
 def _check_values(c: pd.DataFrame, p: Path) -> None:

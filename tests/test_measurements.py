@@ -45,3 +45,28 @@ def test_a_condition_whose_photographs_were_all_flagged_is_named_as_unmeasured(t
     """measure-angle writes n 0 (mean and sd empty) for it: the message says so, not that the table is wrong."""
     with pytest.raises(CalibError, match="condition.s. B have no measured angle"):
         measured_conditions(_run(tmp_path, GOOD.assign(mean=[33.7, math.nan], n=[10, 0])))
+
+
+def test_a_condition_where_every_pile_stood_is_left_to_the_column_share_and_others_without_an_angle_refused(tmp_path):
+    """C's three piles (two photographs each) all stood: no angle, so the analyses leave it out and the share
+    of columns weighs it (3 piles); D's photographs are unreadable: refused, as before."""
+    from calib_cli import artifacts as art
+    from calib_cli.measurements import standing_conditions
+
+    table = pd.concat([GOOD, pd.DataFrame({"condition_id": ["C"], "mean": [math.nan], "sd": [math.nan], "n": [0]})],
+                      ignore_index=True)
+    run = _run(tmp_path, table)
+    angles = pd.DataFrame({"image": ["a1", "c1", "c2", "c3", "c4", "c5", "c6"], "condition_id": ["A"] + ["C"] * 6,
+                           "status": ["ok"] + ["column"] * 6, "pile": ["1", "1", "1", "2", "2", "3", "3"]})
+    art.write_table(run / "measure" / "angles.parquet", angles)
+    got = measured_conditions(run)
+    assert got["condition_id"].tolist() == ["A", "B"]
+    stood = standing_conditions(run)
+    assert stood["condition_id"].tolist() == ["C"] and stood["piles"].tolist() == [3.0]
+    art.write_table(run / "measure" / "angles.parquet", angles.assign(status=["ok"] + ["unreadable"] * 6))
+    with pytest.raises(CalibError, match="condition.s. C have no measured angle"):
+        measured_conditions(run)
+    art.write_table(run / "measure" / "angles.parquet", angles.assign(status="column"))
+    table.iloc[[2]].to_parquet(run / CONDITIONS)  # C alone
+    with pytest.raises(CalibError, match="every pile of every measured condition .* stood as a column"):
+        measured_conditions(run)

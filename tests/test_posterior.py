@@ -850,10 +850,35 @@ def test_the_column_share_pins_where_fills_stand_which_no_angle_sees():
                                      **kw).summary().set_index("parameter")
     all_stood = calibrate_posterior(gp, measured, BOUNDS, columns=ColumnShare(model, np.full(3, 10.0), np.full(3, 10.0)),
                                     **kw).summary().set_index("parameter")
+    # a condition where every one of ten piles stood has no angle: the share alone weighs it, as it weighs all_stood
+    only_stood = calibrate_posterior(gp, measured, BOUNDS, columns=ColumnShare(
+        model, np.zeros(3), np.zeros(3), {"fill_height_mm": np.array([75.0])}, np.array([10.0])),
+        **kw).summary().set_index("parameter")
     assert alone.loc["b", "rel_width"] > 0.8
-    assert none_stood.loc["b", "q95"] < 1.35 and all_stood.loc["b", "q05"] > 1.1
+    assert none_stood.loc["b", "q95"] < 1.35 and all_stood.loc["b", "q05"] > 1.1 and only_stood.loc["b", "q05"] > 1.1
     with pytest.raises(CalibError, match="nothing to learn"):
         ColumnModel(gp).fit(rows, np.zeros(len(rows), bool))
+
+
+def test_conditions_where_every_pile_stood_enter_the_share_at_their_own_condition_values(tmp_path):
+    """Measured at fills 60 (every pile stood) and 140 (beyond the heaps' 50-100, every pile stood too): the
+    first joins the share with its two piles at fill 60; the second is left out, and the words say so."""
+    from calib_cli.measurements import CONDITIONS
+    from calib_cli.posterior.evidence import _stood_inputs
+
+    rng = np.random.default_rng(8)
+    rows = pd.DataFrame([{"a": a, "b": b, "fill_height_mm": h, "repose_angle": _flat_mean(a, b, h) + rng.normal(0, 1)}
+                         for a, b in zip(rng.random(20), 2 * rng.random(20)) for h in HEIGHTS])
+    gp = GPSurrogate(["a", "b"], ["fill_height_mm"], BOUNDS).fit(rows, rows["repose_angle"])
+    art.write_table(tmp_path / CONDITIONS, pd.DataFrame({"condition_id": ["H60", "H75", "H140"], "n": [0, 3, 0],
+                                                         "mean": [np.nan, 30.0, np.nan], "sd": [np.nan, 1.0, np.nan],
+                                                         "fill_height_mm": [60.0, 75.0, 140.0]}))
+    art.write_table(tmp_path / "measure" / "angles.parquet", pd.DataFrame({
+        "image": ["x1", "x2", "y1", "y2", "y3", "z1"], "condition_id": ["H60", "H60", "H75", "H75", "H75", "H140"],
+        "status": ["column", "column", "ok", "ok", "ok", "column"]}))
+    (vals, piles), why = _stood_inputs(tmp_path, gp)
+    assert vals["fill_height_mm"].tolist() == [60.0] and piles.tolist() == [2.0]
+    assert "H140, where every pile stood, lie beyond the simulated heaps" in why
 
 
 def test_a_pile_that_stands_in_one_view_is_a_column_in_all(tmp_path):

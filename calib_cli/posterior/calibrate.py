@@ -240,12 +240,20 @@ class ColumnShare:
     model: object
     k: np.ndarray
     n: np.ndarray
+    #: conditions measured where every pile stood (no angle, so not among the C): their condition variables'
+    #: values and their piles, each of which stood: sum_e n_e log p_e(theta) joins too
+    stood: Mapping[str, np.ndarray] = field(default_factory=dict)
+    stood_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
-    def log_likelihood(self, X: np.ndarray) -> np.ndarray:
-        """(b,) at b parameter sets under the C conditions (X: (b, C, inputs))."""
+    def log_likelihood(self, X: np.ndarray, X_stood: Optional[np.ndarray] = None) -> np.ndarray:
+        """(b,) at b parameter sets under the C conditions (X: (b, C, inputs)) and those where every pile
+        stood (``X_stood``: (b, E, inputs))."""
         b, C, k = X.shape
         p = self.model.probability(X.reshape(-1, k)).reshape(b, C)
-        return np.sum(self.k * np.log(p) + (self.n - self.k) * np.log1p(-p), axis=1)
+        out = np.sum(self.k * np.log(p) + (self.n - self.k) * np.log1p(-p), axis=1)
+        if X_stood is not None and X_stood.shape[1]:
+            out = out + np.log(self.model.probability(X_stood.reshape(-1, k)).reshape(b, -1)) @ self.stood_n
+        return out
 
 
 def _inputs(gp, t: np.ndarray, names: list[str], fixed: Mapping[str, float], cond_vals: Mapping[str, np.ndarray],
@@ -311,7 +319,8 @@ def _log_prob_fn(gp, measured: pd.DataFrame, names: list[str], bounds, fixed: Ma
             lv, U = gp.log_pile_variance(gp._scale(X.reshape(-1, X.shape[2])).reshape(X.shape))
             out[inside] += scatter_log_likelihood(lv, U, s2, n)
         if columns is not None:
-            out[inside] += columns.log_likelihood(X)
+            out[inside] += columns.log_likelihood(X, _inputs(gp, t, names, fixed, columns.stood, len(columns.stood_n))
+                                                   if len(columns.stood_n) else None)
         return out
 
     return log_prob, lo, hi

@@ -276,7 +276,33 @@ def column_share(run: Path, model: Model, gp: GPSurrogate, conds: pd.DataFrame, 
         return None, "every simulated fill stood as a column"
     if not set(gp.inputs_) <= set(rows.columns):
         return None, "the heaps that stood lack the surrogate's inputs"
-    return ColumnShare(ColumnModel(gp, seed).fit(rows, stands), *lab), ""
+    stood, why = _stood_inputs(run, gp)
+    return ColumnShare(ColumnModel(gp, seed).fit(rows, stands), *lab, *stood), why
+
+
+def _stood_inputs(run: Path, gp: GPSurrogate) -> tuple[tuple[dict, np.ndarray], str]:
+    """The measured conditions where every pile stood (:func:`~calib_cli.measurements.standing_conditions`) as
+    the column share weighs them: their condition inputs and piles; those the simulated heaps do not cover
+    (beyond a learnt variable's range, off a shared value) are left out, and the second value says so."""
+    from ..measurements import CONDITIONS, standing_conditions
+
+    stood = standing_conditions(run)
+    if stood.empty:
+        return ({}, np.zeros(0)), ""
+    conds = [c for c in gp.inputs_ if c not in gp.parameters]
+    full = art.read_table(run / CONDITIONS, what="measured conditions").set_index("condition_id")
+    full = full.loc[stood["condition_id"].astype(str)]
+    inside = np.ones(len(full), bool)
+    for c in conds:
+        lo, hi = gp.condition_ranges()[c]
+        inside &= full[c].between(lo, hi).to_numpy() if c in full.columns else False
+    for c, val in gp.constants_.items():
+        if c in full.columns:
+            inside &= full[c].isna().to_numpy() | np.isclose(full[c].to_numpy(float), val)
+    out = ({c: full.loc[inside, c].to_numpy(float) for c in conds}, stood["piles"].to_numpy(float)[inside])
+    left = ", ".join(full.index[~inside].astype(str))
+    return out, (f"condition(s) {left}, where every pile stood, lie beyond the simulated heaps and are left out"
+                 if left else "")
 
 
 # ------------------------------------------------------------------ how sure the surrogate is
@@ -571,9 +597,11 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
         if share is None:
             say(f"[yellow]note:[/] the share of piles that stood as columns is not evidence here: {why}")
         else:
+            wholly = (f", and all {int(share.stood_n.sum())} of {len(share.stood_n)} condition(s) that have no "
+                      "angle because every pile stood" if len(share.stood_n) else "")
             say(f"likelihood: each condition's share of piles that stood as columns too ({int(share.k.sum())} of "
-                f"{int(share.n.sum())} photographed piles; {share.model.n_columns_} of {share.model.n_train_} "
-                "simulated fills)")
+                f"{int(share.n.sum())} photographed piles{wholly}; {share.model.n_columns_} of {share.model.n_train_} "
+                "simulated fills)" + (f"; [yellow]note:[/] {why}" if why else ""))
     return rows, second, share, {"scatter": use_scatter, "profile": bool(profile), "columns": share is not None}
 
 
