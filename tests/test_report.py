@@ -85,6 +85,24 @@ def test_every_committed_report_is_what_the_code_renders_now(report, monkeypatch
     assert build_report(rel).encode() == report.read_bytes(), f"regenerate it: calib report --run {rel}"
 
 
+def test_a_condition_where_the_compared_model_formed_no_heap_is_no_pass(tmp_path):
+    """compare found no heap at one condition (every fill stood): that condition has no z, which once counted
+    as a pass and left the RMSE blank; the headline calls it a misfit and the chart says "no heap"."""
+    run = tmp_path / "hidden-effect"
+    shutil.copytree(RUNS / "hidden-effect", run, ignore=shutil.ignore_patterns("runs"))
+    res = art.read_table(run / "compare" / "residuals.parquet")
+    gone = res["condition_id"].iloc[2]
+    res.loc[2, ["simulated", "simulated_sd", "residual", "z"]] = np.nan
+    res.loc[2, "fails"] = False
+    art.write_table(run / "compare" / "residuals.parquet", res)
+    for lock in (run / "compare").glob("*.lock.json"):  # the edit stands in for what compare would write
+        lock.unlink()
+    top = summary_of(build_report(run))
+    assert "badge fail'>misfit" in top and f"forms no heap at 1 of 6 conditions ({gone})" in top
+    chart = top[top.index("<svg"):top.index("</svg>")]
+    assert chart.count(">no heap<") == 1
+
+
 def test_first_screen_of_a_run_with_diagnose():
     """hidden-effect: the loop calibrated in rounds; cohesion added after diagnose ranked it; the first
     screen leads with the posterior (no GA point, nothing called pinned); no side view is committed.
@@ -241,3 +259,32 @@ def test_the_surrogates_best_fit_says_how_far_its_surrogate_can_be_trusted():
     assert "The surrogate inverted (bp) predicts a heap it was not fitted to within RMSE 12.40&deg;" in cal
     paper = summary_of(build_report(RUNS / "paper"))
     assert "with 3 parameters for 1 angle the search can always reach it" in paper
+
+
+def test_an_undecided_posterior_is_not_called_calibrated_nor_its_point_final():
+    """foreign-lab's surrogate is unsure where the posterior lies (ratio 1.3): the headline says calibrating,
+    undecided so far, compare's verdict is at a point that may move, and the point's static friction, at the
+    box's edge outside its own 90 % interval, is marked."""
+    top = summary_of(build_report(RUNS / "foreign-lab"))
+    assert "Calibrating static friction" in top and "undecided so far" in top and "<b>Calibrated" not in top
+    assert "At the most probable draw of a posterior still undecided" in top
+    assert "static_friction 0.7*" in top and "The posterior is undecided, so this point may still move" in top
+
+
+def test_the_ga_point_is_pinned_only_where_the_posterior_identifies_it_around_that_value():
+    """The GA card's badge reads the posterior as its own rows do: undecided, off, cut, wide, then pinned only
+    where the point lies in the 90 % interval (the paper's rolling friction 0.198 against an identified
+    0.144-0.162 once read "pinned")."""
+    import pandas as pd
+
+    from calib_cli.report.cards import _ga_state
+
+    post = pd.DataFrame({"parameter": ["rolling_friction", "surface_energy"], "identified": [True, True],
+                         "q05": [0.144, 0.0], "q95": [0.162, 0.0], "decided": True, "box_cut": "",
+                         "p_off": [np.nan, 0.985]}).set_index("parameter")
+    assert "pinned" in _ga_state("rolling_friction", 0.05, post, 0.15)
+    assert "outside the posterior&#x27;s 90 %" in _ga_state("rolling_friction", 0.05, post, 0.198)
+    assert "posterior: off" in _ga_state("surface_energy", 0.05, post, 0.3)
+    assert "posterior undecided" in _ga_state("rolling_friction", 0.05, post.assign(decided=False), 0.15)
+    assert "the box cuts" in _ga_state("rolling_friction", 0.05, post.assign(box_cut="static_friction high"), 0.15)
+    assert "posterior wide" in _ga_state("rolling_friction", 0.05, post.assign(identified=False), 0.15)

@@ -24,13 +24,22 @@ def _missing(cmd: str, what: str) -> str:
     return note(f"Not run yet: <code>{esc(cmd)}</code> {what}.")
 
 
-def _ga_state(p: str, w: float, post) -> str:
-    """The GA point's badge: pinned only where the posterior identifies the parameter too."""
+def _ga_state(p: str, w: float, post, value: float = math.nan) -> str:
+    """The GA point's badge, as the posterior's row reads (:func:`_posterior_rows`, in its order): pinned only
+    where the posterior identifies the parameter and the point lies in its 90 % interval."""
     if post is not None and p in post.index:
-        if bool(post.loc[p, "identified"]):
-            return badge("pinned", "pass")
-        cut = box_cuts(post).iloc[0]
-        return badge("the box cuts the posterior" if cut else "posterior wide", "warn")
+        r = post.loc[p]
+        if not bool(r.get("decided", True)):
+            return badge("posterior undecided", "warn")
+        if bool(favoured_off(post.loc[[p]])[0]):
+            return badge("posterior: off", "warn")
+        if box_cuts(post).iloc[0]:
+            return badge("the box cuts the posterior", "warn")
+        if not bool(r["identified"]):
+            return badge("posterior wide", "warn")
+        if not r["q05"] <= value <= r["q95"]:
+            return badge("outside the posterior's 90 %", "warn")
+        return badge("pinned", "pass")
     return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
 
 
@@ -61,7 +70,7 @@ def params_card(f: RunFiles) -> str:
             out = not (lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi))
             outside += [p] if out else []
             rows.append([esc(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
-                         _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post)])
+                         _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post, v)])
         else:
             rows.append([esc(p), f"<b>{num(v)}</b>", "", _unit(p), "", ""])
     head = ["parameter", "value", "near-optimal", "unit", "spread", ""]
@@ -259,9 +268,18 @@ def _point_note(f: RunFiles, rev) -> str:
     point = f.table("calibrate/point.parquet")
     if point is None or point.empty or f.prov("calibrate/point.parquet").get("model_revision") != rev:
         return ""
-    values = ", ".join(" ".join(filter(None, (esc(p), num(float(v), 3), _unit(p)))) for p, v in point.iloc[0].items())
+    post = f.table("posterior/summary.parquet")
+    post = post.set_index("parameter") if post is not None and len(post) else pd.DataFrame()
+    beyond = [p for p, v in point.iloc[0].items() if p in post.index
+              and not post.loc[p, "q05"] <= float(v) <= post.loc[p, "q95"]]
+    values = ", ".join(" ".join(filter(None, (esc(p), num(float(v), 3) + "*" * (p in beyond), _unit(p))))
+                       for p, v in point.iloc[0].items())
+    unsure = "decided" in post.columns and len(post) and not bool(post["decided"].iloc[0])
     return note(f"One set to simulate with (the posterior's most probable draw, what <code>calib compare</code> "
-                f"simulates; <code>calibrate/point.parquet</code>): {values}.", "prov")
+                f"simulates; <code>calibrate/point.parquet</code>): {values}."
+                + (" The posterior is undecided, so this point may still move." if unsure else "")
+                + (f" * {esc(', '.join(beyond))}: outside its own 90 % interval (the posterior's peak lies apart "
+                   "from its bulk, as where it presses against an edge of its box)." if beyond else ""), "prov")
 
 
 def _cut_note(cut: str, prior: str, decided: bool) -> str:

@@ -66,6 +66,8 @@ def fit_chart(df: pd.DataFrame, width: int = 420) -> str:
         status = "" if fails is None or (isinstance(fails, float) and math.isnan(fails)) else \
             (f"<text x='{width - stat_w + 6}' y='{y + 4}' fill='{FAIL}' font-weight='bold'>fail</text>" if fails
              else f"<text x='{width - stat_w + 6}' y='{y + 4}' fill='{PASS}'>pass</text>")
+        if fails is not None and not np.isfinite(float(r.simulated)):  # compared, but the model formed no heap
+            status = f"<text x='{width - stat_w + 6}' y='{y + 4}' fill='{FAIL}' font-weight='bold'>no heap</text>"
         parts.append(f"<text x='{lab_w - 6}' y='{y + 4}' text-anchor='end'>{esc(r.condition_id)}</text>"
                      + _whisker(x, float(r.measured), float(r.measured_sd), y - 4, MEASURED, "circle")
                      + _whisker(x, float(r.simulated), float(r.simulated_sd), y + 4, SIMULATED, "square")

@@ -126,6 +126,8 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
     n = len(fit.rows)
     cs = f"condition{'s' * (n != 1)}"
     if fit.kind in ("compare", "validation"):
+        sim = fit.rows["simulated"].to_numpy(float) if "simulated" in fit.rows else np.zeros(len(fit.rows))
+        gone = fit.rows.loc[~np.isfinite(sim), "condition_id"].astype(str)
         nf = int(fit.rows["fails"].fillna(False).astype(bool).sum())
         hist = f.table("compare/history.parquet")
         if fit.kind == "compare" and hist is not None and len(hist):
@@ -135,6 +137,10 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
         else:
             who, one, stats = "The validation heaps at the solution", False, f"RMSE {deg(_rmse(fit.rows))}"
         which = "the measured condition" if n == 1 else f"all {n} {cs}"
+        if len(gone):  # no z there: not a pass, and a model that cannot form the lab's heap misses it
+            return "fail", (f"{who} form{'s' * one} no heap at {len(gone)} of {n} {cs} ({esc(', '.join(gone))}), "
+                            f"where the lab's piles did: not checked there, and missed; elsewhere {nf} of "
+                            f"{n - len(gone)} lie beyond two combined standard uncertainties ({stats}).")
         if nf == 0:
             return "pass", f"{who} reproduce{'s' * one} {which} within two combined standard uncertainties ({stats})."
         missed = "the measured condition" if n == 1 else f"{nf} of {n} {cs}"
@@ -201,15 +207,16 @@ def favoured_off(post: pd.DataFrame) -> np.ndarray:
     return post["p_off"].fillna(0.0).to_numpy(float) > BF_OFF / (1 + BF_OFF)
 
 
-def _posterior_clause(post: pd.DataFrame) -> str:
+def _posterior_clause(post: pd.DataFrame, prior: str = "settings") -> str:
     """What the posterior says: undecided (the surrogate unsure), or which parameters it identifies and
-    each added effect's verdict with its Bayes factor."""
+    each added effect's verdict with its Bayes factor; ``prior``: its box's kind (what widens it)."""
     from ..model import EFFECTS
     from ..posterior.evidence import bf_text, box_cuts, edges, effect_verdict
 
     edge = edges(post) != ""
     cut = list(post.loc[edge, "parameter"])
-    pressed = (f" Pressed against an edge of its range, so cut by it: {words(cut)} (widen the range in settings.toml, "
+    widen = "simulate heaps beyond it" if prior == "heaps" else "widen the range in settings.toml"
+    pressed = (f" Pressed against an edge of its range, so cut by it: {words(cut)} ({widen}, "
                "or the model lacks an effect)." if cut else "")
     boxed = str(box_cuts(post).iloc[0]) if len(post) else ""
     if "decided" in post.columns and not bool(post["decided"].iloc[0]):
@@ -237,9 +244,11 @@ def _posterior_clause(post: pd.DataFrame) -> str:
 def headline(f: RunFiles, fit: Fit) -> str:
     post = f.table("posterior/summary.parquet")
     params = solution_params(f)
+    undecided = post is not None and len(post) and "decided" in post.columns and not bool(post["decided"].iloc[0])
     if post is not None and len(post):
-        what = f"Calibrated {words(list(post['parameter']))}"
-        extra = _posterior_clause(post)
+        # no verdict while the surrogate is unsure: not "calibrated" either
+        what = f"Calibrat{'ing' if undecided else 'ed'} {words(list(post['parameter']))}"
+        extra = _posterior_clause(post, str(f.prov("posterior/summary.parquet").get("prior", "settings")))
     elif params:
         what = f"The surrogate's best fit (GA) of {words(params)}"
         extra = _loose_clause(f)
@@ -248,6 +257,9 @@ def headline(f: RunFiles, fit: Fit) -> str:
         return (f"<p class=lead>{badge('not calibrated', 'info')} <b>No calibration in this run directory yet</b> "
                 f"(<code>calib calibrate</code> has not run); stages here: {esc(', '.join(ran) or 'none')}.</p>")
     kind, sentence = verdict(f, fit)
+    if undecided and fit.kind == "compare":  # a point of a posterior that is still undecided
+        sentence = ("At the most probable draw of a posterior still undecided (the surrogate is unsure there, so it "
+                    "may move), " + sentence[0].lower() + sentence[1:])
     label = {"pass": "fits", "fail": "misfit", "info": "unchecked"}[kind]
-    return (f"<p class=lead><b>{what}</b> against {_against(f)}.</p>"
+    return (f"<p class=lead><b>{what}</b> against {_against(f)}{': undecided so far' if undecided else ''}.</p>"
             f"<p class=lead>{badge(label, kind)} {sentence}{_diagnosis_clause(f)}{extra}</p>")
