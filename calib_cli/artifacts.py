@@ -241,7 +241,14 @@ def read_provenance(path: Path) -> dict:
     except Exception:
         raise CalibError(f"{path} is not a readable Parquet file") from None
     raw = meta.get(PROVENANCE_KEY)
-    return json.loads(raw) if raw else {}
+    try:
+        out = json.loads(raw) if raw else {}
+    except ValueError:
+        out = None
+    if not isinstance(out, dict):  # a file calib did not write, or one edited: its provenance is unreadable
+        raise CalibError(f"{path} holds provenance that is not calib's (not a JSON table): rerun the command that "
+                         "writes it, or move the file aside")
+    return out
 
 
 #: response columns that hold a repose angle (deg)
@@ -397,12 +404,12 @@ def run_lock(run: Path, wait: bool = False):
         yield  # a read-only run directory (a committed sample run): nobody can write it either
         return
     fd = _acquire(fd, run, wait)  # closes its descriptor when it fails
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
     _HELD[key] = [fd, 1]
-    if not wait:  # a command's lock, not a library call's short index update (which may run beside its own stagings)
-        sweep_leftovers(run)
-    try:
+    try:  # from here a Ctrl-C or a full disk releases the lock too (a notebook's process lives on)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()}: {command_line()}\n".encode(), 0)
+        if not wait:  # a command's lock, not a library call's short index update (which may run beside its own stagings)
+            sweep_leftovers(run)
         yield
     except BaseException:
         # nothing written: leave no run dir (a process waiting on this lock file finds it unlinked and
@@ -449,8 +456,11 @@ def sweep_leftovers(run: Path, depth: int = 2) -> int:
 
 
 def _subfolders(folder: Path) -> list[Path]:
+    """The folders a sweep goes on into: not hidden ones, nor one with a lock of its own (a lab folder synth-lab
+    writes under its own lock: its leftovers are swept when that lock is taken)."""
     with contextlib.suppress(OSError):
-        return [c for c in folder.iterdir() if c.is_dir() and not c.name.startswith(".")]
+        return [c for c in folder.iterdir() if c.is_dir() and not c.name.startswith(".")
+                and not (c / RUN_LOCK).exists()]
     return []
 
 
@@ -586,8 +596,16 @@ class Stage:
             os.replace(staging / rel, dst)
         os.replace(self.pending_path, self.lock_path)
         for rel in set(old) - set(hashes):
+            if not _inside(self.dir, rel):  # a lock edited by hand names ../settings.toml: not the stage's to delete
+                continue
             with contextlib.suppress(OSError):
                 (self.dir / rel).unlink()
+
+
+def _inside(folder: Path, rel: str) -> bool:
+    """Whether ``rel`` (an output a lock lists) names a file within ``folder``, not beside or above it."""
+    p = Path(rel)
+    return not p.is_absolute() and ".." not in p.parts and (folder / p).resolve().is_relative_to(folder.resolve())
 
 
 class _StagingWriter:

@@ -133,3 +133,61 @@ def test_an_output_written_twice_fails_before_the_commit(tmp_path):
             out.bytes("o/a.png", b"1")
             out.bytes("o/a.png", b"2")
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_a_lock_edited_to_name_a_file_outside_its_stage_deletes_nothing_there(tmp_path):
+    """The stale outputs a stage removes are its own: a hand-edited lock listing ../settings.toml once made the
+    next commit delete the run's settings."""
+    import json
+
+    (tmp_path / "settings.toml").write_text("[heap]\n")
+    st = art.Stage(tmp_path, "pb", "analyze", settings={"a": 1})
+    with st.commit() as out:
+        out.table("x.parquet", pd.DataFrame({"a": [1]}))
+    lock = json.loads(st.lock_path.read_text())
+    lock["outputs"].update({"../settings.toml": "0" * 64, str(tmp_path / "settings.toml"): "0" * 64})
+    st.lock_path.write_text(json.dumps(lock))
+    with art.Stage(tmp_path, "pb", "analyze", settings={"a": 2}).commit() as out:
+        out.table("x.parquet", pd.DataFrame({"a": [2]}))
+    assert (tmp_path / "settings.toml").read_text() == "[heap]\n"
+
+
+@pytest.mark.parametrize("raw", [b"{not json", b"[1, 2]"])
+def test_provenance_calib_did_not_write_is_one_line(tmp_path, raw):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    t = pa.table({"a": [1]}).replace_schema_metadata({art.PROVENANCE_KEY: raw})
+    pq.write_table(t, tmp_path / "x.parquet")
+    with pytest.raises(CalibError, match="provenance that is not calib's"):
+        art.read_provenance(tmp_path / "x.parquet")
+
+
+def test_the_run_lock_is_released_when_its_setup_is_interrupted(tmp_path, monkeypatch):
+    """A Ctrl-C (or a full disk) while the lock is being taken once kept it held in a notebook's process: the
+    next command in that process, or another process, found the run 'in use'."""
+    calls = []
+
+    def stop(run):
+        calls.append(run)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(art, "sweep_leftovers", stop)
+    with pytest.raises(KeyboardInterrupt):
+        with art.run_lock(tmp_path / "run"):
+            pass
+    monkeypatch.undo()
+    assert calls and not art._HELD
+    with art.run_lock(tmp_path / "run"):  # free again
+        pass
+
+
+def test_a_sweep_leaves_a_folder_with_its_own_lock_alone(tmp_path):
+    """A command taking RUN's lock sweeps dead writers' staging folders; a lab folder synth-lab writes under its
+    own lock (RUN/lab/.lock) is not swept from outside, so a synth-lab running beside it keeps its staging."""
+    run = tmp_path / "run"
+    (run / "lab" / ".synth-lab.staging-abc").mkdir(parents=True)
+    (run / "lab" / art.RUN_LOCK).write_text("")
+    (run / "compare" / ".rev0.staging-xyz").mkdir(parents=True)
+    art.sweep_leftovers(run)
+    assert (run / "lab" / ".synth-lab.staging-abc").is_dir() and not (run / "compare" / ".rev0.staging-xyz").exists()

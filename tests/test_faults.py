@@ -131,6 +131,14 @@ def _write(rel: str, data: str) -> Callable[[Path], None]:
     return prep
 
 
+def _folder(rel: str) -> Callable[[Path], None]:
+    """A folder where the command writes a file (a user's mistake, or another program's)."""
+    def prep(run: Path) -> None:
+        (run / rel).unlink(missing_ok=True)
+        (run / rel).mkdir(parents=True)
+    return prep
+
+
 MA = "measure-angle (another helper's work, not fixed here): "
 HEAD = "static_friction,rolling_friction,surface_energy,restitution,repose_angle\n"
 PB_ROWS = (DATA / "table3_pb.csv").read_text().splitlines()[1:]
@@ -314,6 +322,7 @@ BAD: list[Bad] = [
     Bad("report-best-not-json", ["report", "--run", "{run}"], prep=_write("surrogate/best.json", "{not json")),
     Bad("report-corrupt-figure-table", ["report", "--run", "{run}"], prep=_truncate("bbd/data.parquet", 0.9)),
     Bad("report-missing-run", ["report", "--run", "{tmp}/none"]),
+    Bad("report-page-is-a-folder", ["report", "--run", "{run}"], prep=_folder("report.html")),
     # ---- issue 48: values checked against their declaration (calib_cli.parameters), tables where they enter
     *[Bad(f"images-conditions-{name}", ["measure-angle", "--run", "{run}", "--images", "{tmp}", "--conditions",
                                         "{tmp}/c.csv", "--force"], {"h.png": _photo(), "g.png": _photo(), "c.csv": csv})

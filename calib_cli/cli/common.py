@@ -218,12 +218,10 @@ def handle_errors(fn: Callable) -> Callable:
                               "heaps and stages are kept; the same command resumes)")
             raise typer.Exit(130) from None
         except OSError as e:
-            why = _UNWRITABLE.get(e.errno)
-            if why is None:
+            said = os_error_words(e)
+            if said is None:
                 raise
-            err_console.print(f"[bold red]error:[/] cannot write {escape(str(e.filename or 'the run directory'))}: "
-                              f"{escape(e.strerror or str(e))} ({why}); nothing half-written was kept",
-                              highlight=False, soft_wrap=True)
+            err_console.print(f"[bold red]error:[/] {escape(said)}", highlight=False, soft_wrap=True)
             raise typer.Exit(2) from None
 
     return wrapper
@@ -233,6 +231,20 @@ def handle_errors(fn: Callable) -> Callable:
 _UNWRITABLE = {errno.EACCES: "the folder is read-only or not yours", errno.EPERM: "not permitted",
                errno.EROFS: "a read-only file system", errno.ENOSPC: "the disk is full",
                errno.EDQUOT: "the disk quota is used up"}
+#: a path of the wrong kind, or one gone meanwhile: what a user (or another program) did to the run directory
+_MISPLACED = {errno.EISDIR: "a folder where a file belongs", errno.ENOTDIR: "a file where a folder belongs",
+              errno.ENOENT: "it does not exist, or was removed meanwhile"}
+
+
+def os_error_words(e: OSError):
+    """One line for an OSError that is the machine's or the run directory's state (None for another: a bug)."""
+    where = str(e.filename2 or e.filename or "the run directory")  # a rename's target, not its temporary file
+    if e.errno in _UNWRITABLE:
+        return (f"cannot write {where}: {e.strerror or e} ({_UNWRITABLE[e.errno]}); nothing half-written was kept")
+    if e.errno in _MISPLACED:
+        return (f"cannot use {where}: {e.strerror or e} ({_MISPLACED[e.errno]}): move it aside and run the command "
+                "again")
+    return None
 
 
 def skipped(stage: art.Stage) -> None:

@@ -453,6 +453,8 @@ def run_step(root, step: Step, env: Mapping[str, str]) -> tuple[str, float, tupl
     is a CalibError naming the step (its cause in the same line); Ctrl-C is KeyboardInterrupt."""
     from typer.exceptions import Abort
 
+    from .common import os_error_words
+
     click = _click()
 
     where = f"step {step.name!r} ({step.command})"
@@ -467,6 +469,11 @@ def run_step(root, step: Step, env: Mapping[str, str]) -> tuple[str, float, tupl
         raise CalibError(f"{where}: {e.format_message()}") from None
     except (Abort, getattr(click.exceptions, "Abort", Abort)):
         raise KeyboardInterrupt from None
+    except OSError as e:  # a full disk, a folder where a file belongs: the step named, as for a user error
+        said = os_error_words(e)
+        if said is None:
+            raise
+        raise CalibError(f"{where}: {said}") from None
     if rc == 130:
         raise KeyboardInterrupt
     if isinstance(rc, int) and not isinstance(rc, bool) and rc != 0:

@@ -4,6 +4,7 @@ photographs with image noise, to test the calibration and the discrepancy loop a
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -73,7 +74,18 @@ class LabResult:
         return f"{len(self.rows)} heaps ({ok} formed) in {self.n_conditions} conditions -> {self.out}"
 
 
+def _locks_out(fn):
+    """The lab folder's own lock (:func:`~calib_cli.artifacts.run_lock`) for the whole call: a second synth-lab
+    on it fails at once, and another command's sweep of the run around it leaves its staging alone."""
+    @functools.wraps(fn)
+    def locked(*args, **kwargs):
+        with art.run_lock(Path(args[0] if args else kwargs["out"])):
+            return fn(*args, **kwargs)
+    return locked
+
+
 @checked
+@_locks_out
 def synth_lab(out: Path, set_: Pairs = None, hidden: str = "cohesion", sizes: str = "5-6,6-8,8-10",
               cylinders: str = "50", fill_ratio: float = 1.0, fills: Optional[str] = None, repeats: int = 3,
               preset: str = "smoke", workers: int = 1, shear_modulus: Optional[float] = None,
