@@ -750,6 +750,8 @@ def test_a_bayes_factor_with_no_draw_near_the_value_is_an_upper_bound_not_zero()
     from calib_cli.posterior.evidence import bf_text
 
     rng = np.random.default_rng(0)
+    bf, upper = bayes_factor_off(rng.uniform(0.5, 1.0, 20000), 0.0, 0.0, 3.0, n_eff=np.nan)
+    assert upper and bf == pytest.approx(3.0 / 400 / 0.01)  # no n_eff: a bound from one draw in 50, never 0
     bf, upper = bayes_factor_off(rng.uniform(0.5, 1.0, 20000), 0.0, 0.0, 3.0, n_eff=4000)
     assert upper and bf == pytest.approx(3 / 4000 / 0.01) and bf_text(bf, upper) == "< 0.075"
     bf, upper = bayes_factor_off(rng.uniform(0.0, 3.0, 20000), 0.0, 0.0, 3.0, n_eff=4000)

@@ -178,8 +178,10 @@ def bayes_factor_off(draws, value: float, low: float, high: float, n_eff: float,
     bound on the window's probability, 3 / n_eff, over the window's prior share (n_eff the effective
     number of draws, :meth:`PosteriorResult.summary`), never 0."""
     bf = savage_dickey(draws, value, low, high, width)
-    if bf > 0 or not np.isfinite(n_eff) or n_eff <= 0:
+    if bf > 0:
         return bf, False
+    if not np.isfinite(n_eff) or n_eff <= 0:  # no autocorrelation estimate: one draw in 50 (never 0, never
+        n_eff = max(1.0, np.size(draws) / 50.0)  # the all-draws bound, which would claim more than they hold)
     half = width * (high - low) / 2
     share = (min(high, value + half) - max(low, value - half)) / (high - low)
     return float(3.0 / n_eff / share), True

@@ -19,8 +19,11 @@ def esc(x) -> str:
 
 
 def prose(x) -> str:
-    """A sentence of the library's (a ranking's reason, a note) escaped, its `backticked` commands as code."""
-    return re.sub(r"`([^`]+)`", r"<code>\1</code>", esc(x))
+    """A sentence of the library's (a ranking's reason, a note) escaped, its `backticked` commands as code, and a
+    percentage spaced as the page writes them ("28 %")."""
+    parts = re.split(r"(`[^`]+`)", str(x))  # a command's text stays as typed
+    return "".join(f"<code>{esc(p[1:-1])}</code>" if p.startswith("`") and p.endswith("`") and len(p) > 1
+                   else re.sub(r"(\d)%", r"\1 %", esc(p)) for p in parts)
 
 
 def num(v, digits: int = 4) -> str:

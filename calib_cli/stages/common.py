@@ -229,6 +229,13 @@ def check_run_dir(run: Path) -> Path:
     return run
 
 
+def check_not_empty(run: Path) -> None:
+    """Refuse a run directory with nothing in it (a mistyped --run, which the run lock has just made) for a
+    command that reads what others wrote: 'no calibrated value' sent its user to calibrate the wrong folder."""
+    if not run.is_dir() or not any(p.name != art.RUN_LOCK for p in run.iterdir()):
+        raise CalibError(f"{run} holds nothing yet (no measurement, no calibration): is --run the right folder?")
+
+
 def warn_other_modulus(run: Path, shear_modulus: Optional[float], what: str, say: Optional[Say] = None) -> None:
     """Warn when the run's design heaps (what a surrogate was fitted to) had another shear modulus."""
     from ..heaps.index import current_results

@@ -17,7 +17,7 @@ from ..measurements import measured_conditions
 from ..model import Model
 from ..plots import history_figure, residuals_figure
 from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
-from .common import (Result, Say, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
+from .common import (Result, Say, check_not_empty, check_run_dir, plain, resolve_settings, stage, warn_other_modulus,
                      writes_run)
 
 
@@ -67,6 +67,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     residuals.png, and adds the model revision's row to history.parquet (history.png), all in one commit."""
     say = say or plain
     run = check_run_dir(run)
+    check_not_empty(run)
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)
     conds = measured_conditions(run)

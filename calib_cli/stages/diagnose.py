@@ -20,7 +20,7 @@ from ..errors import CalibError
 from ..measurements import measured_conditions
 from ..model import EFFECTS, Model
 from ..heaps.inputs import COND_VARS, Pairs, heap_setup, modulus_settings, run_heap_settings
-from .common import (Result, Say, check_run_dir, plain, resolve_settings, shown, space_from_design, stage,
+from .common import (Result, Say, check_not_empty, check_run_dir, plain, resolve_settings, shown, space_from_design, stage,
                      warn_other_modulus, writes_run)
 
 
@@ -199,6 +199,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     if not 0.0 < alpha < 1.0:
         raise CalibError(f"--alpha {alpha:g} must lie strictly between 0 and 1 (a significance level)")
     run = check_run_dir(run)
+    check_not_empty(run)
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)
     conds = measured_conditions(run)
