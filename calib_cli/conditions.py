@@ -32,6 +32,15 @@ def read_conditions_csv(path: Path, need: tuple[str, ...] = ("condition_id",), w
         raise CalibError(f"{what} {path} could not be read as CSV ({reason(e)})") from None
     df.columns = [str(c).strip() for c in df.columns]
     _delimiter(df, path, what)
+    return check_conditions(df, path, need, what)
+
+
+def check_conditions(df: pd.DataFrame, path: Path, need: tuple[str, ...] = ("condition_id",),
+                     what: str = "conditions table") -> pd.DataFrame:
+    """A conditions table's checks, whatever file it came from (:func:`read_conditions_csv`'s; a Parquet table
+    once skipped them and ran heaps under a misspelt column's or a NaN fill's default): its columns, names,
+    condition ids, values, one value each and rigs."""
+    df = df.copy()
     missing = [c for c in need if c not in df.columns]
     if missing:
         raise CalibError(f"{what} {path} lacks column(s) {', '.join(missing)} (its columns: {', '.join(df.columns)}; "

@@ -46,7 +46,10 @@ def standing_conditions(run: Path, conds: pd.DataFrame | None = None) -> pd.Data
     if none.empty or not path.is_file():
         return none.iloc[:0].assign(piles=pd.Series(dtype=float))
     a = art.read_table(path, columns=["image", "condition_id", "status"], what="measured angles")
-    a = a[a["condition_id"].astype(str).isin(set(none["condition_id"].astype(str))) & a["status"].isin(("ok", "column"))]
+    # every photograph measured (formed, stood, or flagged as no cone): a flagged heap is a pile that did not stand
+    from .imaging.measure import FLAGS
+
+    a = a[a["condition_id"].astype(str).isin(set(none["condition_id"].astype(str))) & a["status"].isin(("ok", *FLAGS))]
     if a.empty:
         return none.iloc[:0].assign(piles=pd.Series(dtype=float))
     pile = a["pile"].astype(object).where(a["pile"].notna(), a["image"]) if "pile" in a.columns else a["image"]

@@ -119,9 +119,11 @@ def test_a_draw_the_chain_repeated_is_one_pair_not_two():
     few = pd.DataFrame({"a": rng.normal(0.8, 0.05, 8), "b": rng.random(8)})
     samples = few.iloc[rng.integers(0, 8, 500)].reset_index(drop=True)  # 8 points, each drawn ~60 times
     measured = pd.DataFrame({"condition_id": ["H75"], "fill_height_mm": [75.0], "mean": [34.0], "sd": 1.0, "n": 10})
-    for rule in ("variance", "max-sd"):
+    for rule in ("variance", "max-sd", "draws"):
         d = acquire([(gp, np.array([0.1]))], samples, measured, 8, repeats=2, rule=rule, seed=0)
         assert len(d) == 8 and not d.duplicated().any(), rule
+    more = acquire([(gp, np.array([0.1]))], samples, measured, 12, repeats=2, rule="variance", seed=0)
+    assert len(more) == 8 and not more.duplicated().any()  # 8 distinct points: a twin never fills the round
 
 
 def test_the_stop_rule_needs_stable_intervals_verdicts_and_a_sure_surrogate():
@@ -319,6 +321,24 @@ def test_a_round_learns_only_from_its_own_designs_not_another_calibrations_heaps
         now = cal._until_round(run, model_rows(run, model), model, k)
         assert set(now["run_hash"]) == set(b["run_hash"]), k
     assert len(before[0]) == 60 and len(before[None]) == 100
+
+
+def test_a_calibration_designed_anew_leaves_no_later_round_of_the_one_before(lab):
+    """Three rounds, then the same calibration with another seed and a budget for two: round 0 is designed
+    anew, so the first run's round 2 (its folder and locks) goes, and the whole calibration's heaps are the
+    second run's own."""
+    from calib_cli.model import load_model
+    from calib_cli.posterior.evidence import model_rows
+    from calib_cli.stages import calibrate as cal
+
+    run, _ = lab
+    cal.calibrate(run, budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    assert (run / "calibrate" / "rev0" / "round-02").is_dir()
+    cal.calibrate(run, budget=80, first=60, batch=20, walkers=16, steps=300, seed=1, **QUIET)
+    assert not (run / "calibrate" / "rev0" / "round-02").exists()
+    assert not list((run / "calibrate").glob("rev0-round-02*"))
+    model = load_model(run)
+    assert len(cal._until_round(run, model_rows(run, model), model, None)) == 80
 
 
 def test_heaps_of_another_preset_are_refused_before_any_runs(lab):

@@ -274,6 +274,12 @@ BAD: list[Bad] = [
     Bad("sim-design-misspelt-parameter", [*SIM, "--design", "{tmp}/d.parquet"],
         {"d.parquet": _parquet(pd.DataFrame({"run_id": [1], "static_friction": [0.3], "rolling_fricton": [0.2]}))}),
     Bad("sim-design-csv-garbage", [*SIM, "--design", "{tmp}/d.parquet"], {"d.parquet": "static_friction\n0.3\n"}),
+    Bad("sim-design-negative-run-id", [*SIM, "--design", "{tmp}/d.parquet"],
+        {"d.parquet": _parquet(pd.DataFrame({"run_id": [-1], "static_friction": [0.3]}))}),
+    Bad("sim-design-fractional-run-id", [*SIM, "--design", "{tmp}/d.parquet"],
+        {"d.parquet": _parquet(pd.DataFrame({"run_id": [1.0, 1.7], "static_friction": [0.3, 0.4]}))}),
+    Bad("sim-design-run-id-twice", [*SIM, "--design", "{tmp}/d.parquet"],
+        {"d.parquet": _parquet(pd.DataFrame({"run_id": [1, 1], "static_friction": [0.3, 0.4]}))}),
     Bad("sim-design-truncated", [*SIM, "--design", "{run}/bbd/design.parquet"], prep=_truncate("bbd/design.parquet")),
     Bad("sim-preset-unknown", ["simulate-heap", "--run", "{run}", "--preset", "turbo", "--set", "static_friction=0.3"]),
     # ---- what to measure next

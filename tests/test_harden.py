@@ -514,3 +514,34 @@ def test_a_campaign_heap_resumes_from_its_checkpoint_and_then_deletes_it(tmp_pat
     ck.write_bytes(b"state")
     checkpoint_path(tmp_path, req, fresh=True)  # --force: the heap starts again from its fill
     assert not ck.exists()
+
+
+@pytest.mark.parametrize("damage", [b"", b"PK\x03\x04 truncated"])
+def test_a_damaged_checkpoint_is_deleted_and_the_heap_starts_afresh(tmp_path, damage):
+    """An emptied (EOFError) or truncated (BadZipFile) .npz stopped every rerun of its heap with exit 70."""
+    from calib_cli.dem.heap import resume
+
+    path = tmp_path / "checkpoint.npz"
+    path.write_bytes(damage)
+    marker = object()
+    assert resume(marker, path) is marker and not path.exists()
+
+
+def test_a_worker_killed_from_outside_is_one_line_not_an_internal_error(monkeypatch, tmp_path):
+    """A pool worker the out-of-memory killer ends breaks the pool: BrokenProcessPool was exit 70."""
+    import concurrent.futures as cf
+    import contextlib
+    from concurrent.futures.process import BrokenProcessPool
+
+    from calib_cli.errors import CalibError
+    from calib_cli.heaps import runner
+
+    class Pool:
+        def submit(self, *a, **k):
+            f = cf.Future()
+            f.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+            return f
+
+    monkeypatch.setattr(runner, "spawned", lambda workers: contextlib.nullcontext(Pool()))
+    with pytest.raises(CalibError, match="a worker process died"):
+        runner._run_on_pool([(0, object())], tmp_path, 2, False, lambda i, row: None)

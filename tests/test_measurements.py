@@ -49,7 +49,8 @@ def test_a_condition_whose_photographs_were_all_flagged_is_named_as_unmeasured(t
 
 def test_a_condition_where_every_pile_stood_is_left_to_the_column_share_and_others_without_an_angle_refused(tmp_path):
     """C's three piles (two photographs each) all stood: no angle, so the analyses leave it out and the share
-    of columns weighs it (3 piles); D's photographs are unreadable: refused, as before."""
+    of columns weighs it (3 piles). Where its photographs are unreadable, or some formed heaps flagged as no
+    cone, it is refused, as before."""
     from calib_cli import artifacts as art
     from calib_cli.measurements import standing_conditions
 
@@ -63,10 +64,31 @@ def test_a_condition_where_every_pile_stood_is_left_to_the_column_share_and_othe
     assert got["condition_id"].tolist() == ["A", "B"]
     stood = standing_conditions(run)
     assert stood["condition_id"].tolist() == ["C"] and stood["piles"].tolist() == [3.0]
-    art.write_table(run / "measure" / "angles.parquet", angles.assign(status=["ok"] + ["unreadable"] * 6))
-    with pytest.raises(CalibError, match="condition.s. C have no measured angle"):
-        measured_conditions(run)
+    for statuses in (["unreadable"] * 6, ["column", "column", "asymmetric", "asymmetric", "not_cone", "column"]):
+        art.write_table(run / "measure" / "angles.parquet", angles.assign(status=["ok"] + statuses))
+        with pytest.raises(CalibError, match="condition.s. C have no measured angle"):
+            measured_conditions(run)
     art.write_table(run / "measure" / "angles.parquet", angles.assign(status="column"))
     table.iloc[[2]].to_parquet(run / CONDITIONS)  # C alone
     with pytest.raises(CalibError, match="every pile of every measured condition .* stood as a column"):
         measured_conditions(run)
+
+
+@pytest.mark.parametrize("edit, words", [
+    ({"fil_height_mm": [75.0]}, "fil_height_mm"),                    # a misspelt column, once ignored
+    ({"fill_height_mm": [math.nan]}, "fill_height_mm"),              # once the preset's 120 mm
+    ({"fill_height_mm": ["20"], "cylinder_diameter_mm": ["x"]}, "cylinder_diameter_mm"),
+])
+def test_a_parquet_conditions_table_is_checked_as_a_csv_one(tmp_path, edit, words):
+    """simulate-heap --conditions T.parquet skipped every check a CSV table gets and ran heaps on another rig."""
+    from calib_cli import artifacts as art
+    from calib_cli.stages.simulate import read_conditions_table
+
+    base = {"condition_id": ["A"], "particle_d_min_mm": [4.0], "particle_d_max_mm": [5.0],
+            "cylinder_diameter_mm": [40.0], "fill_height_mm": [75.0]}
+    art.write_table(tmp_path / "ok.parquet", pd.DataFrame(base))
+    assert read_conditions_table(tmp_path / "ok.parquet")["fill_height_mm"].tolist() == [75.0]
+    table = {k: v for k, v in base.items() if not (k == "fill_height_mm" and "fil_height_mm" in edit)}
+    art.write_table(tmp_path / "bad.parquet", pd.DataFrame({**table, **edit}))
+    with pytest.raises(CalibError, match=words):
+        read_conditions_table(tmp_path / "bad.parquet")

@@ -288,3 +288,4 @@ def test_the_ga_point_is_pinned_only_where_the_posterior_identifies_it_around_th
     assert "posterior undecided" in _ga_state("rolling_friction", 0.05, post.assign(decided=False), 0.15)
     assert "the box cuts" in _ga_state("rolling_friction", 0.05, post.assign(box_cut="static_friction high"), 0.15)
     assert "posterior wide" in _ga_state("rolling_friction", 0.05, post.assign(identified=False), 0.15)
+    assert "range&#x27;s edge" in _ga_state("rolling_friction", 0.05, post.assign(edge=["high", ""]), 0.15)

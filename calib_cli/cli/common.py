@@ -242,8 +242,8 @@ def os_error_words(e: OSError):
     if e.errno in _UNWRITABLE:
         return (f"cannot write {where}: {e.strerror or e} ({_UNWRITABLE[e.errno]}); nothing half-written was kept")
     if e.errno in _MISPLACED:
-        return (f"cannot use {where}: {e.strerror or e} ({_MISPLACED[e.errno]}): move it aside and run the command "
-                "again")
+        fix = "check the path" if e.errno == errno.ENOENT else "move it aside"
+        return f"cannot use {where}: {e.strerror or e} ({_MISPLACED[e.errno]}): {fix} and run the command again"
     return None
 
 

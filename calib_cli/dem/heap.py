@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import time
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping
@@ -290,7 +292,8 @@ def resume(test: "HeapTest", checkpoint: Path | None) -> "HeapTest":
     try:
         with np.load(checkpoint, allow_pickle=False) as z:
             return test.restore({k: z[k] for k in z.files})
-    except (OSError, ValueError, KeyError, CalibError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, CalibError):
+        # a truncated or emptied .npz (damage from outside: the writes are atomic) is no checkpoint
         Path(checkpoint).unlink(missing_ok=True)
         return test
 

@@ -337,10 +337,17 @@ def _run_on_pool(todo: list[tuple[int, Request]], run_dir: Path, workers: int, f
     as each heap is done. A stop (Ctrl-C, an error) ends the workers at once: the heaps in flight are lost,
     as promised, and no queued one starts (a worker that caught Ctrl-C itself took the next queued heap, and
     the pool's exit waited for it)."""
+    from concurrent.futures.process import BrokenProcessPool
+
     with spawned(workers) as pool:
         futs = {pool.submit(_execute_in_worker, req, str(run_dir), force): i for i, req in todo}
-        for f in cf.as_completed(futs):
-            finish(futs[f], f.result())
+        try:
+            for f in cf.as_completed(futs):
+                finish(futs[f], f.result())
+        except BrokenProcessPool:  # a worker killed from outside (the out-of-memory killer): the machine's, not a bug
+            raise CalibError("a worker process died while simulating heaps (killed from outside: out of memory?); "
+                             "the heaps it finished are kept, and the same command goes on from them (fewer "
+                             "--workers use less memory)") from None
 
 
 #: heaps a GPU batch holds at most: a step costs about the same from 1 to 256 `default` heaps on an H200

@@ -102,12 +102,15 @@ def acquire(surrogates: Sequence[tuple[object, np.ndarray]], samples: pd.DataFra
     n_eval = max(2, min(len(draws), EVAL_POINTS // C))
     n_cand = max(2, min(n_eval, CANDIDATE_POINTS // C))
     theta = draws[rng.choice(len(draws), n_eval, replace=len(draws) < n_eval)]
+    # a chain's draws repeat (a rejected move): a pair picked twice would be one cached heap, paid for twice
+    again = _repeated(theta[:n_cand])
     if rule == "draws":
-        pick = rng.permutation(n_cand)[:pairs] if pairs <= n_cand else rng.choice(n_cand, pairs)
+        pick = rng.permutation(n_cand)
+        pick = pick[~again[pick]][:pairs] if pairs <= (~again).sum() else rng.choice(n_cand, pairs)
         cond = (np.arange(len(pick)) + rng.integers(C)) % C
         return _frame(theta[pick], names, measured, cond)
-    # a chain's draws repeat (a rejected move): a pair picked twice would be one cached heap, paid for twice
-    twin = np.repeat(_repeated(theta[:n_cand]), C)
+    twin = np.repeat(again, C)
+    pairs = min(pairs, int((~twin).sum()))  # never a twin, even where the distinct pairs run out
     P, w, tau2 = [], [], []
     for gp, v in surrogates:
         XE, XC = _points(gp, theta, names, measured), _points(gp, theta[:n_cand], names, measured)

@@ -597,8 +597,8 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
         if share is None:
             say(f"[yellow]note:[/] the share of piles that stood as columns is not evidence here: {why}")
         else:
-            wholly = (f", and all {int(share.stood_n.sum())} of {len(share.stood_n)} condition(s) that have no "
-                      "angle because every pile stood" if len(share.stood_n) else "")
+            wholly = (f", and the {int(share.stood_n.sum())} piles, all standing, of {len(share.stood_n)} condition(s) "
+                      "with no angle for it" if len(share.stood_n) else "")
             say(f"likelihood: each condition's share of piles that stood as columns too ({int(share.k.sum())} of "
                 f"{int(share.n.sum())} photographed piles{wholly}; {share.model.n_columns_} of {share.model.n_train_} "
                 "simulated fills)" + (f"; [yellow]note:[/] {why}" if why else ""))

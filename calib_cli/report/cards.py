@@ -31,10 +31,12 @@ def _ga_state(p: str, w: float, post, value: float = math.nan) -> str:
         r = post.loc[p]
         if not bool(r.get("decided", True)):
             return badge("posterior undecided", "warn")
-        if bool(favoured_off(post.loc[[p]])[0]):
-            return badge("posterior: off", "warn")
+        if str(edges(post).loc[p]):
+            return badge("posterior at its range's edge", "warn")
         if box_cuts(post).iloc[0]:
             return badge("the box cuts the posterior", "warn")
+        if bool(favoured_off(post.loc[[p]])[0]):
+            return badge("posterior: off", "warn")
         if not bool(r["identified"]):
             return badge("posterior wide", "warn")
         if not r["q05"] <= value <= r["q95"]:

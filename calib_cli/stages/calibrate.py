@@ -13,6 +13,7 @@ diagnose's are reused after ``model add``.
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
@@ -189,7 +190,19 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
             at_hand = _reused(run, model)
             out.table((path.parent / "reused.parquet").relative_to(st.dir).as_posix(),
                       _at_hand(run, model) if at_hand is None else at_hand, model_revision=model.revision)
+    _drop_after(run, model, k)
     return design
+
+
+def _drop_after(run: Path, model: Model, k: int) -> None:
+    """The rounds after k on disk, with their locks: round k designed anew, they are another calibration's (another
+    --seed or budget), whose designs the whole calibration's heaps would count (:func:`_designed`)."""
+    j = k + 1
+    while (d := _dir(run, model, j)).is_dir():
+        shutil.rmtree(d)
+        for name in (f"rev{model.revision}-round-{j:02d}-design", f"rev{model.revision}-round-{j:02d}"):
+            (run / "calibrate" / f"{name}{art.LOCK_SUFFIX}").unlink(missing_ok=True)
+        j += 1
 
 
 def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan: Plan) -> list:
@@ -372,7 +385,8 @@ def _plan(model: Model, conds: pd.DataFrame, budget: int, first: Optional[int], 
     reps = max(int(kw.get("repeats", 2)), 1)
     # what a round of the default batch simulates: whole design points of ``repeats`` piles
     span = max(reps, 4 * inputs // reps * reps)
-    plan = Plan(int(budget), int(first or math.ceil(1.2 * need)), int(batch or 4 * inputs), span=span, **kw)
+    plan = Plan(int(budget), int(first or math.ceil(1.2 * need)), int(batch or max(4 * inputs, 2 * reps)), span=span,
+                **kw)
     if plan.rule not in RULES:
         raise CalibError(f"--rule must be one of {', '.join(RULES)}, got {plan.rule!r}")
     if plan.repeats < 1 or plan.first < 1 or plan.batch < 1:

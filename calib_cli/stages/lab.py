@@ -79,7 +79,10 @@ def _locks_out(fn):
     on it fails at once, and another command's sweep of the run around it leaves its staging alone."""
     @functools.wraps(fn)
     def locked(*args, **kwargs):
-        with art.run_lock(Path(args[0] if args else kwargs["out"])):
+        out = Path(args[0] if args else kwargs["out"])
+        if out.exists() and not out.is_dir():  # said before the lock would say it of a run directory
+            raise CalibError(f"--out {out} is a file, not a folder: give a folder for the lab's photographs")
+        with art.run_lock(out):
             return fn(*args, **kwargs)
     return locked
 

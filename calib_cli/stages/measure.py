@@ -179,8 +179,9 @@ def by_pile(values: pd.Series, piles: pd.Series) -> dict:
     """A condition's statistics (:func:`describe`) where several photographs may show one pile: ``n`` counts
     piles and the mean is their views' means' mean, since a pile is one draw of the pile-to-pile scatter
     however many views it has (its views counted as piles made the mean look up to that many times surer);
-    ``sd`` stays one photograph's, the scatter a photograph and one simulated view show, so ``se`` = sd /
-    sqrt(piles) errs wide by what the views average out."""
+    ``sd`` is one photograph's, the scatter a photograph and one simulated view show, but no less than the
+    piles' means' (the photographs' own undercounts the piles where their views agree), so that ``se`` = sd /
+    sqrt(piles) is never narrower than the piles' means give."""
     v = pd.to_numeric(values, errors="coerce")
     keep = np.isfinite(v.to_numpy(float))
     means = v[keep].groupby(piles[keep].to_numpy()).mean()
@@ -188,10 +189,11 @@ def by_pile(values: pd.Series, piles: pd.Series) -> dict:
     if n == out["n"]:  # one photograph a pile
         return out
     mean = float(means.mean()) if n else np.nan
-    se = out["sd"] / np.sqrt(n) if n > 1 else np.nan
+    sd = max(out["sd"], float(means.std(ddof=1))) if n > 1 else out["sd"]
+    se = sd / np.sqrt(n) if n > 1 else np.nan
     half = float(student_t.ppf(0.975, n - 1) * se) if n > 1 else np.nan
-    return {**out, "n": n, "mean": mean, "se": se, "ci95_low": mean - half, "ci95_high": mean + half,
-            "cv_percent": 100 * out["sd"] / mean if n > 1 else np.nan}
+    return {**out, "n": n, "mean": mean, "sd": sd, "se": se, "ci95_low": mean - half, "ci95_high": mean + half,
+            "cv_percent": 100 * sd / mean if n > 1 else np.nan}
 
 
 def _measure_images(files: dict[str, Path], cmap: dict, no_table: bool, band, limits: ShapeLimits,

@@ -14,7 +14,7 @@ from .. import artifacts as art
 from ..heaps.index import RESULTS
 from ..heaps.keys import RUNS, Request
 from ..heaps.runner import REUSE_ENV, check_dask, reusable, run_campaign
-from ..conditions import read_conditions_csv
+from ..conditions import check_conditions, read_conditions_csv
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, Preset, interactions
 from ..errors import CalibError
 from ..measurements import CONDITIONS
@@ -124,7 +124,7 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
             raise CalibError(f"design {design} has no parameter columns ({', '.join(PARAMETERS)})")
         _misspelt(df, design)
         dname = Path(design).parent.name
-        ids = df["run_id"].to_numpy() if "run_id" in df.columns else np.arange(1, len(df) + 1)
+        ids = _run_ids(df, design) if "run_id" in df.columns else np.arange(1, len(df) + 1)
         for rid, (_, row) in zip(ids, df.iterrows()):
             given = {c: row[c].item() if isinstance(row[c], np.generic) else row[c] for c in cols}
             points.append((int(rid), {**fixed, **parse_params(given, f"design {design}, run_id {int(rid)}")}))
@@ -198,12 +198,27 @@ def read_conditions_table(path: Path) -> pd.DataFrame:
     if not path.is_file():
         raise CalibError(f"conditions table not found: {path}")
     if path.suffix.lower() == ".parquet":
-        ctab = art.read_table(path, columns=["condition_id"], what="conditions table")
+        ctab = check_conditions(art.read_table(path, columns=["condition_id"], what="conditions table"), path)
     else:
         ctab = read_conditions_csv(path, what="conditions table")
     if ctab.empty:  # no condition: no heap, and an empty campaign's summary failed (exit 70)
         raise CalibError(f"conditions table {path} has no rows")
     return ctab
+
+
+def _run_ids(df: pd.DataFrame, design) -> np.ndarray:
+    """A design's run ids: whole, non-negative and each once (a heap's seed derives from its run id: 1.7 would
+    share run 1's and merge the two heaps, -1 or text stopped the seeding with a traceback)."""
+    ids = pd.to_numeric(df["run_id"], errors="coerce").to_numpy(float)
+    bad = ~np.isfinite(ids) | (ids < 0) | (ids != np.round(ids))
+    if bad.any():
+        raise CalibError(f"design {design}: run_id {df['run_id'].iloc[int(np.flatnonzero(bad)[0])]!r} is not a whole "
+                         "number >= 0 (each design point's own)")
+    twice = pd.Series(ids).duplicated()
+    if twice.any():
+        raise CalibError(f"design {design}: run_id {int(ids[twice.to_numpy()][0])} is given twice (each design point "
+                         "its own)")
+    return ids.astype(int)
 
 
 @checked

@@ -84,6 +84,17 @@ def _candidates(rig: Rig, measured: pd.DataFrame) -> pd.DataFrame:
     return cand
 
 
+def _learnt(run: Path, model: Model) -> list[str]:
+    """The condition variables the heaps at hand vary (none where there are none yet)."""
+    from ..posterior.gp import informative_conditions
+    from ..heaps.inputs import COND_VARS
+
+    try:
+        return informative_conditions(model_rows(run, model), COND_VARS)
+    except CalibError:
+        return []
+
+
 def _complete(cand: pd.DataFrame, measured: pd.DataFrame, learnt: list[str]) -> pd.DataFrame:
     """The candidates with every condition variable the surrogate learnt that the rig does not set (a floor's
     friction) at the measured conditions' value; refused where they differ in it or lack it."""
@@ -568,6 +579,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
+    if simulate:  # a variable the heaps vary and a rig cannot set (a floor's friction): the candidates' heaps need it
+        cand = _complete(cand, measured, _learnt(run, model))
     # simulated first (a rerun finds them cached): the heaps join what the surrogate and the lock read
     sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say, heaps) \
         if simulate else None
