@@ -176,6 +176,17 @@ def _locks_listing(path: Path) -> tuple[list[tuple[str, str]], list[str]]:
     return committed, pending
 
 
+def check_not_pending(folder: Path, what: str) -> None:
+    """Refuse a folder an unfinished commit is writing into (a pending lock there: another command at work, or
+    one killed between its renames, which left files of two runs side by side), for readers of files no
+    Parquet check covers (photographs, a conditions CSV)."""
+    stages = sorted({command_of(str(_read_lock_file(p).get("stage", p.name)))
+                     for p in Path(folder).glob(f".*{PENDING_SUFFIX}") if _read_lock_file(p)})
+    if stages:
+        raise CalibError(f"{what} {folder} is being written, or its write was interrupted: rerun the command that "
+                         f"writes it ({', '.join(stages)}) once no other command is writing there")
+
+
 def _read_lock_file(path: Path) -> dict:
     try:
         d = json.loads(path.read_text())

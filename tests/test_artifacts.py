@@ -191,3 +191,19 @@ def test_a_sweep_leaves_a_folder_with_its_own_lock_alone(tmp_path):
     (run / "compare" / ".rev0.staging-xyz").mkdir(parents=True)
     art.sweep_leftovers(run)
     assert (run / "lab" / ".synth-lab.staging-abc").is_dir() and not (run / "compare" / ".rev0.staging-xyz").exists()
+
+
+def test_photographs_a_cut_short_commit_was_writing_are_refused(tmp_path):
+    """A synth-lab killed between its renames leaves two labs' photographs side by side and its pending lock:
+    measure-angle, which reads photographs and a CSV (no Parquet check), refuses the folder until it reruns."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    (lab / ".synth-lab.pending.json").write_text(json.dumps({"stage": "lab.synth-lab", "outputs": {"a.png": "0"}}))
+    r = CliRunner().invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--images", str(lab)])
+    assert r.exit_code == 2 and "is being written, or its write was interrupted" in " ".join(r.output.split())

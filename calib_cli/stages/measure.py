@@ -324,6 +324,8 @@ def measure_angle(run: Path, images: Optional[Path] = None, conditions: Optional
     if not (max_flank_diff > 0 and max_residual > 0):
         raise CalibError(f"--max-flank-diff and --max-residual must be positive, got {max_flank_diff}, {max_residual}")
     limits = ShapeLimits(max_flank_diff_deg=float(max_flank_diff), max_residual=float(max_residual))
+    for folder in {p.parent for p in (conditions, angles) if p is not None} | ({images} if images is not None else set()):
+        art.check_not_pending(folder, "the folder")  # a synth-lab cut short leaves two labs' photographs side by side
     cond = _read_conditions(conditions) if conditions is not None else None
     cmap = dict(zip(cond["image"], cond["condition_id"])) if cond is not None else {}
     files, table = {}, None
