@@ -52,13 +52,20 @@ def standing_conditions(run: Path, conds: pd.DataFrame | None = None) -> pd.Data
     a = a[a["condition_id"].astype(str).isin(set(none["condition_id"].astype(str))) & a["status"].isin(("ok", *FLAGS))]
     if a.empty:
         return none.iloc[:0].assign(piles=pd.Series(dtype=float))
-    pile = a["pile"].astype(object).where(a["pile"].notna(), a["image"]) if "pile" in a.columns else a["image"]
-    per = a.assign(pile=pile.astype(str)).groupby("condition_id").agg(
+    per = a.assign(pile=photo_piles(a)).groupby("condition_id").agg(
         stood=("status", lambda s: bool((s == "column").all())), piles=("pile", "nunique"))
     ids = per.index[per["stood"].to_numpy(bool)].astype(str)
     out = none[none["condition_id"].astype(str).isin(set(ids))].copy()
     out["piles"] = per.loc[out["condition_id"].astype(str), "piles"].to_numpy(float)
     return out.reset_index(drop=True)
+
+
+def photo_piles(angles: pd.DataFrame) -> pd.Series:
+    """Each photograph's pile in an angles table, as text: its ``pile`` label, else (no such column, or a blank
+    cell in a table written before labels were filled in) the photograph itself, a pile of one view."""
+    if "pile" not in angles.columns:
+        return angles["image"].astype(str)
+    return angles["pile"].astype(object).where(angles["pile"].notna(), angles["image"]).astype(str)
 
 
 def _check_values(c: pd.DataFrame, p: Path) -> None:

@@ -21,6 +21,7 @@ import pandas as pd
 from .. import artifacts as art, pool
 from ..heaps.index import RESULTS, current_results, heap_setups
 from ..errors import CalibError
+from ..measurements import photo_piles
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
 from ..heaps.inputs import COND_VARS
 from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
@@ -129,19 +130,27 @@ def check_measured(conds: pd.DataFrame, gp: GPSurrogate, path: Path) -> None:
     """Refuse a measured condition the surrogate would extrapolate to: outside the simulated range of
     a condition variable it learnt, or off the value every simulated heap shared."""
     ids = conds["condition_id"].astype(str)
-    for c, (lo, hi) in gp.condition_ranges().items():
-        if c not in conds.columns:
+    for c, off, why in beyond_heaps(conds, gp):
+        if why is None:
             raise CalibError(f"{path} has no {c} column, which the simulated heaps vary: measure-angle's "
                              "conditions table must give it")
-        out = ~conds[c].between(lo, hi)
-        if out.any():
-            raise CalibError(f"condition(s) {', '.join(ids[out])} have {c} outside the simulated heaps' "
-                             f"{lo:g} to {hi:g}: simulate heaps under them first")
-    for c, val in gp.constants_.items():
-        off = conds[c].notna() & ~np.isclose(conds[c], val) if c in conds.columns else pd.Series(False)
         if off.any():
-            raise CalibError(f"condition(s) {', '.join(ids[off])} have {c} other than the {val:g} of every "
-                             "simulated heap: simulate heaps under them first")
+            raise CalibError(f"condition(s) {', '.join(ids[off])} have {c} {why}: simulate heaps under them first")
+
+
+def beyond_heaps(conds: pd.DataFrame, gp: GPSurrogate):
+    """Per condition variable the surrogate knows, (variable, which of ``conds`` lie beyond its heaps, why):
+    outside a learnt variable's simulated range, or off the value every simulated heap shared; a learnt
+    variable ``conds`` lack puts every one beyond (why None)."""
+    for c, (lo, hi) in gp.condition_ranges().items():
+        if c not in conds.columns:
+            yield c, np.ones(len(conds), bool), None
+        else:
+            yield c, ~conds[c].between(lo, hi).to_numpy(), f"outside the simulated heaps' {lo:g} to {hi:g}"
+    for c, val in gp.constants_.items():
+        if c in conds.columns:
+            yield c, (conds[c].notna() & ~np.isclose(conds[c], val)).to_numpy(), \
+                f"other than the {val:g} of every simulated heap"
 
 
 def effect_ranges(model: Model) -> dict[str, tuple[float, float]]:
@@ -247,9 +256,7 @@ def measured_columns(run: Path, conds: pd.DataFrame) -> Optional[tuple[np.ndarra
     a = art.read_table(path, columns=["image", "condition_id", "status"], what="measured angles")
     if a.empty or (a.get("message", pd.Series(dtype=str)) == "given").all():
         return None
-    # a blank pile (a table written before labels were filled in) is its own photograph's
-    pile = a["pile"].astype(object).where(a["pile"].notna(), a["image"]) if "pile" in a.columns else a["image"]
-    a = a.assign(pile=pile.astype(str))[a["status"].isin(JUDGED)]
+    a = a.assign(pile=photo_piles(a))[a["status"].isin(JUDGED)]
     piles = a.groupby(["condition_id", "pile"])["status"].agg(lambda s: bool((s == "column").any()))
     per = piles.groupby(level=0).agg(["sum", "count"])
     ids = conds["condition_id"].astype(str)
@@ -293,12 +300,8 @@ def _stood_inputs(run: Path, gp: GPSurrogate) -> tuple[tuple[dict, np.ndarray], 
     full = art.read_table(run / CONDITIONS, what="measured conditions").set_index("condition_id")
     full = full.loc[stood["condition_id"].astype(str)]
     inside = np.ones(len(full), bool)
-    for c in conds:
-        lo, hi = gp.condition_ranges()[c]
-        inside &= full[c].between(lo, hi).to_numpy() if c in full.columns else False
-    for c, val in gp.constants_.items():
-        if c in full.columns:
-            inside &= full[c].isna().to_numpy() | np.isclose(full[c].to_numpy(float), val)
+    for _, off, _ in beyond_heaps(full, gp):
+        inside &= ~off
     out = ({c: full.loc[inside, c].to_numpy(float) for c in conds}, stood["piles"].to_numpy(float)[inside])
     left = ", ".join(full.index[~inside].astype(str))
     return out, (f"condition(s) {left}, where every pile stood, lie beyond the simulated heaps and are left out"

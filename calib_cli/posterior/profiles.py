@@ -12,6 +12,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..errors import CalibError
 from ..heaps.keys import RUNS
+from ..measurements import photo_piles
 from ..profile import fullness
 
 FULLNESS = "fullness"
@@ -89,14 +90,13 @@ def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, flo
                                FULLNESS: fullness(g["s_px"].to_numpy(), g["h_px"].to_numpy())}
                               for im, g in prof.groupby("image", sort=True)])
     angles = art.read_table(run / "measure" / "angles.parquet", columns=["image", "repose_angle"])
-    angles = angles.assign(pile=angles["pile"].astype(object).where(angles["pile"].notna(), angles["image"])
-                           if "pile" in angles.columns else angles["image"])[["image", "repose_angle", "pile"]]
+    angles = angles.assign(pile=photo_piles(angles))[["image", "repose_angle", "pile"]]
     per_image = per_image.merge(angles, on="image", how="left")
     per_image = per_image[np.isfinite(per_image[FULLNESS]) & np.isfinite(per_image["repose_angle"])]
     stats = per_image.groupby("condition_id")[FULLNESS].agg(["mean", "std"])
     # a pile is one draw however many views it has (as measure-angle counts the angle's): its views' mean,
     # and the piles counted; the sd stays one photograph's
-    piles = per_image.groupby(["condition_id", per_image["pile"].astype(str)])[FULLNESS].mean()
+    piles = per_image.groupby(["condition_id", "pile"])[FULLNESS].mean()
     stats = stats.assign(mean=piles.groupby(level=0).mean(), count=piles.groupby(level=0).size())
     ids = conds["condition_id"].astype(str)
     missing = sorted(set(ids) - set(stats.index))

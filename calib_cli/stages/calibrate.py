@@ -172,7 +172,7 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
     """Round k's pairs (locked): space-filling until a posterior exists (round 0, and a top-up where too few
     of its heaps formed one), then where the surrogates are least sure about the previous posterior."""
     prev_dir = _dir(run, model, prev.index) if prev is not None else None
-    st = stage(run, "calibrate", f"rev{model.revision}-round-{k:02d}-design",
+    st = stage(run, "calibrate", _stage_name(model, k, "-design"),
                inputs={"conditions": run / CONDITIONS, "posterior": prev_dir / "samples.parquet" if prev_dir else None},
                settings={**plan.round_settings(model), "pairs": pairs})
     path = _dir(run, model, k) / "design.parquet"
@@ -200,7 +200,7 @@ def _drop_after(run: Path, model: Model, k: int) -> None:
     j = k + 1
     while (d := _dir(run, model, j)).is_dir():
         shutil.rmtree(d)
-        for name in (f"rev{model.revision}-round-{j:02d}-design", f"rev{model.revision}-round-{j:02d}"):
+        for name in (_stage_name(model, j, "-design"), _stage_name(model, j)):
             (run / "calibrate" / f"{name}{art.LOCK_SUFFIX}").unlink(missing_ok=True)
         j += 1
 
@@ -220,6 +220,11 @@ def _surrogates(run: Path, model: Model, prev: Round, conds: pd.DataFrame, plan:
             second = second_response(run, profile_rows(run, rows, model, cond_vars), model, conds, plan.seed,
                                      scale=plan.bounds)
     return response_variances(gp, conds, second)
+
+
+def _stage_name(model: Model, k: int, part: str = "") -> str:
+    """The lock's name of round k's stage: its posterior's, or (``part`` "-design") its design's."""
+    return f"rev{model.revision}-round-{k:02d}{part}"
 
 
 def _dir(run: Path, model: Model, k: int) -> Path:
@@ -248,7 +253,7 @@ def _round_posterior(run: Path, model: Model, k: int, rule: str, design: pd.Data
     cond_vars = informative_conditions(rows, COND_VARS)
     prof_in, prof_set = evidence_lock(run, model, rows, plan.profile, plan.columns, judged)
     mfile = run / MODEL_FILE
-    st = stage(run, "calibrate", f"rev{model.revision}-round-{k:02d}",
+    st = stage(run, "calibrate", _stage_name(model, k),
                inputs={"results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
                        "conditions": run / CONDITIONS, "model": mfile if mfile.is_file() else None, **prof_in},
                settings={**plan.round_settings(model), **prof_set})

@@ -134,6 +134,16 @@ def _scale(run: Path) -> Optional[dict]:
     return {k: tuple(v) for k, v in prov["bounds"].items()}
 
 
+def _scatter(sd, unknown: str) -> float:
+    """The conditions' sds' rms, the scatter a new condition is measured with and a gain is measured in units
+    of; refused (``unknown``: why, in words) where no sd is known or it is zero."""
+    sd = np.asarray(sd, float)
+    out = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else math.nan
+    if not out > 0:
+        raise CalibError(f"{unknown}: measure at least one condition with two or more piles")
+    return out
+
+
 def _surrogate_at(gp: GPSurrogate, draws: pd.DataFrame, cand: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """The surrogate's angle at every posterior draw under each candidate (candidates, draws), and its
     own variance there (the mean over the draws); NaN where a candidate sets a condition variable
@@ -162,11 +172,9 @@ def _profile_at(run: Path, rows: pd.DataFrame, model: Model, ev: Evidence, measu
     candidate stacked on the angle's ``mu`` (candidates, draws, 2), and that surrogate; ``ev`` is given the
     photographs' fullness scatter and its correlation with the angle, as a new condition would be measured."""
     table, rho = measured_fullness(run, measured)
-    sd = table["sd"].to_numpy(float)
-    ev.profile_scatter, ev.profile_rho = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else math.nan, rho
-    if not ev.profile_scatter > 0:
-        raise CalibError("the photographs' heap profiles scatter by nothing measurable (every condition one "
-                         "photograph, or all of one fullness): measure at least one condition with two or more piles")
+    ev.profile_scatter = _scatter(table["sd"], "the photographs' heap profiles scatter by nothing measurable (every "
+                                  "condition one photograph, or all of one fullness)")
+    ev.profile_rho = rho
     gp = model_surrogate(rows, model, response=FULLNESS, scale=_scale(run))
     mu_f, _ = _surrogate_at(gp, ev.draws_frame(), cand)
     return np.stack([mu, mu_f], axis=2), gp
@@ -408,10 +416,8 @@ def _evidence(run: Path, model: Model, measured: pd.DataFrame, samples: pd.DataF
                      f"this model's parameters are missing (run `calib diagnose --run {run}`)")
         J, G = pd.DataFrame(index=range(len(measured))), pd.DataFrame(index=range(len(measured)))
     sd = measured["sd"].to_numpy(float)
-    scatter = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else math.nan
-    if not scatter > 0:  # a gain is measured in units of it
-        raise CalibError("the measured piles' scatter is unknown or zero (every condition one pile, or piles of "
-                         "one angle): measure at least one condition with two or more piles")
+    scatter = _scatter(sd, "the measured piles' scatter is unknown or zero (every condition one pile, or piles of "
+                       "one angle)")
     u = np.where(np.isfinite(sd) & (sd > 0), sd, scatter) / np.sqrt(measured["n"].to_numpy(float))
     u, sim_var = _residual_uncertainty(run, measured, u)
     # a thinned subset of the draws: the preposterior reweights them once per simulated outcome
@@ -497,8 +503,9 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
                    command: str) -> list[str]:
     """What limits a ranking: a surrogate less sure than a measured mean even where there are heaps, gains or
     separations carried beyond the heaps or the measured range (shown, not ranked), the command that
-    would simulate heaps at the best of those (this one's, else ``command``, when called from a library), and
-    the candidates in contention for the largest gain where the surrogate leaves it open."""
+    would simulate heaps at the best of those (this one's, else ``command``, when called from a library), the
+    gains' ranges where a rig of too many candidates left them out (:func:`_realisations`), and the candidates
+    in contention for the largest gain where the surrogate leaves it open."""
     notes = []
     if sd_measured > mean_sd:  # the bottleneck is the simulator's stand-in, not the lab
         notes.append(f"[yellow]note:[/] the surrogate's own sd at the posterior's draws is {sd_measured:.1f} deg even at "
@@ -509,6 +516,9 @@ def _ranking_notes(ev: Evidence, table: pd.DataFrame, sd_measured: float, mean_s
     if to_rank:
         notes.append("[yellow]note:[/] an information gain beyond the simulated heaps' range is the surrogate's own "
                      f"extrapolation and is not ranked: simulate heaps there first; at the two largest, `{to_rank}`")
+    if np.isfinite(table["info_gain_nats"]).any() and not np.isfinite(table["info_gain_q05"]).any():
+        notes.append(f"[yellow]note:[/] the gains' 90 % ranges are left out: over {SPREAD_POINTS // SPREAD_FEWEST} "
+                     "candidates are too many for one joint covariance (list fewer values in the rig file)")
     open_ = unsettled_words(table)
     if open_:
         notes.append(f"[yellow]note:[/] {open_}")
@@ -532,6 +542,18 @@ def _unnamed(run: Path, simulate: list[str]) -> list[str]:
     return [f"[yellow]note:[/] diagnose's sensitivities were simulated before at {', '.join(left)}, which this ranking "
             f"does not name, so there they are carried from the measured conditions: add them to `--simulate` (their "
             "heaps are cached)"]
+
+
+def _rank_inputs(run: Path, rig: Path, model: Model, rows: pd.DataFrame, cond_vars: list[str], profile: bool) -> dict:
+    """What a ranking reads, for its lock: the posterior, the measured conditions, diagnose's sensitivities and
+    compare's residuals where they exist, the model, the rig, the photographs' profiles where the posterior
+    weighed them, and the heaps the surrogate learns from (more of them change the gains)."""
+    sens, res = run / "diagnose" / "sensitivities.parquet", run / "compare" / "residuals.parquet"
+    mfile = run / MODEL_FILE
+    return {"posterior": run / "posterior" / "samples.parquet", "conditions": run / "measure" / "conditions.parquet",
+            "sensitivities": sens if sens.is_file() else None, "residuals": res if res.is_file() else None,
+            "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
+            "model": mfile if mfile.is_file() else None, "rig": Path(rig), **(profile_inputs(run) if profile else {})}
 
 
 def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: bool, heap_options: bool) -> None:
@@ -579,8 +601,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
-    if simulate:  # a variable the heaps vary and a rig cannot set (a floor's friction): the candidates' heaps need it
-        cand = _complete(cand, measured, _learnt(run, model))
+    # a variable the heaps vary and a rig cannot set (a floor's friction): the candidates' heaps and gains need it
+    cand = _complete(cand, measured, _learnt(run, model))
     # simulated first (a rerun finds them cached): the heaps join what the surrogate and the lock read
     sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say, heaps) \
         if simulate else None
@@ -588,16 +610,7 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     scale = _scale(run)
     rows = in_box(rows, scale) if scale else rows  # the heaps the posterior's surrogates learnt from
     cond_vars = check_rows(run, rows, model)
-    sens, res = run / "diagnose" / "sensitivities.parquet", run / "compare" / "residuals.parquet"
-    mfile = run / MODEL_FILE
-    # the heaps the surrogate learns from are an input too: more of them change the gains
-    st = stage(run, "suggest", "rank",
-               inputs={"posterior": run / "posterior" / "samples.parquet", "conditions": run / "measure" /
-                       "conditions.parquet", "sensitivities": sens if sens.is_file() else None,
-                       "residuals": res if res.is_file() else None,
-                       "results": art.Rows(run / RESULTS, rows[[*model.parameters, *cond_vars, RESPONSE]]),
-                       "model": mfile if mfile.is_file() else None, "rig": Path(rig),
-                       **(profile_inputs(run) if profile else {})},
+    st = stage(run, "suggest", "rank", inputs=_rank_inputs(run, rig, model, rows, cond_vars, profile),
                settings={"piles": piles, "top": top,
                          **({"profiles_at_hand": profiles_at_hand(run, rows)} if profile else {}),
                          **({"simulate": simulate, "repeats": repeats, "set": set_ or [],
@@ -608,15 +621,11 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     ev, notes = _evidence(run, model, measured, samples)
     gp = model_surrogate(rows, model, scale=scale)
     check_measured(measured, gp, run / "measure" / "conditions.parquet")  # as the posterior refused them
-    cand = _complete(cand, measured, cond_vars)
     say(f"ranking {len(cand)} condition(s) the rig can make: the posterior of model revision {model.revision}, "
         f"a Gaussian process on {len(rows)} heaps, {len(ev.G.columns)} candidate effect(s)"
         + ("; each condition's angle and profile, as the posterior weighed them" if profile else ""))
     draws = ev.draws_frame()
     mu, vp, F = _responses(run, rows, model, ev, measured, cand, gp, cond_vars if profile else None, say)
-    if np.isfinite(vp).sum() * SPREAD_FEWEST > SPREAD_POINTS:
-        notes.append(f"[yellow]note:[/] the gains' 90 % ranges are left out: over {SPREAD_POINTS // SPREAD_FEWEST} "
-                     "candidates are too many for one joint covariance (list fewer values in the rig file)")
     # the surrogate's uncertainty where it has data: a candidate well above it is an extrapolation
     sd_measured = float(np.sqrt(np.nanmax(_surrogate_at(gp, draws, measured)[1])))
     had = region_heaps(run, cand, art.read_table(run / "posterior" / "summary.parquet"))
