@@ -19,11 +19,11 @@ from .. import artifacts as art
 from ..heaps.index import RESULTS, load_results
 from ..errors import CalibError
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
-from ..posterior.gp import GPSurrogate
+from ..posterior.gp import GPSurrogate, informative_conditions
 from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, heaps_for, parse_rig,
                                  rank_conditions, region_design, simulate_command, unsettled_words,
                                  SEPARATES, unsettling)
-from ..heaps.inputs import heap_setup, modulus_settings, run_heap_settings
+from ..heaps.inputs import COND_VARS, heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_measured, check_rows, in_box, model_rows, model_surrogate, profile_rows
@@ -82,17 +82,6 @@ def _candidates(rig: Rig, measured: pd.DataFrame) -> pd.DataFrame:
                          "other values (the name leaves out what the rig holds at one value): rename the measured "
                          "condition in measure-angle's conditions table, or list that variable's values in the rig file")
     return cand
-
-
-def _learnt(run: Path, model: Model) -> list[str]:
-    """The condition variables the heaps at hand vary (none where there are none yet)."""
-    from ..posterior.gp import informative_conditions
-    from ..heaps.inputs import COND_VARS
-
-    try:
-        return informative_conditions(model_rows(run, model), COND_VARS)
-    except CalibError:
-        return []
 
 
 def _complete(cand: pd.DataFrame, measured: pd.DataFrame, learnt: list[str]) -> pd.DataFrame:
@@ -601,12 +590,13 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
+    rows = model_rows(run, model)
     # a variable the heaps vary and a rig cannot set (a floor's friction): the candidates' heaps and gains need it
-    cand = _complete(cand, measured, _learnt(run, model))
+    cand = _complete(cand, measured, informative_conditions(rows, COND_VARS))
     # simulated first (a rerun finds them cached): the heaps join what the surrogate and the lock read
     sims = _simulate_candidates(run, cand, simulate, set_, preset, repeats, workers, shear_modulus, say, heaps) \
         if simulate else None
-    rows = model_rows(run, model)
+    rows = model_rows(run, model) if simulate else rows
     scale = _scale(run)
     rows = in_box(rows, scale) if scale else rows  # the heaps the posterior's surrogates learnt from
     cond_vars = check_rows(run, rows, model)
