@@ -593,7 +593,9 @@ class Stage:
         to a pending name, the outputs are renamed one by one, and only then is the pending lock renamed
         onto the stage's lock (atomic). Until that rename the old lock still records the old outputs'
         hashes, so a crash in between leaves every file either the previous one (its hash matches) or
-        refused by :func:`check_committed` (it matches no committed lock); stale outputs go last."""
+        refused by :func:`check_committed` (it matches no committed lock). The stale outputs (the old lock's,
+        not written now) go before that rename: once the new lock stands no lock lists them, so one left by a
+        kill after it would pass for a committed output."""
         old = (self.read_lock() or {}).get("outputs", {})
         hashes = {rel: file_hash(staging / rel) for rel in written}
         lock = {"stage": f"{self.group}.{self.name}", "fingerprint": self.fingerprint,
@@ -605,12 +607,12 @@ class Stage:
             dst = self.dir / rel
             dst.parent.mkdir(parents=True, exist_ok=True)
             os.replace(staging / rel, dst)
-        os.replace(self.pending_path, self.lock_path)
         for rel in set(old) - set(hashes):
             if not _inside(self.dir, rel):  # a lock edited by hand names ../settings.toml: not the stage's to delete
                 continue
             with contextlib.suppress(OSError):
                 (self.dir / rel).unlink()
+        os.replace(self.pending_path, self.lock_path)
 
 
 def _inside(folder: Path, rel: str) -> bool:

@@ -96,6 +96,46 @@ def test_stale_outputs_removed_and_lock_records_hashes(tmp_path):
     assert lock["outputs"]["a.parquet"] == art.file_hash(tmp_path / "g" / "a.parquet")
 
 
+@pytest.mark.parametrize("kill_at", ["unlink", "lock"])
+def test_a_kill_mid_publish_leaves_no_output_that_no_lock_lists(tmp_path, monkeypatch, kill_at):
+    """A stale output (the old lock's, not written again) is gone before the new lock stands: a kill between
+    the two left it listed by no lock, so it passed for a committed output. Killed at the stale file's unlink or
+    at the lock's rename, every file in the stage folder is one some lock (or the pending one) lists."""
+    import os
+    from pathlib import Path
+
+    st = _stage(tmp_path, {"k": 1})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [1]}))
+        out.text("b.txt", "b")
+    real_unlink, real_replace = Path.unlink, os.replace
+
+    def unlink(self, *a, **k):
+        if kill_at == "unlink" and self.name == "b.txt":
+            raise KeyboardInterrupt
+        return real_unlink(self, *a, **k)
+
+    def replace(src, dst):
+        if kill_at == "lock" and str(dst).endswith("s.lock.json"):
+            raise KeyboardInterrupt
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(Path, "unlink", unlink)
+    monkeypatch.setattr(os, "replace", replace)
+    st = _stage(tmp_path, {"k": 2})
+    with pytest.raises(KeyboardInterrupt):
+        with st.commit() as out:
+            out.table("a.parquet", pd.DataFrame({"a": [2]}))
+    monkeypatch.undo()
+    listed = set()
+    for lock in (tmp_path / "g").glob("*.json"):
+        listed |= set(json.loads(lock.read_text())["outputs"])
+    files = {p.name for p in (tmp_path / "g").iterdir() if p.is_file() and not p.name.endswith(".json")}
+    assert files <= listed, files - listed
+    if (tmp_path / "g" / "b.txt").exists():  # the old lock still stands and vouches for it
+        art.check_committed(tmp_path / "g" / "b.txt")
+
+
 def test_read_responses_validation(tmp_path):
     p = tmp_path / "r.csv"
     p.write_text("a,repose_angle\n1,30\n2,31\n")
