@@ -10,7 +10,6 @@ the run directory and writes nothing (docs/method.md, "The posterior").
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
@@ -27,7 +26,7 @@ from ..heaps.inputs import COND_VARS
 from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
                         calibrate_posterior, response_variances, summarise)
 from .gp import VIEWS_OF, ColumnModel, GPSurrogate, holdout_rmse, informative_conditions, views_of
-from .profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
+from .profiles import FULLNESS, asked_for, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
 
 RESPONSE = "repose_angle"
 #: simulated piles per surrogate input (parameter or condition variable) the posterior needs at least:
@@ -196,7 +195,7 @@ def profile_rows(run: Path, rows: pd.DataFrame, model: Model, cond_vars: list[st
     if have < need:
         raise CalibError(f"only {have} of the {len(rows)} simulated heaps have a profile (a side view whose heap "
                          f"could be measured; a committed sample run keeps its rows, not its heaps' folders); the "
-                         f"profile's surrogate needs at least {need}: simulate more heaps, or leave the profile out")
+                         f"profile's surrogate needs at least {need}: simulate more heaps")
     if have < len(rows):
         say(f"the profile's surrogate learns from the {have} of {len(rows)} heaps whose side view is at hand")
     return rows
@@ -581,10 +580,9 @@ def _evidence(run, rows, model, cond_vars, conds, gp, scatter, profile, columns,
             rows = with_profile
         except CalibError as e:  # asked for: refused; by default: left out, saying why
             if asked:
-                raise
+                raise asked_for(e) from None
             profile = False
-            why = re.sub(r"[,;:]?\s*(or\s+)?drop --profile.*$", "", str(e))  # advice to one who gave it
-            say(f"[yellow]note:[/] the heap profile is not evidence here: {why}")
+            say(f"[yellow]note:[/] the heap profile is not evidence here: {e}")
     use_scatter = gp.scatter_ is not None and scatter is not False
     if scatter and gp.scatter_ is None:
         say("[yellow]note:[/] the simulated piles scatter alike over every parameter, so the lab's scatter tells "
@@ -743,9 +741,9 @@ def evidence_lock(run: Path, model: Model, rows: pd.DataFrame, profile: Optional
         try:
             inputs.update(profile_inputs(run))
             settings["profiles_at_hand"] = profiles_at_hand(run, rows)
-        except CalibError:
+        except CalibError as e:
             if profile:
-                raise
+                raise asked_for(e) from None
     if columns is not False and angles.is_file():
         inputs["angles"] = angles
         judged = model_rows(run, model, judged=True) if judged is None else judged

@@ -18,13 +18,20 @@ from ..profile import fullness
 FULLNESS = "fullness"
 
 
+def asked_for(e: CalibError) -> CalibError:
+    """Why the profile cannot be evidence (``e``), told to one who asked for it with --profile: the way out
+    is to leave it out. The reasons themselves carry no such advice, since a stage that weighs the profile
+    by default (or as its posterior did) leaves it out, or has no --profile to drop."""
+    return CalibError(f"{e} (or drop --profile to weigh the angle alone)")
+
+
 def profile_inputs(run: Path) -> dict[str, Path]:
     """The measured files the profile's evidence reads, for a stage's lock; a one-line error where the
     photographs' profiles are missing."""
     prof, angles = run / "measure" / "profiles.parquet", run / "measure" / "angles.parquet"
     if not (prof.is_file() and angles.is_file()):
         raise CalibError(f"no heap profiles in {prof.parent} (profiles.parquet and angles.parquet): measure the "
-                         "photographs (`calib measure-angle --images`) first, or drop --profile")
+                         "photographs (`calib measure-angle --images`) first")
     return {"profiles": prof, "angles": angles}
 
 
@@ -85,7 +92,7 @@ def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, flo
                           what="measured heap profiles (run `calib measure-angle --images` first)")
     if prof.empty:
         raise CalibError(f"{path} holds no profile: the angles were given as a table, not measured on "
-                         "photographs, so there is no heap profile to use; drop --profile")
+                         "photographs, so there is no heap profile to use")
     per_image = pd.DataFrame([{"image": im, "condition_id": str(g["condition_id"].iloc[0]),
                                FULLNESS: fullness(g["s_px"].to_numpy(), g["h_px"].to_numpy())}
                               for im, g in prof.groupby("image", sort=True)])
@@ -102,7 +109,7 @@ def measured_fullness(run: Path, conds: pd.DataFrame) -> tuple[pd.DataFrame, flo
     missing = sorted(set(ids) - set(stats.index))
     if missing:
         raise CalibError(f"condition(s) {', '.join(missing)} have no photograph whose profile gives a fullness: "
-                         "drop --profile, or measure them on photographs")
+                         "measure them on photographs")
     stats = stats.loc[ids]
     table = pd.DataFrame({"condition_id": ids.to_numpy(), "mean": stats["mean"].to_numpy(),
                           "sd": stats["std"].fillna(0.0).to_numpy(), "n": stats["count"].to_numpy()})
