@@ -22,7 +22,8 @@ runner = CliRunner()
 # What each chain target of the Makefile ran before its chains became pipeline files (`make -n` of the
 # Makefile of 838c284, whose settings paths already were stages/settings/): a shipped pipeline must
 # not drift from it. The lab targets also exported CALIB_REUSE (below). hidden-effect and control-lab:
-# what they run since the calibration in rounds replaced their Box-Behnken chain.
+# what they run since the calibration in rounds replaced their Box-Behnken chain. compare: `--seeds table` since
+# the default seeding became the condition's values (the row's, which these runs were made with, before).
 OLD_MAKEFILE = {
     "paper": """
 calib init --run sample_runs/paper --settings stages/settings/paper.toml
@@ -51,7 +52,7 @@ calib simulate-heap --run sample_runs/smoke --design sample_runs/smoke/bbd/desig
 calib bbd analyze --run sample_runs/smoke
 calib fit-surrogate --run sample_runs/smoke
 calib invert --run sample_runs/smoke --validate 3 --preset smoke --workers 2
-calib compare --run sample_runs/smoke --repeats 3 --preset smoke --workers 2
+calib compare --run sample_runs/smoke --seeds table --repeats 3 --preset smoke --workers 2
 calib report --run sample_runs/smoke
 """,
     "calibration": """
@@ -68,7 +69,7 @@ calib simulate-heap --run sample_runs/calibration --design sample_runs/calibrati
 calib bbd analyze --run sample_runs/calibration
 calib fit-surrogate --run sample_runs/calibration
 calib invert --run sample_runs/calibration --validate 5 --preset default --workers 2
-calib compare --run sample_runs/calibration --repeats 3 --preset default --workers 2
+calib compare --run sample_runs/calibration --seeds table --repeats 3 --preset default --workers 2
 calib report --run sample_runs/calibration
 """,
     "calibration-spring": """
@@ -85,7 +86,7 @@ calib simulate-heap --run sample_runs/calibration-spring --design sample_runs/ca
 calib bbd analyze --run sample_runs/calibration-spring
 calib fit-surrogate --run sample_runs/calibration-spring
 calib invert --run sample_runs/calibration-spring --validate 5 --preset default --workers 2
-calib compare --run sample_runs/calibration-spring --repeats 3 --preset default --workers 2
+calib compare --run sample_runs/calibration-spring --seeds table --repeats 3 --preset default --workers 2
 calib report --run sample_runs/calibration-spring
 """,
     "hidden-effect": """
@@ -93,11 +94,11 @@ calib synth-lab --out sample_runs/hidden-effect/lab --set static_friction=0.45 -
 calib init --run sample_runs/hidden-effect --settings stages/settings/hidden-effect.toml
 calib measure-angle --run sample_runs/hidden-effect --images sample_runs/hidden-effect/lab --conditions sample_runs/hidden-effect/lab/conditions.csv
 calib calibrate --run sample_runs/hidden-effect --at-revision 0 --budget 72 --preset default --workers 2
-calib compare --run sample_runs/hidden-effect --at-revision 0 --repeats 4 --preset default --workers 2
+calib compare --run sample_runs/hidden-effect --seeds table --at-revision 0 --repeats 4 --preset default --workers 2
 calib diagnose --run sample_runs/hidden-effect --at-revision 0 --repeats 2 --preset default --workers 2
 calib model add cohesion --run sample_runs/hidden-effect --at-revision 0
 calib calibrate --run sample_runs/hidden-effect --at-revision 1 --budget 250 --side-views --preset default --workers 2
-calib compare --run sample_runs/hidden-effect --at-revision 1 --repeats 4 --preset default --workers 2
+calib compare --run sample_runs/hidden-effect --seeds table --at-revision 1 --repeats 4 --preset default --workers 2
 calib suggest-conditions --run sample_runs/hidden-effect --rig sample_data/rig.toml --top 3
 calib report --run sample_runs/hidden-effect
 """,
@@ -106,11 +107,11 @@ calib synth-lab --out sample_runs/control-lab/lab --set static_friction=0.45 --s
 calib init --run sample_runs/control-lab --settings stages/settings/hidden-effect.toml
 calib measure-angle --run sample_runs/control-lab --images sample_runs/control-lab/lab --conditions sample_runs/control-lab/lab/conditions.csv
 calib calibrate --run sample_runs/control-lab --at-revision 0 --budget 72 --preset default --workers 2
-calib compare --run sample_runs/control-lab --at-revision 0 --repeats 4 --preset default --workers 2
+calib compare --run sample_runs/control-lab --seeds table --at-revision 0 --repeats 4 --preset default --workers 2
 calib diagnose --run sample_runs/control-lab --at-revision 0 --repeats 2 --preset default --workers 2
 calib model add cohesion --run sample_runs/control-lab --at-revision 0
 calib calibrate --run sample_runs/control-lab --at-revision 1 --budget 250 --side-views --preset default --workers 2
-calib compare --run sample_runs/control-lab --at-revision 1 --repeats 4 --preset default --workers 2
+calib compare --run sample_runs/control-lab --seeds table --at-revision 1 --repeats 4 --preset default --workers 2
 calib suggest-conditions --run sample_runs/control-lab --rig sample_data/rig.toml --top 3
 calib report --run sample_runs/control-lab
 """,
@@ -122,14 +123,14 @@ calib bbd design --run sample_runs/hidden-wall
 calib simulate-heap --run sample_runs/hidden-wall --design sample_runs/hidden-wall/bbd/design.parquet --conditions sample_runs/hidden-wall/measure/conditions.parquet --preset default --workers 2
 calib fit-surrogate --run sample_runs/hidden-wall --from-simulations bbd
 calib invert --run sample_runs/hidden-wall --validate 4 --refine 2 --preset default --workers 2
-calib compare --run sample_runs/hidden-wall --repeats 8 --preset default --workers 2
+calib compare --run sample_runs/hidden-wall --seeds table --repeats 8 --preset default --workers 2
 calib diagnose --run sample_runs/hidden-wall --repeats 6 --preset default --workers 2
 calib model add wall_friction --run sample_runs/hidden-wall
 calib bbd design --run sample_runs/hidden-wall -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
 calib simulate-heap --run sample_runs/hidden-wall --design sample_runs/hidden-wall/bbd/design.parquet --conditions sample_runs/hidden-wall/measure/conditions.parquet --preset default --workers 2
 calib fit-surrogate --run sample_runs/hidden-wall --from-simulations bbd -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
 calib invert --run sample_runs/hidden-wall --validate 4 --refine 2 --preset default --workers 2 -s 'bbd.factors=["static_friction","rolling_friction","wall_static_friction"]' -s factors.wall_static_friction.low=0.2 -s factors.wall_static_friction.high=0.4
-calib compare --run sample_runs/hidden-wall --set restitution=0.3 --repeats 8 --preset default --workers 2
+calib compare --run sample_runs/hidden-wall --seeds table --set restitution=0.3 --repeats 8 --preset default --workers 2
 calib report --run sample_runs/hidden-wall
 """,
     "hidden-floor": """
@@ -140,14 +141,14 @@ calib bbd design --run sample_runs/hidden-floor
 calib simulate-heap --run sample_runs/hidden-floor --design sample_runs/hidden-floor/bbd/design.parquet --conditions sample_runs/hidden-floor/measure/conditions.parquet --preset default --workers 2
 calib fit-surrogate --run sample_runs/hidden-floor --from-simulations bbd
 calib invert --run sample_runs/hidden-floor --validate 4 --refine 2 --preset default --workers 2
-calib compare --run sample_runs/hidden-floor --repeats 8 --preset default --workers 2
+calib compare --run sample_runs/hidden-floor --seeds table --repeats 8 --preset default --workers 2
 calib diagnose --run sample_runs/hidden-floor --repeats 6 --preset default --workers 2
 calib model add wall_rolling --run sample_runs/hidden-floor
 calib bbd design --run sample_runs/hidden-floor -s 'bbd.factors=["static_friction","rolling_friction","wall_rolling_friction"]' -s factors.wall_rolling_friction.low=0.1 -s factors.wall_rolling_friction.high=0.5
 calib simulate-heap --run sample_runs/hidden-floor --design sample_runs/hidden-floor/bbd/design.parquet --conditions sample_runs/hidden-floor/measure/conditions.parquet --preset default --workers 2
 calib fit-surrogate --run sample_runs/hidden-floor --from-simulations bbd -s 'bbd.factors=["static_friction","rolling_friction","wall_rolling_friction"]' -s factors.wall_rolling_friction.low=0.1 -s factors.wall_rolling_friction.high=0.5
 calib invert --run sample_runs/hidden-floor --validate 4 --refine 2 --preset default --workers 2 -s 'bbd.factors=["static_friction","rolling_friction","wall_rolling_friction"]' -s factors.wall_rolling_friction.low=0.1 -s factors.wall_rolling_friction.high=0.5
-calib compare --run sample_runs/hidden-floor --set restitution=0.3 --repeats 8 --preset default --workers 2
+calib compare --run sample_runs/hidden-floor --seeds table --set restitution=0.3 --repeats 8 --preset default --workers 2
 calib report --run sample_runs/hidden-floor
 """,
     "default-bbd": """

@@ -153,6 +153,11 @@ ProfileOpt = _evidence_switch(
 ColumnsOpt = _evidence_switch(
     "columns", "Weigh how many of each condition's photographed piles stood as columns, against the chance that a "
     "simulated fill stands. Default: wherever the photographs were measured and some simulated fill stood.")
+SeedsOpt = Annotated[Optional[str], typer.Option(
+    "--seeds", show_default=False,
+    help="How the heaps are seeded: condition (by the condition's values, so a condition's heaps stay the same, and "
+    "cached, when the measured table gains, loses or reorders rows) or table (by the condition's row, as runs made "
+    "before this option were seeded). Default: as the run's comparison was seeded, and condition for a run's first.")]
 AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", min=0, help="Do nothing unless the model is at "
                                                      "this revision (a pipeline's step for one revision).",
                                                      show_default=False)]

@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 
 from ..errors import CalibError
-from .common import (PRESETS_HELP, AtRevisionOpt, CalibCommand, CalibGroup, ForceOpt, PresetOpt, RunOpt,
+from .common import (PRESETS_HELP, AtRevisionOpt, CalibCommand, CalibGroup, ForceOpt, PresetOpt, RunOpt, SeedsOpt,
                      ShearModulusOpt, check_run_dir, console, df_table, handle_errors, other_revision, say, skipped)
 from .names import EFFECT_NAMES
 
@@ -105,8 +105,8 @@ def model_remove(effect: EffectArg, run: RunOpt):
 
 
 def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats: RepeatsOpt = 3,
-            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, at_revision: AtRevisionOpt = None,
-            force: ForceOpt = False):
+            workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None, seeds: SeedsOpt = None,
+            at_revision: AtRevisionOpt = None, force: ForceOpt = False):
     """Calibrated model vs measurements per condition: residuals in units of the combined
     uncertainty (pile-to-pile scatter pooled over the conditions), failing conditions (|z| > 2),
     RMSE and chi2/dof, and the error history across model revisions.
@@ -123,7 +123,7 @@ def compare(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats:
         return
     from ..stages import compare as compare_stage
 
-    r = compare_stage.compare(run, set_, preset, repeats, workers, shear_modulus, force, say=say)
+    r = compare_stage.compare(run, set_, preset, repeats, workers, shear_modulus, force, say=say, seeds=seeds)
     if r.skipped:
         return skipped(r.stage)
     show_comparison(r)
@@ -133,8 +133,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
              workers: WorkersOpt = 1, shear_modulus: ShearModulusOpt = None,
              alpha: Annotated[float, typer.Option(min=0.0, max=1.0, help="Family-wise significance level: each "
                                                   "candidate is tested at alpha / the number of candidates "
-                                                  "(Bonferroni).")] = 0.05, at_revision: AtRevisionOpt = None,
-             force: ForceOpt = False):
+                                                  "(Bonferroni).")] = 0.05, seeds: SeedsOpt = None,
+             at_revision: AtRevisionOpt = None, force: ForceOpt = False):
     """Rank the effects missing from the model by how much of the misfit each would explain
     (score test after projecting out what the current parameters absorb), with the evidence.
 
@@ -152,7 +152,8 @@ def diagnose(run: RunOpt, set_: SetOpt = None, preset: PresetOpt = None, repeats
         return
     from ..stages import diagnose as diagnose_stage
 
-    r = diagnose_stage.diagnose(run, set_, preset, repeats, workers, shear_modulus, alpha, force, say=say)
+    r = diagnose_stage.diagnose(run, set_, preset, repeats, workers, shear_modulus, alpha, force, say=say,
+                                seeds=seeds)
     if r.skipped:
         return skipped(r.stage)
     show_ranking(r)

@@ -63,6 +63,16 @@ def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, flo
     return model, {**{p: theta[p] for p in model.parameters}, **{k: theta[k] for k in LAWS if theta.get(k)}}
 
 
+def fitted_parameters(run: Path, model: Model, set_: Pairs = None) -> list[str]:
+    """The model's parameters the calibration fitted to the measured means: those its calibrated point
+    (:func:`calibrated_point`) gives and --set does not override. One the response surface held fixed (the BBD's
+    ``fixed``), or set by hand, took no degree of freedom from them (compare's chi2/dof, docs/method.md)."""
+    given = parse_params(given_pairs(set_, "--set")) if set_ else {}
+    sol = calibrated_point(run, model)
+    have = set(art.read_table(sol).columns) if sol is not None else set()
+    return [p for p in model.parameters if p in have and p not in given]
+
+
 def _check_given(model: Model, given: dict[str, float]) -> None:
     """Refuse a --set value for a parameter the model file's revision does not calibrate: it would be
     dropped (model.pin) and the comparison run without it. Its neutral value is what the model uses
@@ -86,11 +96,37 @@ def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0,
     return per_condition(rows, conds["condition_id"]), rows
 
 
-#: how :func:`simulate_points` seeds a heap: by its condition's row in ``conds`` (compare's and diagnose's, on the
-#: measured table), by the condition's values (:func:`condition_seed`: a finite difference's common draws, any
-#: order), or by everything it simulates (:func:`content_seed`: a design's points draw apart)
+#: how :func:`simulate_points` seeds a heap: by its condition's row in ``conds`` (the measured table's order), by
+#: the condition's values (:func:`condition_seed`: a finite difference's common draws, any order), or by
+#: everything it simulates (:func:`content_seed`: a design's points draw apart)
 SEEDINGS = {"table": None, "condition": lambda base, q: condition_seed(base, q.condition, q.repeat),
             "content": lambda base, q: content_seed(base, q.params, q.condition, q.repeat)}
+
+#: compare's and diagnose's choice (--seeds): by the condition's values (the default: a condition's heaps stay
+#: the same, and cached, when the measured table gains, loses or reorders rows), or by its row, as runs made
+#: before the choice existed were seeded (their pipelines keep it, so their heaps stay theirs)
+MEASURED_SEEDINGS = ("condition", "table")
+
+
+def check_seeding(seeds: str) -> str:
+    """``seeds`` if it is one of :data:`MEASURED_SEEDINGS`, else a one-line error."""
+    if seeds not in MEASURED_SEEDINGS:
+        raise CalibError(f"--seeds must be one of {', '.join(MEASURED_SEEDINGS)}, got {seeds!r}")
+    return seeds
+
+
+def run_seeding(run: Path) -> str:
+    """The seeding a run's comparison used, for its next compare and diagnose to follow (diagnose's base point is
+    then compare's own heaps): its residuals' provenance says, and where silent, by row (every comparison made
+    before the choice); a run without a comparison yet, by the condition's values."""
+    res = run / "compare" / "residuals.parquet"
+    return art.read_provenance(res).get("seeds", "table") if res.is_file() else "condition"
+
+
+def seeding_settings(seeds: str) -> dict[str, str]:
+    """The seeding as a stage lock's setting (and a table's provenance): left out for the row seeding, so the
+    locks written before the choice existed, which all seeded so, stay up to date."""
+    return {} if seeds == "table" else {"seeds": seeds}
 
 
 def simulate_points(run, model, points, conds, preset, repeats, workers, tag, seed=0, shear_modulus=None,

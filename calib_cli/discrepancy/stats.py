@@ -183,7 +183,10 @@ def _bounded_scores(r, w, J, G, bounds, cand_bounds) -> pd.DataFrame:
         rows.append({"effect": name, "score": lr, "p_value": p,
                      "explained_fraction": lr / total if total > 0 else 0.0,
                      "direction": float(np.sign(x[-1]))})
-    return pd.DataFrame(rows).sort_values("score", ascending=False).reset_index(drop=True)
+    # by p-value: a one-sided candidate's is halved, so its score alone would rank it below a two-sided one
+    # that the data support less (ties, as p = 0 in double precision, by score)
+    return (pd.DataFrame(rows).sort_values(["p_value", "score"], ascending=[True, False], kind="stable")
+            .reset_index(drop=True))
 
 
 def at_bounds(theta: dict, ranges: dict[str, tuple[float, float]], tol: float = 0.02) -> dict[str, str]:

@@ -66,8 +66,10 @@ R = TypeVar("R")
 #: suggest 6: each gain's 90 % range over the surrogate's own uncertainty, its chance of being the largest and
 #: what it may lose against the best (info_gain_q05/q95, p_best_gain, gain_regret_q90), and region_heaps
 #: suggest 7: the realisations read at evenly spaced draws (a stride gave up to twice the points asked)
+#: diagnose 3: ranked by p-value (a one-sided candidate's is halved), and a residual's trend is quoted as observed
+#: only where it is significant
 CODE_VERSIONS = {"measure": 2, "pb": 1, "ascent": 1, "bbd": 1, "surrogate": 1, "invert": 1, "compare": 3,
-                 "diagnose": 2, "posterior": 14, "suggest": 7, "calibrate": 4,
+                 "diagnose": 3, "posterior": 14, "suggest": 7, "calibrate": 4,
                  "calibrate-answer": 9, "synth-lab": 1}
 
 

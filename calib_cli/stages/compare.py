@@ -11,7 +11,8 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..heaps.keys import CACHE_SOURCE
-from ..discrepancy.point import model_and_theta, simulate_at
+from ..discrepancy.point import (check_seeding, fitted_parameters, model_and_theta, run_seeding, seeding_settings,
+                                 simulate_at)
 from ..discrepancy.stats import residual_table, summary
 from ..measurements import measured_conditions
 from ..model import Model
@@ -61,15 +62,21 @@ class CompareResult(Result):
 
 @writes_run
 def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
-            shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None) -> CompareResult:
+            shear_modulus: Optional[float] = None, force: bool = False, say: Optional[Say] = None,
+            seeds: Optional[str] = None) -> CompareResult:
     """Simulate ``repeats`` heaps at every measured condition at the calibrated parameters (``set_``
-    overrides them) and compare them with the measurements. Writes RUN/compare/residuals.parquet,
-    residuals.png, and adds the model revision's row to history.parquet (history.png), all in one commit."""
+    overrides them) and compare them with the measurements; each heap seeded by its condition's values, or
+    by its row of the measured table (``seeds``, :data:`~calib_cli.discrepancy.point.MEASURED_SEEDINGS`;
+    by default as the run's comparison before, :func:`~calib_cli.discrepancy.point.run_seeding`). Writes
+    RUN/compare/residuals.parquet, residuals.png, and adds the model revision's row to history.parquet
+    (history.png), all in one commit."""
     say = say or plain
     run = check_run_dir(run)
     check_not_empty(run)
+    seeds = check_seeding(seeds or run_seeding(run))
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)
+    fitted = fitted_parameters(run, model, set_)
     conds = measured_conditions(run)
     warn_other_modulus(run, shear_modulus, "the comparison's", say)
     # the kernel's source too: the heaps would change with it, though nothing in the run dir does
@@ -77,14 +84,17 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
                    inputs={"conditions": run / "measure" / "conditions.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
-                             **run_heap_settings(resolve_settings(run, None, None))})
+                             **run_heap_settings(resolve_settings(run, None, None)), **seeding_settings(seeds),
+                             # where some were held or set: locks from before this count stay up to date
+                             **({"fitted": fitted} if len(fitted) != len(model.parameters) else {})})
     hist_path = run / "compare" / "history.parquet"
     hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
     if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():
         return CompareResult(st, True)
     say(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
         f"{repeats} simulations")
-    sim, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus)
+    sim, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus,
+                         seeds=seeds)
     res = residual_table(conds["mean"], conds["sd"], conds["n"], sim["mean"].to_numpy(), sim["sd"].to_numpy(),
                          sim["n"].to_numpy())
     table = pd.DataFrame({"condition_id": conds["condition_id"].astype(str), "measured": conds["mean"],
@@ -94,12 +104,14 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     for c in COND_VARS:
         if c in conds.columns:
             table[c] = conds[c].to_numpy()
-    summ = summary(res, len(model.parameters))
+    summ = summary(res, len(fitted))
     hist = _history(hist, model, theta, summ)
     fig1, fig2 = residuals_figure(table, model.revision, COND_VARS), history_figure(hist)
     # the history under the same lock as the residuals: one commit, so no reader sees one without the other
     with st.commit() as out:
-        out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects))
+        # the seeding with the residuals: diagnose simulates its base point alike, so it reuses these heaps
+        out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects),
+                  **seeding_settings(seeds))
         out.figure("residuals.png", fig1)
         out.table("history.parquet", hist, model_revision=model.revision)
         out.figure("history.png", fig2)

@@ -13,7 +13,7 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..heaps.keys import CACHE_SOURCE
-from ..discrepancy.point import model_and_theta
+from ..discrepancy.point import check_seeding, model_and_theta, run_seeding, seeding_settings
 from ..discrepancy.sensitivity import signatures
 from ..discrepancy.stats import at_bounds, confound, confounded, score_effects, signature_noise, trends
 from ..errors import CalibError
@@ -109,9 +109,10 @@ def _posterior_ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]
 
 
 def _rank(run: Path, model: Model, theta: dict, res: pd.DataFrame, conds: pd.DataFrame, b, J, G, G_se, starts,
-          say: Say):
+          alpha: float, say: Say):
     """The score test of every candidate on the usable conditions, with its signature's noise p-value,
-    and the residuals' trends against the condition variables."""
+    the residuals' trends against the condition variables, and the likeliest of them where it is
+    significant (p below ``alpha`` over the number of variables)."""
     J = np.column_stack(J) if J else np.zeros((len(b), 0))
     r_all, u_all = res["residual"].to_numpy(float), res["uncertainty"].to_numpy(float)
     ok = np.isfinite(r_all) & np.isfinite(u_all) & np.all(np.isfinite(J), axis=1)
@@ -150,8 +151,16 @@ def _rank(run: Path, model: Model, theta: dict, res: pd.DataFrame, conds: pd.Dat
     ranking["confounded_with"] = [a for a, _ in alike]
     ranking["confound"] = [c for _, c in alike]
     tr = trends(res[ok], res.loc[ok, [c for c in COND_VARS if c in res.columns]])
-    top = tr.sort_values("p_value").iloc[0] if len(tr) else None
-    return ranking, tr, top, ok, J, G
+    return ranking, tr, observed_trend(tr, alpha), ok, J, G
+
+
+def observed_trend(tr: pd.DataFrame, alpha: float) -> Optional[pd.Series]:
+    """The likeliest of the residuals' trends (``trends``' rows), where it is significant at ``alpha`` over the
+    number of variables tried (Bonferroni, as the candidates are), else None: evidence quotes only such a one."""
+    if not len(tr):
+        return None
+    top = tr.sort_values("p_value").iloc[0]
+    return top if top["p_value"] < alpha / len(tr) else None
 
 
 def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) -> float:
@@ -192,8 +201,10 @@ def _verdicts(ranking: pd.DataFrame, top, alpha: float, repeats: int, say: Say) 
 @writes_run
 def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
              shear_modulus: Optional[float] = None, alpha: float = 0.05, force: bool = False,
-             say: Optional[Say] = None) -> DiagnoseResult:
+             say: Optional[Say] = None, seeds: Optional[str] = None) -> DiagnoseResult:
     """Rank the effects missing from the model by how much of compare's misfit each would explain.
+    ``seeds``: the heaps' seeding (:data:`~calib_cli.discrepancy.point.MEASURED_SEEDINGS`); by default
+    compare's (:func:`~calib_cli.discrepancy.point.run_seeding`), so the base point's heaps are compare's own.
     Writes RUN/diagnose/ranking.parquet, sensitivities.parquet and trends.parquet."""
     say = say or plain
     if not 0.0 < alpha < 1.0:
@@ -204,13 +215,14 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     model, theta = model_and_theta(run, set_)
     conds = measured_conditions(run)
     res = current_residuals(run, model, conds)
+    seeds = check_seeding(seeds or run_seeding(run))
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
     prior = _posterior_ranges(run, model)  # in the lock only where they set the ranges: older locks stay valid
     st = stage(run, "diagnose", "rank", inputs={"residuals": run / "compare" / "residuals.parquet"},
                    settings={"theta": theta, "model": model.hash, "preset": preset, "repeats": repeats,
                              "alpha": alpha, "kernel": CACHE_SOURCE, **modulus_settings(shear_modulus),
                              **run_heap_settings(resolve_settings(run, None, None)),
-                             **({"ranges": prior} if prior else {})})
+                             **({"ranges": prior} if prior else {}), **seeding_settings(seeds)})
     if st.up_to_date() and not force:
         return DiagnoseResult(st, True)
     cands = model.candidates
@@ -223,8 +235,9 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     say(f"diagnose: {len(model.parameters)} sensitivities + {len(cands)} candidate effects "
         f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
         "simulations (cached runs are reused)")
-    b, J, G, G_se, starts = signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus)
-    ranking, tr, top, ok, J, G = _rank(run, model, theta, res, conds, b, J, G, G_se, starts, say)
+    b, J, G, G_se, starts = signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus,
+                                       seeds=seeds)
+    ranking, tr, top, ok, J, G = _rank(run, model, theta, res, conds, b, J, G, G_se, starts, alpha, say)
     bar = _verdicts(ranking, top, alpha, repeats, say)
     sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})
     for k, e in enumerate(model.effects):
