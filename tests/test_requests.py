@@ -169,3 +169,26 @@ def test_a_candidates_heaps_are_seeded_by_its_values_not_its_place():
     # by the row, as compare and diagnose seed the measured table: B's heaps change with its place
     assert seeds("table", [(0, p)], [("B", b)])[("B", 0.4, 0)] != seeds("table", [(0, p)], [("A", a), ("B", b)])[
         ("B", 0.4, 0)]
+
+
+#: what a heap's cache key leaves implicit (a parameter not given takes its default; walls that never take the
+#: grains' value), as of the physics version named: the key holds the parameters given, not these
+IMPLICIT = {"source": "77675d5eca62",
+            "defaults": {"static_friction": 0.5, "rolling_friction": 0.1, "surface_energy": 0.0, "restitution": 0.2,
+                         "rolling_own_spin": 0.0, "friction_net_force": 0.0, "rolling_spring": 0.0,
+                         "caps_pulloff": 0.0, "surface_tension": 0.0, "contact_angle": 0.0, "liquid_volume": 0.01},
+            "wall_zero": ["surface_energy", "surface_tension"]}
+
+
+def test_a_changed_default_comes_with_a_raised_physics_version():
+    """A heap's key names the parameters given, not the defaults the rest take: a default changed at an
+    unchanged physics version would serve heaps cached with the old one. So a default may change only with
+    a law's (or the kernel's) version raised, which moves the key's source, and this table with it."""
+    from calib_cli.dem.heap import PARTICLE_DEFAULTS, WALL_ZERO
+
+    now = {"source": CACHE_SOURCE, "defaults": dict(PARTICLE_DEFAULTS), "wall_zero": sorted(WALL_ZERO)}
+    assert now["source"] == IMPLICIT["source"] or now == IMPLICIT, (
+        "the physics version moved: set IMPLICIT to its source and the defaults it runs with")
+    assert now == IMPLICIT, (
+        "a heap's implicit default changed at an unchanged physics version: raise the version of the law (or "
+        "the kernel) that reads it, so heaps cached with the old default are simulated again; then update IMPLICIT")
