@@ -610,7 +610,9 @@ class Stage:
         for rel in set(old) - set(hashes):
             if not _inside(self.dir, rel):  # a lock edited by hand names ../settings.toml: not the stage's to delete
                 continue
-            with contextlib.suppress(OSError):
+            # gone already is fine; one that cannot be deleted stops the commit before the new lock stands (a
+            # file left that no lock lists would pass for a committed output)
+            with contextlib.suppress(FileNotFoundError):
                 (self.dir / rel).unlink()
         os.replace(self.pending_path, self.lock_path)
 

@@ -12,6 +12,7 @@ from calib_cli import artifacts as art
 from calib_cli.cli import app
 from calib_cli.discrepancy.stats import (difference_se, per_condition, residual_table, score_effects,
                                         signature_noise, summary, trends)
+from calib_cli.errors import CalibError
 from calib_cli.model import EFFECTS, Model, load_model, save_model
 
 runner = CliRunner()
@@ -247,9 +248,20 @@ def test_chi2_dof_counts_only_the_parameters_the_calibration_fitted(tmp_path):
     assert model.parameters == ["static_friction", "rolling_friction", "restitution", "surface_energy"]
     assert fitted_parameters(tmp_path, model) == ["static_friction", "rolling_friction", "surface_energy"]
     assert fitted_parameters(tmp_path, model, ["surface_energy=0.5"]) == ["static_friction", "rolling_friction"]
+    # the posterior's point (calibrate): an effect's parameter at its neutral value is a draw of the model
+    # without it (control-lab's answer, 98 % off), which fitted no surface energy
+    (tmp_path / "calibrate").mkdir()
+    point = {"static_friction": 0.45, "rolling_friction": 0.15, "restitution": 0.3, "surface_energy": 0.0}
+    art.write_table(tmp_path / "calibrate" / "point.parquet", pd.DataFrame([point]), {"model_revision": 1})
+    assert fitted_parameters(tmp_path, model) == ["static_friction", "rolling_friction", "restitution"]
+    art.write_table(tmp_path / "calibrate" / "point.parquet", pd.DataFrame([{**point, "surface_energy": 0.41}]),
+                    {"model_revision": 1})
+    assert fitted_parameters(tmp_path, model) == model.parameters
+    # chi2/dof = sum z^2 / (C - min(C, p) * mean share): p is what enters
     res = residual_table(np.full(6, 30.0), np.full(6, 1.0), np.full(6, 10), np.full(6, 29.0), np.full(6, 1.0),
                          np.full(6, 8))
-    assert summary(res, 3)["chi2_dof"] < summary(res, 4)["chi2_dof"]
+    share = float(res["measured_share"].mean())
+    assert summary(res, 3)["chi2_dof"] == pytest.approx(float(np.sum(res["z"] ** 2)) / (6 - 3 * share))
 
 
 TRUTH = ["--set", "static_friction=0.5", "--set", "rolling_friction=0.2", "--set", "restitution=0.3"]
@@ -745,3 +757,64 @@ def test_a_trend_is_quoted_as_observed_only_where_it_is_significant():
     assert observed_trend(tr.assign(p_value=[0.03, 0.6]), 0.05) is None  # not below 0.05 / 2 variables
     assert observed_trend(tr.assign(p_value=[0.01, 0.6]), 0.05)["variable"] == "particle_d_min_mm"
     assert observed_trend(tr.iloc[:0], 0.05) is None
+
+
+def test_a_measured_condition_s_seed_is_its_name_and_values_not_its_row():
+    """Two conditions of the same values under two names (a rig measured twice) draw heaps of their own; a
+    condition's seed does not move with its row (compare's --seeds condition)."""
+    from calib_cli.dem.heap import HeapCondition
+    from calib_cli.heaps.inputs import measured_seed
+
+    c = HeapCondition(4.0, 5.0, 40.0, 75.0, 50.0)
+    assert measured_seed(0, "A", c, 0) == measured_seed(0, "A", c, 0)
+    assert len({measured_seed(0, "A", c, 0), measured_seed(0, "A-again", c, 0), measured_seed(0, "A", c, 1),
+                measured_seed(0, "A", HeapCondition(5.0, 6.0, 40.0, 75.0, 50.0), 0)}) == 4
+
+
+def test_a_comparison_whose_seeding_cannot_be_read_asks_for_seeds(tmp_path):
+    """compare and diagnose follow the seeding compare's residuals record; where that cannot be read (not
+    calib's provenance, a value it never writes) they say to give --seeds, which overrides it, rather than
+    sending the user to rerun compare, which would stop at the same file."""
+    from calib_cli.discrepancy.point import run_seeding
+
+    (tmp_path / "compare").mkdir()
+    res = tmp_path / "compare" / "residuals.parquet"
+    res.write_bytes(b"not parquet")
+    with pytest.raises(CalibError, match="give --seeds condition or --seeds table"):
+        run_seeding(tmp_path)
+    art.write_table(res, pd.DataFrame({"a": [1.0]}), {"seeds": "rows"})
+    with pytest.raises(CalibError, match="'rows', which is none of condition, table: give --seeds"):
+        run_seeding(tmp_path)
+    art.write_table(res, pd.DataFrame({"a": [1.0]}), {"seeds": "condition"})
+    assert run_seeding(tmp_path) == "condition"
+
+
+def test_diagnose_seeds_its_heaps_as_compare_seeded_its_residuals(tmp_path, monkeypatch):
+    """diagnose's base point is compare's own heaps only if both seed alike: by default it follows the seeding
+    compare's residuals record (silent: by row, as every comparison before --seeds), and --seeds overrides."""
+    from calib_cli.stages import diagnose as diag
+
+    ids = ["A", "B", "C", "D"]
+    (tmp_path / "measure").mkdir()
+    art.write_table(tmp_path / "measure" / "conditions.parquet",
+                    pd.DataFrame({"condition_id": ids, "mean": [30.0, 31, 32, 33], "sd": [1.0] * 4, "n": [5] * 4,
+                                  "particle_d_min_mm": [4.0, 5, 4, 5], "particle_d_max_mm": [5.0, 6, 5, 6]}))
+    (tmp_path / "compare").mkdir()
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def signatures(*a, seeds, **k):
+        seen.append(seeds)
+        raise Stop
+
+    monkeypatch.setattr(diag, "signatures", signatures)
+    given = ["static_friction=0.4", "rolling_friction=0.1", "restitution=0.3"]
+    residuals = pd.DataFrame({"condition_id": ids, "residual": [1.0, 2, 3, 4], "uncertainty": [0.5] * 4})
+    for prov, option, want in [({}, None, "table"), ({"seeds": "condition"}, None, "measured"),
+                               ({}, "condition", "measured")]:
+        art.write_table(tmp_path / "compare" / "residuals.parquet", residuals, prov)
+        with pytest.raises(Stop):
+            diag.diagnose(tmp_path, given, preset="smoke", seeds=option, force=True)
+        assert seen[-1] == want

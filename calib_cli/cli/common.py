@@ -155,7 +155,7 @@ ColumnsOpt = _evidence_switch(
     "simulated fill stands. Default: wherever the photographs were measured and some simulated fill stood.")
 SeedsOpt = Annotated[Optional[str], typer.Option(
     "--seeds", show_default=False,
-    help="How the heaps are seeded: condition (by the condition's values, so a condition's heaps stay the same, and "
+    help="How the heaps are seeded: condition (by the condition's name and values, so its heaps stay the same, and "
     "cached, when the measured table gains, loses or reorders rows) or table (by the condition's row, as runs made "
     "before this option were seeded). Default: as the run's comparison was seeded, and condition for a run's first.")]
 AtRevisionOpt = Annotated[Optional[int], typer.Option("--at-revision", min=0, help="Do nothing unless the model is at "

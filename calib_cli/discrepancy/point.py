@@ -8,13 +8,15 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
+import pandas as pd
+
 from .. import artifacts as art
 from ..heaps.runner import run_campaign
 from ..dem.heap import LAWS
 from ..errors import CalibError
 from ..model import EFFECTS, Model, load_model
 from ..heaps.inputs import (Pairs, build_requests, condition_seed, content_seed, given_pairs, heap_engine, heap_precision,
-                            heap_preset, parse_params, table_conditions)
+                            heap_preset, measured_seed, parse_params, table_conditions)
 from ..stages.common import bbd_fixed, resolve_settings
 from .stats import per_condition
 
@@ -66,11 +68,15 @@ def model_and_theta(run: Path, set_: Pairs = None) -> tuple[Model, dict[str, flo
 def fitted_parameters(run: Path, model: Model, set_: Pairs = None) -> list[str]:
     """The model's parameters the calibration fitted to the measured means: those its calibrated point
     (:func:`calibrated_point`) gives and --set does not override. One the response surface held fixed (the BBD's
-    ``fixed``), or set by hand, took no degree of freedom from them (compare's chi2/dof, docs/method.md)."""
+    ``fixed``), or set by hand, took no degree of freedom from them (compare's chi2/dof, docs/method.md); nor did
+    an effect's parameter at its neutral value in the posterior's point, a draw of the model without the effect
+    (an answer averaged on and off takes its point from the likelier model, :func:`most_probable`)."""
     given = parse_params(given_pairs(set_, "--set")) if set_ else {}
     sol = calibrated_point(run, model)
-    have = set(art.read_table(sol).columns) if sol is not None else set()
-    return [p for p in model.parameters if p in have and p not in given]
+    point = art.read_table(sol).iloc[0] if sol is not None else pd.Series(dtype=float)
+    neutral = {e.parameter: e.neutral for e in EFFECTS.values()} if sol == run / POINT else {}
+    return [p for p in model.parameters if p in point.index and p not in given
+            and not (p in neutral and float(point[p]) == neutral[p])]
 
 
 def _check_given(model: Model, given: dict[str, float]) -> None:
@@ -97,15 +103,18 @@ def simulate_at(run, model, theta, conds, preset, repeats, workers, tag, seed=0,
 
 
 #: how :func:`simulate_points` seeds a heap: by its condition's row in ``conds`` (the measured table's order), by
-#: the condition's values (:func:`condition_seed`: a finite difference's common draws, any order), or by
-#: everything it simulates (:func:`content_seed`: a design's points draw apart)
+#: the condition's values (:func:`condition_seed`: a finite difference's common draws, any order; a candidate
+#: condition's), by a measured condition's name and values (:func:`measured_seed`), or by everything it
+#: simulates (:func:`content_seed`: a design's points draw apart)
 SEEDINGS = {"table": None, "condition": lambda base, q: condition_seed(base, q.condition, q.repeat),
+            "measured": lambda base, q: measured_seed(base, q.condition_id, q.condition, q.repeat),
             "content": lambda base, q: content_seed(base, q.params, q.condition, q.repeat)}
 
-#: compare's and diagnose's choice (--seeds): by the condition's values (the default: a condition's heaps stay
-#: the same, and cached, when the measured table gains, loses or reorders rows), or by its row, as runs made
-#: before the choice existed were seeded (their pipelines keep it, so their heaps stay theirs)
-MEASURED_SEEDINGS = ("condition", "table")
+#: compare's and diagnose's choice (--seeds), and the seeding (:data:`SEEDINGS`) it names: by the condition
+#: (the default: its heaps stay the same, and cached, when the measured table gains, loses or reorders rows), or
+#: by its row, as runs made before the choice existed were seeded (their pipelines keep it, so their heaps stay
+#: theirs)
+MEASURED_SEEDINGS = {"condition": "measured", "table": "table"}
 
 
 def check_seeding(seeds: str) -> str:
@@ -120,7 +129,17 @@ def run_seeding(run: Path) -> str:
     then compare's own heaps): its residuals' provenance says, and where silent, by row (every comparison made
     before the choice); a run without a comparison yet, by the condition's values."""
     res = run / "compare" / "residuals.parquet"
-    return art.read_provenance(res).get("seeds", "table") if res.is_file() else "condition"
+    if not res.is_file():
+        return "condition"
+    try:
+        seeds = art.read_provenance(res).get("seeds", "table")
+    except CalibError as e:  # compare itself would overwrite the file: the way out must not run through it
+        raise CalibError(f"{e}; it says how this run's compare heaps were seeded: give --seeds condition or "
+                         "--seeds table") from None
+    if seeds not in MEASURED_SEEDINGS:
+        raise CalibError(f"{res} says its heaps were seeded {seeds!r}, which is none of "
+                         f"{', '.join(MEASURED_SEEDINGS)}: give --seeds condition or --seeds table")
+    return seeds
 
 
 def seeding_settings(seeds: str) -> dict[str, str]:

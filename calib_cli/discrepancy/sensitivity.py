@@ -20,7 +20,7 @@ def signatures(run: Path, model: Model, theta: dict, conds: pd.DataFrame, preset
     """Simulated sensitivities: J (angle per unit of each calibrated parameter, per condition), G (per
     unit of each candidate effect's parameter; every one the model lacks, or ``cands``) with its
     standard error, and each candidate's start; each step's heaps seeded as its base's (common random
-    numbers), by ``seeds`` (:data:`~calib_cli.discrepancy.point.SEEDINGS`: "table" or "condition")."""
+    numbers), by ``seeds`` (:data:`~calib_cli.discrepancy.point.SEEDINGS`)."""
     cands = model.candidates if cands is None else cands
     base, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus,
                           seeds=seeds)

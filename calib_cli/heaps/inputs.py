@@ -291,6 +291,15 @@ def condition_seed(base: int, condition: HeapCondition, repeat: int) -> int:
     return derive_seed(base, int(h[:7], 16), repeat)
 
 
+def measured_seed(base: int, condition_id: str, condition: HeapCondition, repeat: int) -> int:
+    """A measured condition's heap seed (compare's, diagnose's): from its name and values and its repeat, not its
+    row, so a condition's heaps stay the same, and cached, when the measured table gains, loses or reorders rows;
+    two conditions of the same values under two names (a rig measured twice) draw heaps of their own."""
+    h = art.hash_obj({"condition": condition_dict(condition), "condition_id": str(condition_id),
+                      "repeat": int(repeat)})
+    return derive_seed(base, int(h[:7], 16), repeat)
+
+
 def content_seed(base: int, params: Mapping[str, float], condition: HeapCondition, repeat: int) -> int:
     """A heap's seed from what it simulates (its parameters, its condition's values and its repeat),
     not from a design row or a conditions table's order: the same heap in another round, run or

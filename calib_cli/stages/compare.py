@@ -11,8 +11,8 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..heaps.keys import CACHE_SOURCE
-from ..discrepancy.point import (check_seeding, fitted_parameters, model_and_theta, run_seeding, seeding_settings,
-                                 simulate_at)
+from ..discrepancy.point import (MEASURED_SEEDINGS, check_seeding, fitted_parameters, model_and_theta, run_seeding,
+                                 seeding_settings, simulate_at)
 from ..discrepancy.stats import residual_table, summary
 from ..measurements import measured_conditions
 from ..model import Model
@@ -94,7 +94,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     say(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
         f"{repeats} simulations")
     sim, _ = simulate_at(run, model, theta, conds, preset, repeats, workers, "compare", shear_modulus=shear_modulus,
-                         seeds=seeds)
+                         seeds=MEASURED_SEEDINGS[seeds])
     res = residual_table(conds["mean"], conds["sd"], conds["n"], sim["mean"].to_numpy(), sim["sd"].to_numpy(),
                          sim["n"].to_numpy())
     table = pd.DataFrame({"condition_id": conds["condition_id"].astype(str), "measured": conds["mean"],

@@ -13,7 +13,7 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..heaps.keys import CACHE_SOURCE
-from ..discrepancy.point import check_seeding, model_and_theta, run_seeding, seeding_settings
+from ..discrepancy.point import MEASURED_SEEDINGS, check_seeding, model_and_theta, run_seeding, seeding_settings
 from ..discrepancy.sensitivity import signatures
 from ..discrepancy.stats import at_bounds, confound, confounded, score_effects, signature_noise, trends
 from ..errors import CalibError
@@ -236,7 +236,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
         f"({len(two_sided)} stepped both ways) x {len(conds)} conditions x {repeats} repeats = {n_sims} "
         "simulations (cached runs are reused)")
     b, J, G, G_se, starts = signatures(run, model, theta, conds, preset, repeats, workers, shear_modulus,
-                                       seeds=seeds)
+                                       seeds=MEASURED_SEEDINGS[seeds])
     ranking, tr, top, ok, J, G = _rank(run, model, theta, res, conds, b, J, G, G_se, starts, alpha, say)
     bar = _verdicts(ranking, top, alpha, repeats, say)
     sens = pd.DataFrame({"condition_id": conds["condition_id"].astype(str)[ok].to_numpy()})
