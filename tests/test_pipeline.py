@@ -345,8 +345,19 @@ def write(tmp_path, text, name="p.toml"):
                                                                       "does not exist"]),
     ("[[step]]\nname = 'a'\ncommand = ['init', '--run', '{run}', '--help']\noutputs = ['x']\n", [],
      ["step a", "is given --help, which runs nothing"]),
+    # what os.environ, the file system or tomllib would raise on (exit 70 before)
+    ('[env]\n"A=B" = "x"\n' + GOOD.split("\n", 4)[-1], [], ["[env] name 'A=B' is not an environment variable's"]),
+    ('[env]\nA = "x\\u0000y"\n' + GOOD.split("\n", 4)[-1], [], ["[env] A holds a NUL character"]),
+    ('[[step]]\ninclude = "a\\u0000b.toml"\n', [], ["pipeline file not found"]),
+    (f"[[step]]\ninclude = '{'a' * 300}.toml'\n", [], ["cannot be read", "File name too long"]),
+    ("description = " + "[" * 3000 + "]" * 3000 + "\n" + GOOD.split("\n", 4)[-1], [], ["nests", "too deep"]),
+    ("description = { a = 1 }\n" + GOOD.split("\n", 4)[-1], [], ["description must be a string, got dict"]),
+    ("[[step]]\ninclude = 'inner.toml'\nvars = { data = { a = 1 } }\n", [], ["variable data", "got {'a': 1}"]),
+    ("[[step]]\nname = 'a'\ncommand = ['report', '--run', \"{run}\\u0000\"]\noutputs = ['x']\n", [],
+     ["step a", "holds a NUL character"]),
 ])
 def test_a_bad_pipeline_is_one_error_line(tmp_path, at_root, text, args, fragments):
+    (tmp_path / "inner.toml").write_text(GOOD)
     path = write(tmp_path, text)
     one_error(calib("run", path, "--run", tmp_path / "run", *args), *fragments)
     assert not (tmp_path / "run").exists()  # checked before anything ran
@@ -476,3 +487,23 @@ def test_committed_run_holds_its_pipelines_settings_file(target, at_root):
     init = next(s for s in plan(load_pipeline(args[1], args[3], variables, root=ROOT_CMD)).steps if s.argv[0] == "init")
     run, settings = init.argv[init.argv.index("--run") + 1], init.argv[init.argv.index("--settings") + 1]
     assert (ROOT / run / "settings.toml").read_bytes() == (ROOT / settings).read_bytes()
+
+
+def test_includes_agree_on_the_environment_and_hand_down_their_variables_typed(tmp_path, at_root):
+    """Two includes setting one [env] name to two values are refused (every step runs under one environment, so
+    one would be dropped unsaid); a string variable handed down to a file whose own is a list is split as --var
+    would split it; a description's line breaks stay inside the dry run's comment line."""
+    step = "[[step]]\nname = '{name}'\ncommand = ['init', '--run', '{{run}}']\noutputs = ['{{run}}/settings.toml']\n"
+    write(tmp_path, '[env]\nCALIB_REUSE = "runs/A"\n' + step.format(name="a"), "a.toml")
+    write(tmp_path, '[env]\nCALIB_REUSE = "runs/B"\n' + step.format(name="b"), "b.toml")
+    top = write(tmp_path, "[[step]]\ninclude = 'a.toml'\n[[step]]\ninclude = 'b.toml'\n")
+    one_error(calib("run", top, "--run", tmp_path / "run", "--dry-run"), "CALIB_REUSE differs", "'runs/B'")
+    write(tmp_path, "[vars]\nextra = []\n[[step]]\nname = 'i'\ncommand = ['init', '--run', '{run}', '{extra}']\n"
+          "outputs = ['{run}/settings.toml']\n", "inner.toml")
+    top = write(tmp_path, 'description = """two\necho INJECTED"""\n[vars]\nextra = "--settings stages/settings/paper.toml"\n'
+                "[[step]]\ninclude = 'inner.toml'\n")
+    r = calib("run", top, "--run", tmp_path / "run", "--dry-run")
+    assert r.exit_code == 0, r.output
+    assert "init --run" in r.output and "--settings stages/settings/paper.toml" in r.output
+    assert not any(line.startswith("echo") for line in r.output.splitlines())
+    assert "(two echo INJECTED)" in r.output

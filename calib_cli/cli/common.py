@@ -238,16 +238,19 @@ _UNWRITABLE = {errno.EACCES: "the folder is read-only or not yours", errno.EPERM
                errno.EDQUOT: "the disk quota is used up"}
 #: a path of the wrong kind, or one gone meanwhile: what a user (or another program) did to the run directory
 _MISPLACED = {errno.EISDIR: "a folder where a file belongs", errno.ENOTDIR: "a file where a folder belongs",
-              errno.ENOENT: "it does not exist, or was removed meanwhile"}
+              errno.ENOENT: "it does not exist, or was removed meanwhile",
+              errno.ENAMETOOLONG: "a name longer than the file system takes",
+              errno.ELOOP: "symbolic links that lead round in a circle"}
 
 
 def os_error_words(e: OSError):
     """One line for an OSError that is the machine's or the run directory's state (None for another: a bug)."""
     where = str(e.filename2 or e.filename or "the run directory")  # a rename's target, not its temporary file
+    where = where if len(where) <= 200 else f"{where[:200]}..."
     if e.errno in _UNWRITABLE:
         return (f"cannot write {where}: {e.strerror or e} ({_UNWRITABLE[e.errno]}); nothing half-written was kept")
     if e.errno in _MISPLACED:
-        fix = "check the path" if e.errno == errno.ENOENT else "move it aside"
+        fix = "move it aside" if e.errno in (errno.EISDIR, errno.ENOTDIR) else "check the path"
         return f"cannot use {where}: {e.strerror or e} ({_MISPLACED[e.errno]}): {fix} and run the command again"
     return None
 

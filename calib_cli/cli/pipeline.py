@@ -58,6 +58,7 @@ from ..errors import CalibError
 
 VAR = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 TOP_KEYS = {"description", "vars", "env", "step"}
 STEP_KEYS = {"name", "command", "inputs", "outputs", "settings", "overrides"}
 INCLUDE_KEYS = {"include", "vars"}
@@ -107,7 +108,8 @@ class Plan:
     def lines(self) -> list[str]:
         """The plan as a shell script: what ``calib run --dry-run`` prints."""
         p = self.pipeline
-        head = [f"# {p.path} -> {p.run}: {len(self.steps)} steps" + (f" ({p.description})" if p.description else "")]
+        about = " ".join(p.description.split())  # one comment line, whatever the file's description holds
+        head = [f"# {p.path} -> {p.run}: {len(self.steps)} steps" + (f" ({about})" if about else "")]
         env = [f"export {k}={shlex.quote(v)}" for k, v in p.env.items()]
         return head + env + [f"{s.command}  # {s.name}" for s in self.steps]
 
@@ -250,17 +252,25 @@ def _scope(doc: dict, path: Path, outer: Mapping[str, Value], given: Mapping[str
         elif name not in outer:
             value = _value(default, where, is_list)
             scope[name] = _expand(value, scope, where, "the value") if is_list else _subst(value, scope, where)
+        elif isinstance(outer[name], list) != is_list:  # an including file's variable of the same name
+            scope[name] = _value(outer[name], f"{where} (from the including file)", is_list)
     return scope
 
 
 # ---------------------------------------------------------------- loading
 def _read(path: Path) -> dict:
-    if not path.is_file():
-        raise CalibError(f"pipeline file not found: {path}")
     try:
-        doc = tomllib.loads(path.read_text())
+        if not path.is_file():
+            raise CalibError(f"pipeline file not found: {path}" + (" (a folder)" if path.is_dir() else ""))
+        text = path.read_text()
+    except (OSError, ValueError) as e:  # a name too long, a NUL in it, unreadable: the file's state, not a bug
+        raise CalibError(f"pipeline file {str(path)[:200]!r} cannot be read: {e}") from None
+    try:
+        doc = tomllib.loads(text)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise CalibError(f"pipeline file {path} is not valid TOML: {e}") from None
+    except RecursionError:
+        raise CalibError(f"pipeline file {path} nests its tables or lists too deep to read") from None
     bad = set(doc) - TOP_KEYS
     if bad:
         raise CalibError(f"{path}: unknown key(s) {', '.join(sorted(bad))} (a pipeline has "
@@ -290,6 +300,8 @@ def _step(raw: dict, scope: Mapping[str, Value], path: Path, index: int) -> Step
     for item in _expand(raw.get("overrides", []), scope, where, "overrides"):
         argv += ["-s", item]
     outputs = _expand(raw["outputs"], scope, where, "outputs")
+    if any("\0" in x for x in (*argv, *inputs, *outputs)):
+        raise CalibError(f"{where}: an argument or path holds a NUL character")
     if not argv:
         raise CalibError(f"{where}: the command is empty")
     if not outputs:
@@ -301,14 +313,11 @@ def _step(raw: dict, scope: Mapping[str, Value], path: Path, index: int) -> Step
 def _steps(path: Path, outer: Mapping[str, Value], given: Mapping[str, Value],
            stack: tuple[Path, ...]) -> tuple[list[Step], dict[str, str], dict[str, Value]]:
     """The steps of one file (includes expanded), its environment and its variables."""
+    doc = _read(path)  # first: a path that cannot be resolved is refused there, in one line
     if path.resolve() in stack:
         raise CalibError(f"{path}: included by itself ({' -> '.join(str(p) for p in (*stack, path.resolve()))})")
-    doc = _read(path)
     scope = _scope(doc, path, outer, given)
-    env = doc.get("env", {})
-    if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
-        raise CalibError(f"{path}: [env] must be a table of strings")
-    env = {k: _subst(v, scope, f"{path}, env {k}") for k, v in env.items()}
+    env = _env(doc, path, scope)
     steps: list[Step] = []
     for i, raw in enumerate(doc["step"], start=1):
         if not isinstance(raw, dict):
@@ -319,12 +328,33 @@ def _steps(path: Path, outer: Mapping[str, Value], given: Mapping[str, Value],
         if set(raw) - INCLUDE_KEYS or not isinstance(raw["include"], str) or not isinstance(raw.get("vars", {}), dict):
             raise CalibError(f"{path}, step {i}: an include step has include = \"FILE\" and optionally vars = {{...}}")
         where = f"{path}, step {i} (include {raw['include']})"
-        values = {k: (_expand(v, scope, where, k) if isinstance(v, list) else _subst(str(v), scope, where))
-                  for k, v in raw.get("vars", {}).items()}
+        values: dict[str, Value] = {}
+        for k, v in raw.get("vars", {}).items():
+            _value(v, f"{where}, variable {k}", isinstance(v, list))  # the types [vars] and --var take
+            values[k] = _expand(v, scope, where, k) if isinstance(v, list) else _subst(str(v), scope, where)
         inner, inner_env, _ = _steps(path.parent / raw["include"], scope, values, (*stack, path.resolve()))
         steps += inner
+        clash = sorted(k for k in set(inner_env) & set(env) if inner_env[k] != env[k])
+        if clash:  # every step runs under one environment: one of the two would be dropped unsaid
+            raise CalibError(f"{where}: [env] {', '.join(clash)} differs from this file's or an earlier include's "
+                             f"({'; '.join(f'{inner_env[k]!r} against {env[k]!r}' for k in clash)})")
         env = {**inner_env, **env}
     return steps, env, scope
+
+
+def _env(doc: dict, path: Path, scope: Mapping[str, Value]) -> dict[str, str]:
+    """A file's [env], variables substituted: names a shell and os.environ take, values without NUL."""
+    env = doc.get("env", {})
+    if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
+        raise CalibError(f"{path}: [env] must be a table of strings")
+    out = {}
+    for k, v in env.items():
+        if not ENV_NAME.fullmatch(k):
+            raise CalibError(f"{path}: [env] name {k!r} is not an environment variable's (letters, digits, _)")
+        out[k] = _subst(v, scope, f"{path}, env {k}")
+        if "\0" in out[k]:
+            raise CalibError(f"{path}: [env] {k} holds a NUL character")
+    return out
 
 
 def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str] | None = None, *, root) -> Pipeline:
@@ -343,7 +373,9 @@ def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str
         seen[s.name] = s.source
     for s in steps:
         check_command(root, s)
-    description = str(_read(path).get("description", ""))
+    description = _read(path).get("description", "")
+    if not isinstance(description, str):
+        raise CalibError(f"{path}: description must be a string, got {type(description).__name__}")
     return Pipeline(path, run, tuple(steps), env, scope, description, root)
 
 
