@@ -148,9 +148,12 @@ RULES: dict[str, Rule] = {
     "pb.alpha": _PROBABILITY, "bbd.alpha": _PROBABILITY, "pb.runs": _POSITIVE, "ascent.steps": Rule("integer", 3),
     "ascent.target": Rule("number", empty=True), "bbd.center_points": _POSITIVE,
     "surrogate.hidden": _POSITIVE, "surrogate.epochs": _POSITIVE, "surrogate.seed": Rule("integer", 0),
-    "invert.generations": _POSITIVE, "invert.population": Rule("integer", 2), "invert.seed": Rule("integer", 0),
+    # the GA's sizes bounded where one would fill the memory (samples x factors x 8 bytes) or run for days
+    "invert.generations": Rule("integer", 1, 100_000), "invert.population": Rule("integer", 2, 100_000),
+    "invert.seed": Rule("integer", 0),
     "invert.crossover": Rule("number", 0, 1), "invert.mutation": Rule("number", 0, 1),
-    "invert.tolerance": Rule("number", 0, 90, open=True), "invert.samples": _POSITIVE, "invert.restarts": _POSITIVE,
+    "invert.tolerance": Rule("number", 0, 90, open=True), "invert.samples": Rule("integer", 1, 10_000_000),
+    "invert.restarts": Rule("integer", 1, 1_000),
     "invert.refine": Rule("integer", 0), "invert.refine_z": Rule("number", 0, open=True),
     "heap.shear_modulus": Rule("number", empty=True), "heap.engine": Rule("text"),
     "heap.precision": Rule("text"),
@@ -180,10 +183,12 @@ def check_types(over: Mapping, where: str = "", path: str = "") -> None:
     takes, in one sentence naming the key, the value and the rule; ``where`` names the source."""
     for k, v in over.items():
         key = f"{path}.{k}" if path else str(k)
+        r = rule(key)
         if isinstance(v, Mapping):
+            if r is not None:  # a table where one value belongs (-s 'invert.population={a=1}')
+                raise CalibError(f"setting {key} = {dict(v)!r}{where} must be {r.describe()}, not a table")
             check_types(v, where, key)
             continue
-        r = rule(key)
         if r is not None and not r.accepts(v):
             raise CalibError(f"setting {key} = {v!r}{where} must be {r.describe()}")
         _check_declared(key, v, where)
@@ -397,6 +402,10 @@ def validate(s: Mapping) -> None:
     for m in s["surrogate"]["models"]:
         if m not in ("rsm", "bp", "pso-bp"):
             raise CalibError(f"surrogate.models: unknown model {m!r} (rsm, bp, pso-bp)")
+    models = s["surrogate"]["models"]
+    if not models or len(set(models)) < len(models):
+        raise CalibError(f"surrogate.models = {models!r} must name each model to fit once, at least one "
+                         "(rsm, bp, pso-bp)")
     for n, rng in s["bbd"]["ranges"].items():
         if n not in s["factors"]:
             raise CalibError(f"bbd.ranges.{n} must be [low, high] for a known factor")

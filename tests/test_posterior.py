@@ -902,6 +902,25 @@ def test_a_pile_that_stands_in_one_view_is_a_column_in_all(tmp_path):
     assert (k[0], n[0]) == (1.0, 3.0)
 
 
+def test_piles_of_several_views_none_standing_are_all_heaps(tmp_path):
+    """Where no view stands, no pile is a column: an empty selection given the whole key took its index, and
+    every photograph of a table with a pile column was refused as "another view of this pile (nan)"."""
+    from typer.testing import CliRunner
+
+    from calib_cli.cli import app
+    from calib_cli.stages.measure import columns_by_pile
+
+    table = pd.DataFrame({"image": ["1", "2", "3", "4"], "condition_id": list("aabb"), "status": "ok", "message": ""})
+    out, kept = columns_by_pile(table, table[["image"]].assign(pile=[1, 1, 2, 2]), [pd.DataFrame({"image": ["1"]})])
+    assert (out["status"] == "ok").all() and out["pile"].tolist() == ["1", "1", "2", "2"] and len(kept) == 1
+    (tmp_path / "angles.csv").write_text("image,repose_angle\n1,30\n2,31\n3,35\n4,36\n")
+    (tmp_path / "conditions.csv").write_text("image,condition_id,pile\n1,a,1\n2,a,1\n3,b,2\n4,b,2\n")
+    r = CliRunner().invoke(app, ["measure-angle", "--run", str(tmp_path / "run"), "--angles",
+                                 str(tmp_path / "angles.csv"), "--conditions", str(tmp_path / "conditions.csv")])
+    assert r.exit_code == 0, r.output
+    assert art.read_table(tmp_path / "run" / "measure" / "conditions.parquet")["n"].tolist() == [1, 1]
+
+
 def test_a_pile_label_is_one_conditions_and_a_blank_one_is_its_photographs_own(tmp_path):
     """Piles numbered 1, 2, ... within each condition: condition A's pile 1 standing flags A's other views, not
     B's pile 1; a blank pile cell is a pile of one photograph, counted in the share; whole numbers read as

@@ -31,7 +31,13 @@ def test_overrides_parse_types():
                                  "ascent.steps=2", "factors.restitution.low=0.9", "noequals", "heap.modulus=1e8",
                                  "heap.shear_modulus='stiff'", "heap.shear_modulus=true", "heap.preset=3", "heap=5",
                                  "heap.precision='single'", "heap.precision=32", "heap.engine='bogus'", "heap.engine=gpu2", "heap.engine='lammps'",
-                                 "pb=1"])
+                                 "pb=1",
+                                 # exit 70 before (a table for one value, no model, a model twice, sizes that
+                                 # fill the memory): a helper's review, 2026-12-07
+                                 "invert.population={a=1}", "invert.tolerance={}", "response={a='x'}",
+                                 "pb.runs={a=1}", "surrogate.models=[]", "surrogate.models=['rsm','rsm']",
+                                 "invert.samples=2147483648", "invert.population=1000000000000",
+                                 "invert.restarts=100000", "invert.generations=10000000"])
 def test_bad_settings_are_one_line_errors(bad):
     with pytest.raises(CalibError) as e:
         load_settings(overrides=[bad])

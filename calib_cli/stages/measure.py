@@ -225,7 +225,10 @@ def columns_by_pile(table: pd.DataFrame, cond: pd.DataFrame, profiles: list) -> 
     column (:func:`pile_labels`)."""
     table = table.assign(pile=pile_labels(table["image"], dict(zip(cond["image"].astype(str), cond["pile"]))))
     key = table["condition_id"].astype(str) + "\x00" + table["pile"]  # pile 1 of A is not pile 1 of B
-    standing = table[table["status"] == "column"].assign(key=key).groupby("key")["image"].first()
+    col = table["status"] == "column"
+    # grouped by the masked key, not .assign(key=key): assigning a Series to an empty frame takes its index, so
+    # where no view stood every pile read as standing
+    standing = table.loc[col, "image"].groupby(key[col]).first()
     hit = key.isin(standing.index) & (table["status"] != "column")
     table.loc[hit, "message"] = [f"another view of this pile ({standing[k]}) stands as a column: the pile is a "
                                  "column as a whole" for k in key[hit]]
