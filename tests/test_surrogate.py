@@ -410,3 +410,21 @@ def test_a_refinement_without_validation_heaps_names_where_it_was_asked(tmp_path
     with pytest.raises(CalibError, match=r"^--refine corrects"):
         invert(run, refine=1, say=lambda *a, **k: None)
     assert (run / "invert" / "solve.lock.json").read_bytes() == before
+
+
+def test_invert_says_which_measured_conditions_lie_beyond_what_the_surrogate_learnt(tmp_path):
+    """A surrogate over condition variables predicts a measured condition outside the range it learnt them over
+    by extrapolation: the inversion's warnings name the condition and the variable (fill height 300 mm against
+    a surrogate of 50-100 mm, as a helper found invert passing in silence)."""
+    from calib_cli.stages.invert import _beyond_learnt
+
+    (tmp_path / "measure").mkdir()
+    art.write_table(tmp_path / "measure" / "conditions.parquet",
+                    pd.DataFrame({"condition_id": ["a", "b"], "mean": [30.0, 31.0], "fill_height_mm": [300.0, 75.0],
+                                  "particle_d_min_mm": [4.0, 5.0]}))
+    best = {"inputs": ["static_friction", "particle_d_min_mm", "fill_height_mm"], "lows": [0.3, 4.0, 50.0],
+            "highs": [0.7, 5.0, 100.0]}
+    said = _beyond_learnt(tmp_path, best)
+    assert len(said) == 1 and said[0].startswith("condition(s) a set fill_height_mm beyond the 50 to 100")
+    assert _beyond_learnt(tmp_path, {**best, "highs": [0.7, 5.0, 300.0]}) == []
+    assert _beyond_learnt(tmp_path, {"inputs": ["static_friction"], "lows": [0.3], "highs": [0.7]}) == []

@@ -290,7 +290,7 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
     per_cond = pd.DataFrame({"target": targets, "predicted_angle": preds})
     result = InvertResult(st, False, sol, per_cond, res.ranges, len(res.solution_set), float(iv["tolerance"]), tsource,
                           res.identifiable, val)
-    result.warning_lines = _warnings(result, prob, best_x)
+    result.warning_lines = _warnings(result, prob, best_x) + _beyond_learnt(run, best)
     result.verdict = _verdict(result, prob, float(iv["refine_z"]))
     with st.commit() as out:
         # the words kept with the solution: a rerun that finds the stage up to date reads them back
@@ -307,6 +307,26 @@ def invert(run: Path, target: Optional[float] = None, model: Optional[str] = Non
             out.table("refinement.parquet", val.refinement, accepted=val.accepted, chosen_round=chosen,
                       stalled=val.stalled)
     return result
+
+
+def _beyond_learnt(run: Path, best: dict) -> list[str]:
+    """The measured conditions that set a condition variable beyond the range the surrogate learnt it over
+    (its ``lows``/``highs``, the training inputs' range): its predictions there, and so the fit, extrapolate."""
+    names = best["inputs"]
+    cvars = [(n, lo, hi) for n, lo, hi in zip(names, best["lows"], best["highs"]) if n in COND_VARS]
+    path = run / "measure" / "conditions.parquet"
+    if not cvars or not path.is_file():
+        return []
+    ctab = art.read_table(path, columns=["condition_id", *(n for n, _, _ in cvars)], what="measured conditions")
+    out = []
+    for n, lo, hi in cvars:
+        x, tol = ctab[n].to_numpy(float), 1e-9 * max(abs(hi - lo), 1.0)
+        far = ctab.loc[(x < lo - tol) | (x > hi + tol), "condition_id"].astype(str).tolist()
+        if far:
+            out.append(f"condition(s) {', '.join(far)} set {n} beyond the {lo:g} to {hi:g} the surrogate learnt it "
+                       "over: its predictions there extrapolate, and so does the solution; simulate heaps there "
+                       "(a design crossed with those conditions) before trusting it")
+    return out
 
 
 def _warnings(r: InvertResult, prob: Problem, best_x: np.ndarray) -> list[str]:
