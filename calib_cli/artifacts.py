@@ -180,8 +180,8 @@ def check_not_pending(folder: Path, what: str) -> None:
     """Refuse a folder an unfinished commit is writing into (a pending lock there: another command at work, or
     one killed between its renames, which left files of two runs side by side), for readers of files no
     Parquet check covers (photographs, a conditions CSV)."""
-    stages = sorted({command_of(str(_read_lock_file(p).get("stage", p.name)))
-                     for p in Path(folder).glob(f".*{PENDING_SUFFIX}") if _read_lock_file(p)})
+    locks = {p: _read_lock_file(p) for p in Path(folder).glob(f".*{PENDING_SUFFIX}")}
+    stages = sorted({command_of(str(d.get("stage", p.name))) for p, d in locks.items() if d})
     if stages:
         raise CalibError(f"{what} {folder} is being written, or its write was interrupted: rerun the command that "
                          f"writes it ({', '.join(stages)}) once no other command is writing there")

@@ -399,10 +399,10 @@ def validate(s: Mapping) -> None:
     # kinds and ranges: check_types, per source; what is left relates settings to each other
     if s["ascent"]["method"] not in ("gradient", "diagonal"):
         raise CalibError(f"ascent.method must be 'gradient' or 'diagonal', got {s['ascent']['method']!r}")
-    for m in s["surrogate"]["models"]:
+    models = s["surrogate"]["models"]
+    for m in models:
         if m not in ("rsm", "bp", "pso-bp"):
             raise CalibError(f"surrogate.models: unknown model {m!r} (rsm, bp, pso-bp)")
-    models = s["surrogate"]["models"]
     if not models or len(set(models)) < len(models):
         raise CalibError(f"surrogate.models = {models!r} must name each model to fit once, at least one "
                          "(rsm, bp, pso-bp)")
