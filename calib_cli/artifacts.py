@@ -25,7 +25,7 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
@@ -266,12 +266,31 @@ def read_provenance(path: Path) -> dict:
 ANGLES = ("repose_angle", "angle_coords", "angle_image")
 
 
+def _copies(out: pd.DataFrame, path: Path, response: str, warn: Optional[Callable[[str], None]]) -> None:
+    """Rows that repeat an earlier row in every column. A copy counts as a run of its own (more residual
+    dof, a kinder held-out R2) but adds nothing: two or more are a paste, an error; one may be two
+    repeats' chance equality at the printed digits (a few % of 5 centre points at 0.01 deg), a warning.
+    A response of one value everywhere is left to the fit's own message (an insensitive model)."""
+    copies = np.flatnonzero(out.duplicated(keep="first").to_numpy())
+    if not len(copies) or out[response].nunique() == 1:
+        return
+    i = int(copies[0])
+    j = int(np.flatnonzero((out.iloc[:i] == out.iloc[i]).all(axis=1).to_numpy())[0])
+    said = f"responses file {path}: row {i + 1} repeats row {j + 1} in every column"
+    if len(copies) > 1:
+        raise CalibError(f"{said}, and {len(copies) - 1} more row(s) repeat others (pasted twice?): drop the "
+                         f"copies; an identical repeat adds no information but would be counted as a run")
+    if warn is not None:
+        warn(f"[yellow]warning:[/] {said}: it is counted as a run of its own (two repeats alike to the "
+             f"digits given, or a row pasted twice?)")
+
+
 def read_responses(path: Path, factors: Sequence[str], response: str,
-                   optional: Sequence[str] = ()) -> pd.DataFrame:
+                   optional: Sequence[str] = (), warn: Optional[Callable[[str], None]] = None) -> pd.DataFrame:
     """A responses table from another engine or a paper: CSV or Parquet.
 
     Factor columns in natural units plus the response column; every value numeric
-    and finite.
+    and finite, no rows copies of others (one is ``warn``-ed of).
     """
     path = Path(path)
     if not path.is_file():
@@ -306,6 +325,7 @@ def read_responses(path: Path, factors: Sequence[str], response: str,
         out[c] = vals.astype(float)
     if len(out) == 0:
         raise CalibError(f"responses file {path} has no rows")
+    _copies(out, path, response, warn)
     from .parameters import QUANTITIES, check
 
     for c in (c for c in factors if c in QUANTITIES):  # a factor's value as --set would take it

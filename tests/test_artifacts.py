@@ -147,6 +147,15 @@ def test_read_responses_validation(tmp_path):
         p.write_text(f"a,repose_angle\n1,30\n2,{bad}\n")
         with pytest.raises(CalibError, match=r"must lie in \(0, 90\) deg \(row 2"):
             art.read_responses(p, ["a"], "repose_angle")
+    p.write_text("a,repose_angle\n1,30\n2,31\n1,30\n2,31\n")  # pasted twice: no information, but runs counted
+    with pytest.raises(CalibError, match="row 3 repeats row 1 in every column, and 1 more"):
+        art.read_responses(p, ["a"], "repose_angle")
+    said = []  # one copy may be two repeats alike to the digits given: said, kept
+    p.write_text("a,repose_angle\n1,30\n2,31\n1,30\n")
+    assert len(art.read_responses(p, ["a"], "repose_angle", warn=said.append)) == 3
+    assert len(said) == 1 and "row 3 repeats row 1" in said[0]
+    p.write_text("a,repose_angle\n1,30\n2,31\n1,30.5\n")  # a repeat with its own angle is a replicate
+    assert len(art.read_responses(p, ["a"], "repose_angle")) == 3
     p.write_text("static_friction,repose_angle\n0.4,30\n-3,31\n")  # a factor's value as --set takes it
     with pytest.raises(CalibError, match=r"static_friction = -3 \(responses file .*, row 2\) is outside"):
         art.read_responses(p, ["static_friction"], "repose_angle")

@@ -106,6 +106,47 @@ def test_bad_responses_one_line_error_and_run_dir_unchanged(run, tmp_path, make_
     assert snapshot(run) == before
 
 
+def test_a_responses_table_is_checked_against_the_runs_design(run, tmp_path):
+    """Rows pasted twice are refused (they would be counted as runs: a kinder predicted R2); rows
+    missing from the run's design, or at none of its runs, are analysed as given but said."""
+    assert calib("bbd", "design", "--run", run, "-s", "bbd.ranges.static_friction=[0.112,0.438]",
+                 "-s", "bbd.ranges.rolling_friction=[0.122,0.308]", "-s",
+                 "bbd.ranges.surface_energy=[0.875,1.625]").exit_code == 0
+    table = pd.read_csv(PAPER / "table7_bbd.csv")
+    doubled = tmp_path / "doubled.csv"
+    pd.concat([table, table]).to_csv(doubled, index=False)
+    before = snapshot(run)
+    r = calib("bbd", "analyze", "--run", run, "--responses", doubled)
+    assert r.exit_code == 2 and "row 18 repeats row 1 in every column, and 16 more" in " ".join(r.output.split()), r.output
+    assert snapshot(run) == before
+    r = calib("bbd", "analyze", "--run", run, "--responses", PAPER / "table7_bbd.csv")
+    assert r.exit_code == 0 and "warning: responses file" not in r.output, r.output  # Table 7 is the design
+    short = tmp_path / "short.csv"
+    table.drop(index=[1]).to_csv(short, index=False)  # the row of design run 1
+    out = " ".join(calib("bbd", "analyze", "--run", run, "--responses", short).output.split())
+    assert "1 design run(s) have no row (1)" in out and "no run of" not in out, out
+    off = tmp_path / "off.csv"
+    table.assign(static_friction=table["static_friction"].replace(0.438, 0.45)).to_csv(off, index=False)
+    out = " ".join(calib("bbd", "analyze", "--run", run, "--responses", off).output.split())
+    assert "4 of its 17 rows are at no run of" in out and "(row 1: static_friction 0.45," in out, out
+    assert "4 design run(s) have no row (3, 4, 7, 8)" in out
+
+
+def test_a_paper_table_of_its_own_design_is_said_to_be(run):
+    assert calib("pb", "design", "--run", run).exit_code == 0
+    r = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv")
+    out = " ".join(r.output.split())
+    assert r.exit_code == 0 and "4 of its 12 rows are at no run of" in out and "the table's own points" in out
+
+
+def test_an_ascent_step_given_twice_is_an_error(run, tmp_path):
+    path = pd.read_csv(PAPER / "table5_ascent.csv")
+    bad = tmp_path / "steps.csv"
+    path.assign(step=[1, 2, 3, 3, 5]).to_csv(bad, index=False)
+    r = calib("ascent", "analyze", "--run", run, "--responses", bad)
+    assert r.exit_code == 2 and "step 3 is given twice" in r.output, r.output
+
+
 def test_single_level_factor_is_an_error(tmp_path):
     bad = tmp_path / "one.csv"
     df = pd.read_csv(PAPER / "table3_pb.csv")

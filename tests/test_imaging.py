@@ -262,6 +262,18 @@ def test_given_angles_must_lie_between_0_and_90_deg(tmp_path, rows, needle):
     assert not (tmp_path / "run" / "measure").exists()
 
 
+def test_an_angles_file_may_space_its_columns(tmp_path):
+    """"image, repose_angle" is read as a responses or conditions file's header is."""
+    (tmp_path / "a.csv").write_text("image, repose_angle \nx, 31\ny, 33\n")
+    (tmp_path / "c.csv").write_text("image,condition_id\nx,low\ny,low\n")
+    run = tmp_path / "run"
+    r = runner.invoke(app, ["measure-angle", "--run", str(run), "--angles", str(tmp_path / "a.csv"),
+                            "--conditions", str(tmp_path / "c.csv")])
+    assert r.exit_code == 0, r.output
+    conds = art.read_table(run / "measure" / "conditions.parquet")
+    assert list(conds["condition_id"]) == ["low"] and list(conds["mean"]) == [32.0]
+
+
 def test_conditions_join_the_angles_table_on_its_image_column(tmp_path):
     (tmp_path / "a.csv").write_text("image,repose_angle\nx,31\ny,33\nz,40\nw,42\n")
     (tmp_path / "c.csv").write_text("image,condition_id,fill_height_mm\nx,low,50\ny,low,50\nz,high,75\n"

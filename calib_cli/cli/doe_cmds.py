@@ -50,7 +50,7 @@ def pb_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsOp
     Reads RUN/pb/design.parquet with RUN/simulate/results.parquet, or --responses FILE.
     Writes RUN/pb/effects.parquet, anova.parquet, fit.parquet, effects.png.
     """
-    r = _doe().pb_analyze(run, responses, settings, setting, force)
+    r = _doe().pb_analyze(run, responses, settings, setting, force, say=say)
     if r.skipped:
         return skipped(r.stage)
     res = r.analysis
@@ -139,7 +139,7 @@ def bbd_analyze(run: RunOpt, responses: ResponsesOpt = None, settings: SettingsO
     Writes RUN/bbd/coefficients.parquet, anova.parquet, fit.parquet, data.parquet and
     surface_<a>__<b>.png per factor pair.
     """
-    r = _doe().bbd_analyze(run, responses, settings, setting, force)
+    r = _doe().bbd_analyze(run, responses, settings, setting, force, say=say)
     if r.skipped:
         return skipped(r.stage)
     rsm, coefs = r.rsm, r.coefficients

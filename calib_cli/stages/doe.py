@@ -123,10 +123,48 @@ def _fixed_values(cfg: dict, section: str, names: list[str]) -> dict[str, float]
     return {n: float(given.get(n, space[n].center)) for n in names}
 
 
+def off_design(design: pd.DataFrame, data: pd.DataFrame, space: ParameterSpace) -> tuple[list[int], list]:
+    """The rows of ``data`` (0-based) at no point of ``design``, each design run taking one row within 1 %
+    of every factor's range (a paper prints three digits), and the ``run_id`` of the design runs left
+    without a row."""
+    X = space.to_coded(design[space.names].to_numpy(dtype=float))
+    free, off = np.ones(len(X), dtype=bool), []
+    for i, r in enumerate(space.to_coded(data[space.names].to_numpy(dtype=float))):
+        near = np.flatnonzero(free & (np.abs(X - r).max(axis=1) <= 0.02))
+        if len(near):
+            free[near[0]] = False
+        else:
+            off.append(i)
+    ids = design["run_id"].tolist() if "run_id" in design.columns else list(range(1, len(design) + 1))
+    return off, [ids[k] for k in np.flatnonzero(free)]
+
+
+def _say_off_design(responses: Path, design_path: Path, data: pd.DataFrame, say: Say) -> None:
+    """Warn where a responses table's points are not its run's design: a table of its own design (a
+    paper's) is analysed as it is, but a row missing or doubled from the run's design is a slip."""
+    space = space_from_design(design_path)
+    if space is None or not set(space.names) <= set(data.columns):
+        return
+    off, unmet = off_design(art.read_table(design_path, what="design"), data, space)
+    if not off and not unmet:
+        return
+    parts = []
+    if off:
+        first = ", ".join(f"{n} {data[n].iloc[off[0]]:g}" for n in space.names)
+        parts.append(f"{len(off)} of its {len(data)} rows are at no run of {design_path} (row {off[0] + 1}: {first})")
+    if unmet:
+        ids = ", ".join(map(str, unmet[:8])) + (", ..." if len(unmet) > 8 else "")
+        parts.append(f"{len(unmet)} design run(s) have no row ({ids})")
+    say(f"[yellow]warning:[/] responses file {responses}: {' and '.join(parts)}; the analysis is of the "
+        f"table's own points")
+
+
 def load_responses(run: Path, responses: Optional[Path], design_path: Path, factors: list[str],
-                    response: str) -> tuple[pd.DataFrame, dict]:
+                   response: str, say: Say = plain) -> tuple[pd.DataFrame, dict]:
     if responses is not None:
-        return art.read_responses(responses, factors, response), {"responses": responses}
+        data = art.read_responses(responses, factors, response, warn=say)
+        _say_off_design(responses, design_path, data, say)
+        return data, {"responses": responses}
     data = simulated_responses(run, design_path, factors, response)
     return data, {"design": design_path, "results": art.Rows(Path(run) / "simulate" / "results.parquet", data)}
 
@@ -149,13 +187,13 @@ def pb_design(run: Path, settings: Settings = None, setting: Overrides = None, f
 
 @writes_run
 def pb_analyze(run: Path, responses: Optional[Path] = None, settings: Settings = None, setting: Overrides = None,
-               force: bool = False) -> PBResult:
+               force: bool = False, say: Optional[Say] = None) -> PBResult:
     """Main effects and ANOVA of the screening, from the simulated heaps or ``responses``."""
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
     names, response = list(cfg["pb"]["factors"]), cfg["response"]
     design_path = run / "pb" / "design.parquet"
-    data, inputs = load_responses(run, responses, design_path, names, response)
+    data, inputs = load_responses(run, responses, design_path, names, response, say or plain)
     space = space_from_design(design_path) or ParameterSpace.from_data(data, names, factor_space(cfg, names))
     st = stage(run, "pb", "analyze", inputs=inputs,
                    settings={"space": space.to_dicts(), "alpha": cfg["pb"]["alpha"], "response": response})
@@ -277,9 +315,12 @@ def ascent_analyze(run: Path, responses: Optional[Path] = None, target: Optional
     else:
         factors = [f for f in cfg["bbd"]["factors"] or cfg["pb"]["factors"] if f != "restitution"]
     if responses is not None:
-        data = art.read_responses(responses, factors, response, optional=["step"])
+        data = art.read_responses(responses, factors, response, optional=["step"], warn=say)
         if "step" not in data.columns:
             data.insert(0, "step", np.arange(1, len(data) + 1))
+        elif data["step"].duplicated().any():  # the bracket is the best step's neighbours: one row each
+            raise CalibError(f"responses file {responses}: step {data['step'][data['step'].duplicated()].iloc[0]:g} "
+                             f"is given twice; give one row per step of the path")
         inputs = {"responses": responses}
     else:
         data = simulated_responses(run, design_path, factors, response, allow_failed=True)
@@ -339,7 +380,7 @@ def bbd_design(run: Path, settings: Settings = None, setting: Overrides = None, 
 
 @writes_run
 def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings = None, setting: Overrides = None,
-                force: bool = False) -> BBDResult:
+                force: bool = False, say: Optional[Say] = None) -> BBDResult:
     """The quadratic response surface with ANOVA, lack of fit, R2/adj/pred and adequate precision."""
     run = check_run_dir(run)
     cfg = resolve_settings(run, settings, setting)
@@ -350,7 +391,7 @@ def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings 
         names = space.names
     else:
         names = list(cfg["bbd"]["factors"]) or [n for n in cfg["pb"]["factors"] if n != "restitution"]
-    data, inputs = load_responses(run, responses, design_path, names, response)
+    data, inputs = load_responses(run, responses, design_path, names, response, say or plain)
     if space is None:
         space = ParameterSpace.from_data(data, names, factor_space(cfg, names))
     st = stage(run, "bbd", "analyze", inputs=inputs, settings={"space": space.to_dicts(), "response": response})

@@ -93,9 +93,10 @@ def _read_angles(path: Path) -> pd.DataFrame:
     if not path.is_file():
         raise CalibError(f"angles file not found: {path}")
     try:
-        raw = pd.read_csv(path, comment="#")
+        raw = pd.read_csv(path, comment="#", skipinitialspace=True)
     except Exception as e:
         raise CalibError(f"angles file {path} could not be read ({reason(e)})") from None
+    raw.columns = [str(c).strip() for c in raw.columns]  # "image, repose_angle" as a responses file takes it
     if "repose_angle" not in raw.columns:
         raise CalibError(f"angles file {path} lacks column repose_angle")
     vals = pd.to_numeric(raw["repose_angle"], errors="coerce")

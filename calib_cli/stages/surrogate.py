@@ -63,13 +63,16 @@ def _simulated_training_data(run: Path, stage: str, response: str, say: Say) -> 
 
 def _training_data(run: Path, responses: Optional[Path], cfg: dict, from_simulations: Optional[str], say: Say):
     response = cfg["response"]
+    if from_simulations and responses is not None:
+        raise CalibError(f"fit-surrogate learns from --responses FILE or from the simulations of "
+                         f"--from-simulations {from_simulations}, not both: drop one")
     if from_simulations:
         return _simulated_training_data(run, from_simulations, response, say)
     space = space_from_design(run / "bbd" / "design.parquet")
     names = space.names if space is not None else (list(cfg["bbd"]["factors"]) or
                                                    [n for n in cfg["pb"]["factors"] if n != "restitution"])
     if responses is not None:
-        return art.read_responses(responses, names, response), names, {"responses": responses}
+        return art.read_responses(responses, names, response, warn=say), names, {"responses": responses}
     path = run / "bbd" / "data.parquet"
     if not path.is_file():
         raise CalibError(f"no response-surface data in {run}: run `calib bbd analyze --run {run}` first, "
