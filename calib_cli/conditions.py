@@ -18,6 +18,17 @@ from .parameters import CONDITION_VARIABLES, check, check_rig
 KNOWN = ("image", "condition_id", "floor", *CONDITION_VARIABLES)
 
 
+def outside_range(values, lo: float, hi: float) -> np.ndarray:
+    """Where condition variable ``values`` lie beyond ``[lo, hi]``, a range some heaps or a surrogate's
+    training spanned: by more than 1e-9 of the range (at least 1e-9), the noise of a value written
+    and read back, or NaN, a value no range places. The one test that `invert`, `suggest-conditions`
+    and the posterior's evidence apply before trusting a surrogate at a condition."""
+    x = np.asarray(values, dtype=float)
+    tol = 1e-9 * max(abs(hi - lo), 1.0)
+    with np.errstate(invalid="ignore"):
+        return ~((x >= lo - tol) & (x <= hi + tol))
+
+
 def read_conditions_csv(path: Path, need: tuple[str, ...] = ("condition_id",), what: str = "conditions file") -> pd.DataFrame:
     """The table at ``path``, or a one-line error: missing or unreadable file, another delimiter than
     the comma, a lacking column, a column name that is a typo of a known one, an empty condition_id,

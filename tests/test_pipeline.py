@@ -362,6 +362,13 @@ def test_a_bad_pipeline_is_one_error_line(tmp_path, at_root, text, args, fragmen
     assert not (tmp_path / "run").exists()  # checked before anything ran
 
 
+def test_an_included_files_description_is_checked_as_the_top_files(tmp_path, at_root):
+    (tmp_path / "inner.toml").write_text("description = 3\n" + GOOD.split("\n", 4)[-1])
+    path = write(tmp_path, "[[step]]\ninclude = 'inner.toml'\n")
+    one_error(calib("run", path, "--run", tmp_path / "run"), "inner.toml: description must be a string, got int")
+    assert not (tmp_path / "run").exists()
+
+
 def test_the_pipeline_holds_its_run_directory_from_its_first_step_to_its_last(tmp_path, at_root):
     """A second command (another pipeline with other variables) cannot write the run between two steps: the
     lock is taken before the first step and names this pipeline."""

@@ -277,6 +277,8 @@ def _read(path: Path) -> dict:
                          f"{', '.join(sorted(TOP_KEYS))})")
     if not isinstance(doc.get("step", []), list) or not doc.get("step"):
         raise CalibError(f"{path}: no steps: declare each as a [[step]] table")
+    if not isinstance(doc.get("description", ""), str):  # an included file's too: a typo there is one as well
+        raise CalibError(f"{path}: description must be a string, got {type(doc['description']).__name__}")
     return doc
 
 
@@ -311,8 +313,8 @@ def _step(raw: dict, scope: Mapping[str, Value], path: Path, index: int) -> Step
 
 
 def _steps(path: Path, outer: Mapping[str, Value], given: Mapping[str, Value],
-           stack: tuple[Path, ...]) -> tuple[list[Step], dict[str, str], dict[str, Value]]:
-    """The steps of one file (includes expanded), its environment and its variables."""
+           stack: tuple[Path, ...]) -> tuple[list[Step], dict[str, str], dict[str, Value], str]:
+    """The steps of one file (includes expanded), its environment, its variables and its description."""
     doc = _read(path)  # first: a path that cannot be resolved is refused there, in one line
     if path.resolve() in stack:
         raise CalibError(f"{path}: included by itself ({' -> '.join(str(p) for p in (*stack, path.resolve()))})")
@@ -332,14 +334,14 @@ def _steps(path: Path, outer: Mapping[str, Value], given: Mapping[str, Value],
         for k, v in raw.get("vars", {}).items():
             _value(v, f"{where}, variable {k}", isinstance(v, list))  # the types [vars] and --var take
             values[k] = _expand(v, scope, where, k) if isinstance(v, list) else _subst(str(v), scope, where)
-        inner, inner_env, _ = _steps(path.parent / raw["include"], scope, values, (*stack, path.resolve()))
+        inner, inner_env, _, _ = _steps(path.parent / raw["include"], scope, values, (*stack, path.resolve()))
         steps += inner
         clash = sorted(k for k in set(inner_env) & set(env) if inner_env[k] != env[k])
         if clash:  # every step runs under one environment: one of the two would be dropped unsaid
             raise CalibError(f"{where}: [env] {', '.join(clash)} differs from this file's or an earlier include's "
                              f"({'; '.join(f'{inner_env[k]!r} against {env[k]!r}' for k in clash)})")
         env = {**inner_env, **env}
-    return steps, env, scope
+    return steps, env, scope, doc.get("description", "")
 
 
 def _env(doc: dict, path: Path, scope: Mapping[str, Value]) -> dict[str, str]:
@@ -365,7 +367,7 @@ def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str
     path, run = Path(path), str(run)
     if not run.strip():
         raise CalibError("--run is empty: give the run directory")
-    steps, env, scope = _steps(path, {"run": run}, dict(variables or {}), ())
+    steps, env, scope, description = _steps(path, {"run": run}, dict(variables or {}), ())
     seen: dict[str, str] = {}
     for s in steps:
         if s.name in seen:
@@ -373,9 +375,6 @@ def load_pipeline(path: Path | str, run: Path | str, variables: Mapping[str, str
         seen[s.name] = s.source
     for s in steps:
         check_command(root, s)
-    description = _read(path).get("description", "")
-    if not isinstance(description, str):
-        raise CalibError(f"{path}: description must be a string, got {type(description).__name__}")
     return Pipeline(path, run, tuple(steps), env, scope, description, root)
 
 

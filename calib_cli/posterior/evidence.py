@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art, pool
+from ..conditions import outside_range
 from ..heaps.index import RESULTS, current_results, heap_setups
 from ..errors import CalibError
 from ..measurements import photo_piles
@@ -145,7 +146,7 @@ def beyond_heaps(conds: pd.DataFrame, gp: GPSurrogate):
         if c not in conds.columns:
             yield c, np.ones(len(conds), bool), None
         else:
-            yield c, ~conds[c].between(lo, hi).to_numpy(), f"outside the simulated heaps' {lo:g} to {hi:g}"
+            yield c, outside_range(conds[c], lo, hi), f"outside the simulated heaps' {lo:g} to {hi:g}"
     for c, val in gp.constants_.items():
         if c in conds.columns:
             yield c, (conds[c].notna() & ~np.isclose(conds[c], val)).to_numpy(), \

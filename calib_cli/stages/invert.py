@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
+from ..conditions import outside_range
 from ..heaps.runner import run_campaign
 from ..dem.heap import PARAMETERS
 from ..discrepancy.stats import at_bounds, per_condition, residual_table
@@ -320,8 +321,7 @@ def _beyond_learnt(run: Path, best: dict) -> list[str]:
     ctab = art.read_table(path, columns=["condition_id", *(n for n, _, _ in cvars)], what="measured conditions")
     out = []
     for n, lo, hi in cvars:
-        x, tol = ctab[n].to_numpy(float), 1e-9 * max(abs(hi - lo), 1.0)
-        far = ctab.loc[(x < lo - tol) | (x > hi + tol), "condition_id"].astype(str).tolist()
+        far = ctab.loc[outside_range(ctab[n], lo, hi), "condition_id"].astype(str).tolist()
         if far:
             out.append(f"condition(s) {', '.join(far)} set {n} beyond the {lo:g} to {hi:g} the surrogate learnt it "
                        "over: its predictions there extrapolate, and so does the solution; simulate heaps there "

@@ -25,6 +25,7 @@ from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, exp
                                  SEPARATES, unsettling)
 from ..heaps.inputs import COND_VARS, heap_setup, modulus_settings, run_heap_settings
 from .common import Result, Say, check_run_dir, plain, resolve_settings, shown, stage, writes_run
+from ..conditions import outside_range
 from ..measurements import measured_conditions
 from ..posterior.evidence import RESPONSE, check_measured, check_rows, in_box, model_rows, model_surrogate, profile_rows
 from ..posterior.profiles import FULLNESS, measured_fullness, profile_inputs, profiles_at_hand
@@ -474,7 +475,7 @@ def _beyond_heaps(gp: GPSurrogate, cand: pd.DataFrame) -> list[str]:
     out = []
     for _, row in cand.iterrows():
         far = [f"{WORDS.get(c, c)} {row[c]:g} beyond the heaps' {lo:g}-{hi:g}"
-               for c, (lo, hi) in ranges.items() if c in row and not lo - 1e-9 <= row[c] <= hi + 1e-9]
+               for c, (lo, hi) in ranges.items() if c in row and outside_range(row[c], lo, hi)]
         out.append("; ".join(far))
     return out
 
