@@ -28,14 +28,14 @@ h1{font-size:20px;margin:4px 0}h3{font-size:14px;margin:0 0 6px}
 h2{border-bottom:2px solid #444;padding-bottom:.2em;margin-top:1.6em}
 small,.prov{color:#666;font-size:12px}.prov{margin:4px 0}.lead{font-size:15px;margin:4px 0}
 nav{font-size:13px;margin:6px 0 10px}nav a{margin-right:10px}code{font-size:12.5px}
-.grid{display:grid;grid-template-columns:1.1fr 1.1fr 1fr;gap:10px;margin:8px 0}
+.grid{display:grid;grid-template-columns:1.1fr 0.95fr 1.15fr;gap:10px;margin:8px 0}
 .stack{display:flex;flex-direction:column;gap:10px;min-width:0}
 .card{border:1px solid #ddd;border-radius:6px;padding:8px 10px;background:#fcfcfc;min-width:0}
 .card.wide{grid-column:1/-1}.scroll{overflow-x:auto;max-width:100%}
 table{border-collapse:collapse;font-size:12.5px;margin:.3em 0 .8em}table.compact{margin:0}
 td,th{border:1px solid #ccc;padding:2px 6px;text-align:left;vertical-align:top}th{background:#f0f0f0}
 td.n,th.n{text-align:right}
-.badge{display:inline-block;padding:0 6px;border-radius:8px;font-size:12px;font-weight:600}
+.badge{display:inline-block;padding:0 6px;border-radius:8px;font-size:12px;font-weight:600}.nw{white-space:nowrap}
 .pass{background:#d5f0dc;color:#145a32}.fail{background:#f8d4cf;color:#7b241c}
 .warn{background:#fcefc7;color:#7d5a00}.info{background:#dde8f5;color:#1b4f72}
 svg.chart{max-width:100%;height:auto;font-size:11px}.legend{font-size:12px;margin:2px 0}
@@ -47,7 +47,7 @@ img{max-width:100%;border:1px solid #ddd}figure{margin:0}figcaption{font-size:12
 .figs{display:grid;grid-template-columns:repeat(2,minmax(0,1fr));gap:10px;margin:6px 0}
 .figs.three{grid-template-columns:repeat(3,minmax(0,1fr))}.figs.post{grid-template-columns:3fr 2fr}
 details{margin:4px 0}summary{cursor:pointer}details.raw{border-bottom:1px solid #eee;padding:2px 0}
-@media (max-width:1000px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}
+@media (max-width:1200px){.grid{grid-template-columns:1fr}.gallery,.figs.three{grid-template-columns:1fr 1fr}
 .figs.post{grid-template-columns:1fr}}"""
 
 

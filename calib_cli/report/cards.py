@@ -8,6 +8,7 @@ import shlex
 import numpy as np
 import pandas as pd
 
+from .. import artifacts as art
 from ..model import EFFECTS
 from ..posterior.evidence import bf_text, box_cuts, cut_words, edges, effect_verdict
 from ..posterior.suggest import any_ranked, best_per_effect, simulate_command, unsettled_words, unsettling
@@ -24,9 +25,11 @@ def _missing(cmd: str, what: str) -> str:
     return note(f"Not run yet: <code>{esc(cmd)}</code> {what}.")
 
 
-def _ga_state(p: str, w: float, post, value: float = math.nan) -> str:
+def _ga_state(p: str, w: float, post, value: float = math.nan, edge: str = "") -> str:
     """The GA point's badge, as the posterior's row reads (:func:`_posterior_rows`, in its order): pinned only
-    where the posterior identifies the parameter and the point lies in its 90 % interval."""
+    where the posterior identifies the parameter and the point lies in its 90 % interval. Without a posterior,
+    a point at ``edge`` ("low"/"high") of the box the surrogate was fitted on is said first: the targets
+    may want a value beyond it, and a narrow spread there is the box's, not the data's."""
     if post is not None and p in post.index:
         r = post.loc[p]
         if not bool(r.get("decided", True)):
@@ -42,7 +45,14 @@ def _ga_state(p: str, w: float, post, value: float = math.nan) -> str:
         if not r["q05"] <= value <= r["q95"]:
             return badge("outside the posterior's 90 %", "warn")
         return badge("pinned", "pass")
+    if edge:
+        return badge(f"at {'lower' if edge == 'low' else 'upper'} edge", "fail")  # as a posterior row says it
     return badge("narrow", "info") if w <= PINNED else badge("loose", "warn")
+
+
+def _breakable(name: str) -> str:
+    """A parameter's name that may wrap after its underscores (wall_static_friction in a narrow card)."""
+    return esc(name).replace("_", "_<wbr>")
 
 
 def _unit(name: str) -> str:
@@ -65,16 +75,17 @@ def params_card(f: RunFiles) -> str:
     rng = rng.set_index("parameter") if rng is not None else pd.DataFrame()
     post = f.table("posterior/summary.parquet")
     post = post.set_index("parameter") if post is not None and len(post) else None
+    at_edge = _search_edges(f, params)
     rows, outside = [], []
     for p, v in params.items():
         if p in rng.index:
             lo, hi, w = rng.loc[p, ["low", "high", "width_fraction"]]
             out = not (lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi))
             outside += [p] if out else []
-            rows.append([esc(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
-                         _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post, v)])
+            rows.append([_breakable(p), f"<b>{num(v)}</b>", f"{num(lo, 3)}&ndash;{num(hi, 3)}{'*' if out else ''}",
+                         _unit(p), f"{w:.0%}".replace("%", " %"), _ga_state(p, w, post, v, at_edge.get(p, ""))])
         else:
-            rows.append([esc(p), f"<b>{num(v)}</b>", "", _unit(p), "", ""])
+            rows.append([_breakable(p), f"<b>{num(v)}</b>", "", _unit(p), "", ""])
     head = ["parameter", "value", "near-optimal", "unit", "spread", ""]
     if not any(r[3] for r in rows):  # all dimensionless: the column would only widen the card past its edge
         head, rows = head[:3] + head[4:], [r[:3] + r[4:] for r in rows]
@@ -87,7 +98,20 @@ def params_card(f: RunFiles) -> str:
     if outside:
         body += note(f"* {esc(', '.join(outside))}: the solution lies outside the surrogate's near-optimal range, "
                      "moved there by the refinement by simulation.", "prov")
+    said = f.prov("invert/solution.parquet").get("warnings") or []
+    body += "".join(note("invert: " + esc(str(w)), "prov") for w in said)
     return card("The surrogate's best fit (GA)", body + _held_out(f) + _fixed_and_validation(f, params))
+
+
+def _search_edges(f: RunFiles, params: dict) -> dict[str, str]:
+    """The GA point's parameters within 2 % of an edge of the box its surrogate was fitted on
+    (surrogate/best.json's inputs, lows, highs; `invert` warns of the same)."""
+    from ..discrepancy.stats import at_bounds
+
+    best = f.path("surrogate/best.json")
+    pick = art.read_json(best) if best else {}
+    box = {n: (lo, hi) for n, lo, hi in zip(pick.get("inputs", []), pick.get("lows", []), pick.get("highs", []))}
+    return at_bounds({p: v for p, v in params.items() if p in box}, box)
 
 
 def _held_out(f: RunFiles) -> str:
@@ -119,7 +143,7 @@ def _fixed_and_validation(f: RunFiles, params: dict) -> str:
         rounds = int(val["round"].max()) + 1 if "round" in val.columns else 1
         chosen = f.prov("invert/solution.parquet").get("refine_round", 0)
         acc = f.prov("invert/refinement.parquet").get("accepted") if f.path("invert/refinement.parquet") else None
-        out += note(f"Validated by {len(val)} simulated heaps over {rounds} round{'s' * (rounds != 1)}; "
+        out += note(f"Validated by {len(val)} heaps simulated at this solution over {rounds} round{'s' * (rounds != 1)}; "
                     f"the solution is round {esc(chosen)}'s"
                     + ("" if acc is None else (" (accepted)" if acc else " (closest; no round met the targets)"))
                     + ".", "prov")
@@ -195,7 +219,8 @@ def ranking_card(f: RunFiles) -> str:
 
 def _effect_badge(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
     word = effect_verdict(bf, upper, decided, cut)
-    return {"on": badge("called for", "fail"), "off": badge("favoured off", "pass"),
+    # the effect called for is the finding, not a failure: not the misfit's red
+    return {"on": badge("called for", "info"), "off": badge("favoured off", "pass"),
             "open": badge("not decided", "warn"),
             "undecided": badge("undecided: the surrogate is unsure", "warn"),
             "cut": badge("no verdict: the box cuts the posterior", "warn")}.get(word, "")

@@ -46,7 +46,7 @@ def posterior(f: RunFiles) -> str:
                                  "and each effect's Bayes factor of off. In black, the answer: the last round's "
                                  "posterior sampled longer" + _averaged_words(f) + ". A Bayes factor drawn hollow is an "
                                  "upper bound: no draw fell near the effect's off value, and a round's shorter chains "
-                                 "bound it less tightly than the answer's"),
+                                 "bound it less tightly than the answer's."),
         ("posterior/corner.png", f"Model revision {esc(rev)}'s posterior draws over the prior's ranges, every pair "
                                  "(dashed: 90 % intervals)")) if (f.run / rel).is_file()]
     body = f"<div class='figs post'>{''.join(shots)}</div>" if shots else ""
@@ -104,7 +104,8 @@ def heap_setups(f: RunFiles) -> list[str]:
         also = [f"engine {', '.join(engines)}"] * bool(engines) + [f"{mixed} in mixed precision"] * bool(mixed)
         items.append(f"<li>{html.escape(str(name))}: {len(grp)} heap(s), {html.escape('; '.join(setups(grp)))}"
                      + (f" ({html.escape('; '.join(also))})" if also else "") + "</li>")
-    return ["<p>Heaps in this run directory, by what they were simulated for: a calibration holds at the "
+    return ["<p>Heaps in this run directory (every model revision's), by what they were simulated for: a "
+            "calibration holds at the "
             "preset and shear modulus its heaps had (docs/physics.md, 'Which modulus').</p><ul>", *items, "</ul>"]
 
 

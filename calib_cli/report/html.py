@@ -59,7 +59,7 @@ def _cell(v, digits: int) -> str:
         return str(bool(v))
     if isinstance(v, (float, np.floating)):
         return "" if np.isnan(v) else f"{v:.{digits}g}"
-    return "" if v is None else esc(v)
+    return "" if v is None else prose(v)  # a reason's `command` as code, as the cards show it
 
 
 def table(df: pd.DataFrame, max_rows: int = 40, digits: int = 5) -> str:
@@ -96,8 +96,9 @@ def note(text: str, cls: str = "note") -> str:
 
 
 def badge(text: str, kind: str) -> str:
-    """A coloured label: kind is pass, fail, warn or info."""
-    return f"<span class='badge {kind}'>{esc(text)}</span>"
+    """A coloured label: kind is pass, fail, warn or info. A short one is kept on one line ("1 of 6 |z| > 2"
+    broken over four reads as four labels); a sentence may wrap."""
+    return f"<span class='badge {kind}{' nw' * (len(text) <= 24)}'>{esc(text)}</span>"
 
 
 class RunFiles:

@@ -87,6 +87,7 @@ def photos_card(f: RunFiles) -> str:
                          + ": the per-heap folders under <code>simulate/runs/</code> are caches, not committed. "
                          "Those conditions show the measured overlay only; <code>calib compare</code> "
                          "re-simulates them.", "prov")
+        title = title if n_side else "Photographs"  # the title promises no side view the card cannot show
         body += note("Each photograph is the condition's closest to its mean angle, with the contour, base "
                      "and fitted flanks drawn by <code>calib measure-angle</code>.", "prov")
     return f"<div class='card wide'><h3>{title}</h3>{body}</div>"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pandas as pd
 
 from .. import artifacts as art
-from .html import RunFiles, esc, figure, note, num, table
+from .html import RunFiles, deg, esc, figure, note, num, table
 
 
 def section(sid: str, title: str, ref, body: str) -> str:
@@ -20,11 +20,28 @@ def not_run(cmd: str) -> str:
     return note(f"Not run in this run directory (<code>{esc(cmd)}</code>).")
 
 
+#: what each stage's figure shows, by its file's name (a surface's is named by its factor pair)
+CAPTIONS = {
+    "effects": "The screening's main effects, largest first (red: significant)",
+    "path": "The angle along the steepest-ascent path against the target",
+    "predicted_vs_actual": "Each surrogate's predicted angle against the design's, in-sample and held out",
+    "fitness": "The GA's best and mean fitness (RMSE to the targets, deg) per generation",
+    "history": "RMSE and &chi;&sup2;/dof per model revision",
+    "residuals": "Measured &minus; simulated angle per condition against each condition variable (bars: two "
+                 "combined standard uncertainties)",
+}
+
+
+def _caption(stem: str) -> str:
+    if stem in CAPTIONS:
+        return CAPTIONS[stem]
+    # a surface's file is surface_<a>__<b>: the pair's sign put in after escaping, else it shows as "&times;"
+    return esc(stem.replace("__", "\0").replace("_", " ")).replace("\0", " &times; ")
+
+
 def figures(f: RunFiles, rel_dir: str, pattern: str = "*.png", cls: str = "figs") -> str:
     paths = f.pngs(rel_dir, pattern)
-    # a surface's file is surface_<a>__<b>: the pair's sign put in after escaping, else it shows as "&times;"
-    items = "".join(figure(f.run, p, esc(p.stem.replace("__", "\0").replace("_", " ")).replace("\0", " &times; "))
-                    for p in paths)
+    items = "".join(figure(f.run, p, _caption(p.stem)) for p in paths)
     return f"<div class={cls}>{items}</div>" if items else ""
 
 
@@ -60,9 +77,21 @@ def ascent(f: RunFiles) -> str:
         body = not_run("calib ascent design; calib ascent analyze")
     else:
         br = f.table("ascent/bracket.parquet")
-        body = (table(path, digits=4) + (note("Bracket for the response surface (Table 6):") + table(br, digits=4)
-                                         if br is not None else "") + figures(f, "ascent"))
+        body = (_ascent_target(f) + table(path, digits=4)
+                + (note("Bracket for the response surface (Table 6):") + table(br, digits=4) if br is not None else "")
+                + figures(f, "ascent"))
     return section("ascent", "Steepest ascent path", "3.2, Tables 5-6", body)
+
+
+def _ascent_target(f: RunFiles) -> str:
+    """Where the path was judged against another angle than the measured one (settings ascent.target or
+    --target: the paper's Table 5 needs 32.84 deg, its measurement is 32.07), a line that says so."""
+    target = f.prov("ascent/path.parquet").get("target")
+    cond = f.table("measure/conditions.parquet")
+    if target is None or cond is None or len(cond) != 1 or abs(float(cond["mean"].iloc[0]) - float(target)) < 5e-3:
+        return ""
+    return note(f"The path is judged against a target of {deg(target)} (settings <code>ascent.target</code> or "
+                f"<code>--target</code>), not the measured {deg(cond['mean'].iloc[0])} that the inversion aims at.")
 
 
 def bbd(f: RunFiles) -> str:
@@ -102,7 +131,12 @@ def inversion(f: RunFiles) -> str:
     body = figures(f, "invert")
     pc = f.table("invert/predicted_conditions.parquet")
     if pc is not None:
-        body += note("Surrogate prediction at the solution, per target:") + table(pc, digits=4)
+        cond = f.table("measure/conditions.parquet")  # the targets are its means, in its order
+        if cond is not None and len(cond) == len(pc) and "condition_id" in cond.columns:
+            pc = pc.assign(condition_id=cond["condition_id"].astype(str).to_numpy())
+        pc = pc[[c for c in ("condition_id", "target", "predicted_angle") if c in pc.columns]]
+        body += note("Surrogate prediction at the solution, per target (deg):") + table(
+            pc.rename(columns={"target": "target [deg]", "predicted_angle": "predicted [deg]"}), digits=4)
     ref = f.table("invert/refinement.parquet")
     if ref is not None and len(ref):
         g = ref.groupby("round").agg(rms_z=("z", lambda z: float((z ** 2).mean() ** 0.5)),

@@ -105,24 +105,29 @@ def _diagnosis_clause(f: RunFiles) -> str:
     drev = f.prov("diagnose/ranking.parquet").get("model_revision", "?")
     sig = list(rank.loc[rank["verdict"] == "significant", "effect"]) if "verdict" in rank.columns else \
         list(rank.loc[rank["p_value"] < 0.05 / len(rank), "effect"])
-    if not sig:
-        return f" The diagnosis of model revision {esc(drev)} found no significant missing effect."
+    text = (f" The diagnosis of model revision {esc(drev)} ranked {words(sig)} significant" if sig else
+            f" The diagnosis of model revision {esc(drev)} found no significant missing effect")
     hist = f.table("compare/history.parquet")
-    text = f" The diagnosis of model revision {esc(drev)} ranked {words(sig)} significant"
-    if hist is not None and len(hist) and int(hist["revision"].iloc[-1]) > int(drev if str(drev).isdigit() else -1):
-        last = hist.iloc[-1]
-        added = [e for e in sig if e in str(last["effects"]).split(",")]
-        was = hist.loc[hist["revision"] == int(drev)]
-        if added:
-            # both: the RMSE weighs every condition alike, chi2/dof by its uncertainty, and they can part ways
-            text += (f"; revision {int(last['revision'])} adds {words(added)}"
-                     + (f" (RMSE {deg(was['rmse'].iloc[0])} &rarr; {deg(last['rmse'])}, &chi;&sup2;/dof "
-                        f"{num(was['chi2_dof'].iloc[0], 3)} &rarr; {num(last['chi2_dof'], 3)})" if len(was) else ""))
-    return text + "."
+    if hist is None or not len(hist) or int(hist["revision"].iloc[-1]) <= int(drev if str(drev).isdigit() else -1):
+        return text + "."
+    last = hist.iloc[-1]
+    was = hist.loc[hist["revision"] == int(drev)]
+    new = [e for e in str(last["effects"]).split(",") if len(was) and e not in str(was["effects"].iloc[0]).split(",")]
+    added = [e for e in sig if e in str(last["effects"]).split(",")]
+    other = [e for e in new if e not in added]  # added by hand, not from the ranking: say so
+    if not added and not other:
+        return text + "."
+    # both: the RMSE weighs every condition alike, chi2/dof by its uncertainty, and they can part ways
+    change = (f" (RMSE {deg(was['rmse'].iloc[0])} &rarr; {deg(last['rmse'])}, &chi;&sup2;/dof "
+              f"{num(was['chi2_dof'].iloc[0], 3)} &rarr; {num(last['chi2_dof'], 3)})" if len(was) else "")
+    adds = [words(added)] * bool(added) + [f"{words(other)}, which it did not rank significant"] * bool(other)
+    return text + f"; revision {int(last['revision'])} adds {' and '.join(adds)}{change}."
 
 
 def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
-    """(badge kind, one sentence) on how well the calibrated model reproduces the measurements."""
+    """(kind, one sentence) on how well the calibrated model reproduces the measurements: pass, chance (conditions
+    beyond two u, as many as chance gives a right model: consistent, not confirmed), reached (as many fitted
+    parameters as angles: the fit checks the solution, not the model), fail or info."""
     n = len(fit.rows)
     cs = f"condition{'s' * (n != 1)}"
     if fit.kind in ("compare", "validation"):
@@ -141,22 +146,33 @@ def verdict(f: RunFiles, fit: Fit) -> tuple[str, str]:
             return "fail", (f"{who} form{'s' * one} no heap at {len(gone)} of {n} {cs} ({esc(', '.join(gone))}), "
                             f"where the lab's piles did: not checked there, and missed; elsewhere {nf} of "
                             f"{n - len(gone)} lie beyond two combined standard uncertainties ({stats}).")
+        free = _free_clause(f, n)
         if nf == 0:
-            return "pass", f"{who} reproduce{'s' * one} {which} within two combined standard uncertainties ({stats})."
+            return ("reached" if free else "pass"), (f"{who} reproduce{'s' * one} {which} within two combined "
+                                                     f"standard uncertainties ({stats}){free}.")
         missed = "the measured condition" if n == 1 else f"{nf} of {n} {cs}"
         chance = _within_chance(f, fit) if fit.kind == "compare" else None
         if chance:
-            return "pass", (f"{who} reproduce{'s' * one} the {n} {cs} as well as chance allows: {missed} "
-                            f"lie{'s' * (nf == 1)} beyond two combined standard uncertainties, {chance} ({stats}).")
+            return "chance", (f"{who} reproduce{'s' * one} the {n} {cs} as well as chance allows: {missed} "
+                              f"lie{'s' * (nf == 1)} beyond two combined standard uncertainties, {chance} ({stats}); "
+                              "consistent with the measurements, not a confirmation.")
         return "fail", f"{who} miss{'es' * one} {missed} by more than two combined standard uncertainties ({stats})."
     if fit.kind == "surrogate":
-        params = solution_params(f)
-        free = (f" (with {len(params)} parameters for {n} angle{'s' * (n != 1)} the search can always reach "
-                f"{'it' if n == 1 else 'them'}: that says nothing of the model)") if len(params) >= n else ""
+        free = _free_clause(f, n, "the search can always reach", "that says nothing of the model")
         return "info", (f"Not checked by simulation: at the solution the surrogate predicts the measured "
                         f"angle{'s' * (n != 1)} within RMSE {deg(_rmse(fit.rows))}{free}, but no heap was simulated "
                         "there (<code>calib invert --validate N</code>, <code>calib compare</code>).")
     return "info", "Not checked by simulation yet: <code>calib compare</code> simulates the calibrated point."
+
+
+def _free_clause(f: RunFiles, n: int, how: str = "a fit is expected to reach",
+                 then: str = "that checks the solution, not the model") -> str:
+    """" (with 3 parameters for 1 angle a fit is expected to reach it: that checks the solution, not the model)"
+    where the calibrated point has as many parameters as there are measured angles, else ""."""
+    k = len(solution_params(f))
+    if k < n:
+        return ""
+    return f" (with {k} parameters for {n} angle{'s' * (n != 1)} {how} {'it' if n == 1 else 'them'}: {then})"
 
 
 def _within_chance(f: RunFiles, fit: Fit) -> str:
@@ -247,7 +263,9 @@ def headline(f: RunFiles, fit: Fit) -> str:
     undecided = post is not None and len(post) and "decided" in post.columns and not bool(post["decided"].iloc[0])
     if post is not None and len(post):
         # no verdict while the surrogate is unsure: not "calibrated" either
-        what = f"Calibrat{'ing' if undecided else 'ed'} {words(list(post['parameter']))}"
+        some = "identified" not in post.columns or bool(post["identified"].astype(bool).any())
+        what = (f"Calibrat{'ing' if undecided else 'ed'}" if some or undecided else "The posterior of") \
+            + f" {words(list(post['parameter']))}"  # "calibrated" only where the data pin something
         extra = _posterior_clause(post, str(f.prov("posterior/summary.parquet").get("prior", "settings")))
     elif params:
         what = f"The surrogate's best fit (GA) of {words(params)}"
@@ -260,6 +278,7 @@ def headline(f: RunFiles, fit: Fit) -> str:
     if undecided and fit.kind == "compare":  # a point of a posterior that is still undecided
         sentence = ("At the most probable draw of a posterior still undecided (the surrogate is unsure there, so it "
                     "may move), " + sentence[0].lower() + sentence[1:])
-    label = {"pass": "fits", "fail": "misfit", "info": "unchecked"}[kind]
+    label, cls = {"pass": ("fits", "pass"), "chance": ("consistent", "info"), "reached": ("reached", "info"),
+                  "fail": ("misfit", "fail"), "info": ("unchecked", "info")}[kind]
     return (f"<p class=lead><b>{what}</b> against {_against(f)}{': undecided so far' if undecided else ''}.</p>"
-            f"<p class=lead>{badge(label, kind)} {sentence}{_diagnosis_clause(f)}{extra}</p>")
+            f"<p class=lead>{badge(label, cls)} {sentence}{_diagnosis_clause(f)}{extra}</p>")
