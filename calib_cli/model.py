@@ -102,9 +102,23 @@ class Model:
         return tomli_w.dumps({"revision": self.revision, "effects": list(self.effects), "note": self.note})
 
 
+def _archived(run: Path) -> list[int]:
+    """The revisions RUN/model/ keeps (rev-NNNN.toml), in order."""
+    d = Path(run) / "model"
+    names = (q.stem[4:] for q in d.glob("rev-*.toml")) if d.is_dir() else ()
+    return sorted(int(n) for n in names if n.isdigit())
+
+
 def load_model(run: Path) -> Model:
     p = Path(run) / MODEL_FILE
+    if p.exists() and not p.is_file():
+        raise CalibError(f"{p} is not a file: move it aside (the model's revisions are kept in {p.parent / 'model'})")
     if not p.is_file():
+        kept = _archived(run)
+        if kept:  # read as the default model, revision 0, it would be compared and calibrated as one
+            last = Path(run) / "model" / f"rev-{kept[-1]:04d}.toml"
+            raise CalibError(f"{p} is missing, but {p.parent / 'model'} keeps revisions {kept[0]}-{kept[-1]}: "
+                             f"restore the current one (cp {last} {p})")
         return Model(tuple(DEFAULT_EFFECTS), 0, "default model (no model.toml yet)")
     try:
         d = tomllib.loads(p.read_text())
@@ -128,11 +142,15 @@ def load_model(run: Path) -> Model:
 
 
 def save_model(run: Path, model: Model) -> Model:
-    """Write a new revision (kept in RUN/model/) and make it current."""
+    """Write a new revision (kept in RUN/model/) and make it current. It is numbered after every revision
+    kept, so that a model.toml set back to an earlier revision never overwrites a later one: compare's
+    history and calibrate's folders name revisions by number."""
     run = Path(run)
     with art.run_lock(run):  # a compare running meanwhile would label its residuals with the wrong revision
         old = load_model(run)
-        new = Model(model.effects, old.revision + 1, model.note)
+        if (run / "model").exists() and not (run / "model").is_dir():
+            raise CalibError(f"{run / 'model'} is not a folder: move it aside (it keeps the model's revisions)")
+        new = Model(model.effects, max([old.revision, *_archived(run)]) + 1, model.note)
         art.atomic_write_bytes(run / "model" / f"rev-{new.revision:04d}.toml", new.to_toml().encode())
         art.atomic_write_bytes(run / MODEL_FILE, new.to_toml().encode())
     return new

@@ -2,6 +2,8 @@
 file with revisions, and the compare / diagnose / synth-lab plumbing on tiny heaps."""
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -168,6 +170,30 @@ def test_model_revisions_and_pinning(tmp_path):
     assert "wall_static_friction" not in m2.pin({"static_friction": 0.4})  # tied to the particles' value
     with pytest.raises(Exception):
         Model(("levitation",))
+
+
+def test_a_revision_kept_is_never_overwritten_nor_a_lost_model_file_read_as_the_default(tmp_path):
+    """model.toml set back to revision 1 and an effect added: revision 3, not a second revision 2; model.toml
+    gone while model/ keeps revisions, or a folder, or model/ a file: one line each, nothing written."""
+    base = load_model(tmp_path).effects
+    save_model(tmp_path, Model((*base, "cohesion")))
+    save_model(tmp_path, Model((*base, "cohesion", "capillary")))
+    kept = (tmp_path / "model" / "rev-0002.toml").read_bytes()
+    shutil.copy(tmp_path / "model" / "rev-0001.toml", tmp_path / "model.toml")
+    m3 = save_model(tmp_path, Model((*base, "cohesion", "wall_friction")))
+    assert m3.revision == 3 and (tmp_path / "model" / "rev-0002.toml").read_bytes() == kept
+    (tmp_path / "model.toml").unlink()
+    with pytest.raises(CalibError, match=r"model.toml is missing, but .*model keeps revisions 1-3: restore"):
+        load_model(tmp_path)
+    (tmp_path / "model.toml").mkdir()
+    with pytest.raises(CalibError, match="model.toml is not a file"):
+        load_model(tmp_path)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "model").write_text("")
+    with pytest.raises(CalibError, match="model is not a folder"):
+        save_model(other, Model((*base, "cohesion")))
+    assert not (other / "model.toml").exists()
 
 
 def test_model_refuses_values_it_would_drop():
@@ -818,3 +844,28 @@ def test_diagnose_seeds_its_heaps_as_compare_seeded_its_residuals(tmp_path, monk
         with pytest.raises(Stop):
             diag.diagnose(tmp_path, given, preset="smoke", seeds=option, force=True)
         assert seen[-1] == want
+
+
+def test_diagnose_refuses_residuals_of_another_point_or_another_measurement(tmp_path):
+    """compare's residuals name the point they were simulated at: diagnose at another (another --set) or after
+    the lab measured again under the same condition names would set its sensitivities against another misfit."""
+    from calib_cli.stages.diagnose import current_residuals
+
+    src = Path(__file__).resolve().parents[1] / "sample_runs" / "hidden-effect"
+    run = tmp_path / "he"
+    for sub in ("compare", "measure"):
+        shutil.copytree(src / sub, run / sub)
+    model, theta = Model(("sliding_friction", "rolling_friction", "restitution", "cohesion"), 1), \
+        {"static_friction": 0.456, "rolling_friction": 0.123, "restitution": 0.22, "surface_energy": 0.438}
+    path = run / "compare" / "residuals.parquet"
+    prov = art.read_provenance(path)
+    for lock in (run / "compare").glob("*.lock.json"):  # the edits stand in for what compare would write
+        lock.unlink()
+    art.write_table(path, art.read_table(path), {**prov, "theta": theta})
+    conds = art.read_table(run / "measure" / "conditions.parquet")
+    assert len(current_residuals(run, model, conds, theta)) == 6
+    with pytest.raises(CalibError, match=r"at another point than this one \(static_friction 0.456 against 0.4\)"):
+        current_residuals(run, model, conds, {**theta, "static_friction": 0.4})
+    again = conds.assign(mean=conds["mean"] + np.r_[0.0, 0.5, 0, 0, 0, 0])
+    with pytest.raises(CalibError, match=f"other measured means .* at {conds['condition_id'].iloc[1]}:"):
+        current_residuals(run, model, again, theta)

@@ -203,6 +203,20 @@ def test_campaign_caches_and_survives_interruption(tmp_path):
     assert f"numpy {np.__version__}" in host() and f"numba {numba.__version__}" in host()
 
 
+@pytest.mark.parametrize("text", ["{}", "[1]", '{"run_hash": "0000000000000000", "status": "ok"}'])
+def test_a_cached_result_calib_did_not_write_stops_the_campaign_before_the_index(tmp_path, text):
+    """A heap folder's result.json edited to {} entered the index as a row of NaN (and moved compare's RMSE);
+    a list was exit 70. Now one line naming the file, and the index as it was."""
+    reqs = [Request({"static_friction": 0.3}, TINY, TINY_NUM, derive_seed(0, 1, 0), "tiny", "", 1)]
+    run_campaign(reqs, tmp_path)
+    index = tmp_path / "simulate" / "results.parquet"
+    before = index.read_bytes()
+    (tmp_path / "simulate" / "runs" / reqs[0].hash / "result.json").write_text(text)
+    with pytest.raises(CalibError, match=f"is not the result of heap {reqs[0].hash}.*move .* aside"):
+        run_campaign(reqs, tmp_path)
+    assert index.read_bytes() == before
+
+
 def test_a_heaps_row_holds_its_side_views_means_and_a_heap_that_blew_up_none(tmp_path):
     """The row's angle_views and fullness_views are the means over the heap's side views rendered from its
     final grains (view 0 the row's own angle_image), measured as the photographs are; a heap without a

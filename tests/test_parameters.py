@@ -87,6 +87,12 @@ def test_set_and_condition_values_are_checked_where_they_enter():
     with pytest.raises(CalibError, match="metres"):
         checked_condition(["particle_d_max_mm=0.005"])
     assert parse_params({"static_friction": "0.4", "contact_angle": 20}) == {"static_friction": 0.4, "contact_angle": 20}
+    # `--set restitution=true` read 1.0; a contact law's switch takes true as on
+    with pytest.raises(CalibError, match="restitution must be a number .*got True"):
+        parse_params(parse_pairs(["restitution=true"], "--set"))
+    with pytest.raises(CalibError, match="surface_tension must be a number, got True"):
+        parse_params({"surface_tension": True})
+    assert parse_params(parse_pairs(["rolling_spring=true"], "--set")) == {"rolling_spring": 1.0}
 
 
 def test_a_factor_of_a_contact_law_s_own_value_is_checked_when_the_settings_are_read():

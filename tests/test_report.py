@@ -218,6 +218,14 @@ def test_side_view_of_a_kept_compare_heap_and_validation_fallback(tmp_path):
     assert "Not run yet: <code>calib compare</code>" in top
 
 
+def test_a_heap_folder_calib_did_not_write_is_passed_over(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(RUNS / "hidden-effect", run, ignore=shutil.ignore_patterns("runs"))
+    (run / "simulate" / "runs" / "abc").mkdir(parents=True)
+    (run / "simulate" / "runs" / "abc" / "result.json").write_text("[1]")  # was exit 70
+    assert "Photographs" in summary_of(build_report(run))
+
+
 def test_a_run_with_only_a_measurement(tmp_path):
     run = tmp_path / "run"
     shutil.copytree(RUNS / "hidden-effect" / "measure", run / "measure")

@@ -48,3 +48,12 @@ def test_the_command_prints_the_table_and_exits_1_with_strict_when_numbers_diffe
     assert r.exit_code == 1 and "numbers differ" in r.output
     r = CliRunner().invoke(app, ["diff-runs", str(tmp_path / "nothing"), str(ROOT / "sample_runs" / "paper")])
     assert r.exit_code == 2 and "no run directory" in r.output
+
+
+def test_a_best_json_edited_by_hand_leaves_its_headline_out(tmp_path):
+    """surrogate/best.json's "best" an object, not a model's name, was exit 70 (a dict compared with a column)."""
+    run = _copy("smoke", tmp_path / "s")
+    (run / "surrogate" / "best.json").write_text('{"best": {}}')
+    d = diff_runs(run, ROOT / "sample_runs" / "smoke")
+    row = d.table.set_index("quantity").loc["surrogate chosen, its leave-one-out R2"]
+    assert not d.same and row["same"] != "yes"

@@ -21,6 +21,7 @@ import pandas as pd
 
 from .. import artifacts as art
 from ..dem.heap import CONDITION_VARIABLES, PARAMETERS, HeapCondition, Numerics, Preset, condition_dict, get_preset
+from ..dem.materials import LAW_SWITCHES
 from ..engines.clumps import SPHERES
 from ..errors import CalibError
 from ..parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
@@ -186,6 +187,8 @@ def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:
         if k in QUANTITIES:
             out[k] = check(k, v, where)
             continue
+        if isinstance(v, (bool, np.bool_)) and k not in LAW_SWITCHES:  # true is a law switched on, not a liquid's value
+            raise CalibError(f"parameter {k} must be a number, got {v!r}")
         try:
             f = float(v)
         except (TypeError, ValueError):

@@ -85,6 +85,16 @@ def _row(req: Request, res, img, views: list | None = None) -> dict:
     }
 
 
+def cached_result(path: Path, run_hash: str) -> dict:
+    """A finished heap's result.json, checked to be that heap's row: a file edited or written by hand (``{}``,
+    a list) would enter the results index as a row of NaN, or stop the campaign with a traceback."""
+    row = art.read_json(path)
+    if not isinstance(row, dict) or row.get("run_hash") != run_hash or "status" not in row:
+        raise CalibError(f"{path} is not the result of heap {run_hash} (a file calib did not write, or one "
+                         f"edited): move {path.parent} aside to simulate the heap again")
+    return row
+
+
 def execute(req: Request, run_dir: str, progress: Callable | None = None, force: bool = False) -> dict:
     """Run one request (or load its cached result, unless ``force``) and write its artefacts. A heap
     on the built-in or GPU engine goes on from its checkpoint, if a stopped run left one."""
@@ -92,7 +102,7 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None, force:
     _restore(out)
     done = out / "result.json"
     if done.is_file() and not force:
-        return art.read_json(done)
+        return cached_result(done, req.hash)
     ck = checkpoint_path(Path(run_dir), req, fresh=force)
     if req.engine == "lammps":
         from ..engines.lammps import run_heap_lammps
@@ -238,7 +248,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
 
     todo, cached, twins = _plan(requests, run_dir, force, reuse)
     for i in cached:
-        label(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
+        label(i, cached_result(run_dir / RUNS / requests[i].hash / "result.json", requests[i].hash))
     indexed = _indexed_rows(run_dir, [requests[i] for i in todo]) if rows_suffice and not force else {}
     for i in [i for i in todo + twins if requests[i].hash in indexed]:
         label(i, indexed[requests[i].hash])
@@ -261,7 +271,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     else:
         _run_on_pool([(i, requests[i]) for i in todo], run_dir, workers, force, finish)
     for i in twins:  # computed once, above, under its first request's labels
-        finish(i, art.read_json(run_dir / RUNS / requests[i].hash / "result.json"))
+        finish(i, cached_result(run_dir / RUNS / requests[i].hash / "result.json", requests[i].hash))
     return pd.DataFrame([r for r in rows if r is not None])
 
 

@@ -45,6 +45,8 @@ def side_view(f: RunFiles, condition: str) -> Optional[tuple[Path, str]]:
                 meta = json.loads(res.read_text())
             except (OSError, ValueError):
                 continue
+            if not isinstance(meta, dict):  # a file calib did not write: no heap to show
+                continue
             side = res.parent / "side.png"
             if meta.get("design") == design and meta.get("condition_id") == condition and side.is_file():
                 return side, f"{design} heap, {deg(meta.get('angle_image', meta.get('repose_angle')))}"

@@ -88,7 +88,8 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
                              # where some were held or set: locks from before this count stay up to date
                              **({"fitted": fitted} if len(fitted) != len(model.parameters) else {})})
     hist_path = run / "compare" / "history.parquet"
-    hist = art.read_table(hist_path) if hist_path.is_file() else pd.DataFrame()
+    hist = art.read_table(hist_path, columns=["revision"], what="compare history") if hist_path.is_file() \
+        else pd.DataFrame()  # checked before any heap is simulated
     if st.up_to_date() and not force and len(hist) and (hist["revision"] == model.revision).any():
         return CompareResult(st, True)
     say(f"model revision {model.revision} ({', '.join(model.effects)}); {len(conds)} condition(s) x "
@@ -111,7 +112,7 @@ def compare(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeats
     with st.commit() as out:
         # the seeding with the residuals: diagnose simulates its base point alike, so it reuses these heaps
         out.table("residuals.parquet", table, model_revision=model.revision, model=list(model.effects),
-                  **seeding_settings(seeds))
+                  theta=theta, **seeding_settings(seeds))
         out.figure("residuals.png", fig1)
         out.table("history.parquet", hist, model_revision=model.revision)
         out.figure("history.png", fig2)

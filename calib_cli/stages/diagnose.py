@@ -59,14 +59,16 @@ class DiagnoseResult(Result):
         return shown(out, markup)
 
 
-def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFrame:
+def current_residuals(run: Path, model: Model, conds: pd.DataFrame, theta: dict | None = None) -> pd.DataFrame:
     """compare's residuals, one row per measured condition in ``conds``' order (matched by condition_id,
-    not by row order), refused when another model revision or other conditions made them: the
-    sensitivities simulated now would be set against another model's misfit."""
+    not by row order), refused when another model revision, other conditions, other measured means or
+    (where compare recorded it) another point ``theta`` made them: the sensitivities simulated now would
+    be set against another model's, measurement's or point's misfit."""
     path = run / "compare" / "residuals.parquet"
-    res = art.read_table(path, columns=["condition_id", "residual", "uncertainty"],
+    res = art.read_table(path, columns=["condition_id", "residual", "uncertainty", "measured"],
                          what="comparison (run `calib compare` first)")
     prov = art.read_provenance(path)
+    _same_point(path, prov.get("theta"), theta, run)
     rev, effects = prov.get("model_revision"), prov.get("model")
     if rev is not None and (int(rev) != model.revision or (effects is not None and
                                                            sorted(effects) != sorted(model.effects))):
@@ -79,7 +81,25 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame) -> pd.DataFr
     if sorted(have) != sorted(ids):
         raise CalibError(f"{path} holds residuals of condition(s) {', '.join(have)}, but the measured conditions are "
                          f"{', '.join(ids)}: run `calib compare --run {run}` first")
-    return res.set_index("condition_id").loc[ids].reset_index()
+    res = res.set_index("condition_id").loc[ids].reset_index()
+    moved = [c for c, a, b in zip(ids, res["measured"].to_numpy(float), conds["mean"].to_numpy(float))
+             if not np.isclose(a, b, rtol=1e-9, atol=1e-9)]
+    if moved:  # measured again under the same names
+        raise CalibError(f"{path} holds residuals against other measured means than RUN/measure's at "
+                         f"{', '.join(moved)}: run `calib compare --run {run}` first")
+    return res.drop(columns="measured")
+
+
+def _same_point(path: Path, made: dict | None, theta: dict | None, run: Path) -> None:
+    """Refuse residuals compare made at another point than ``theta`` (another --set, or a calibration since)."""
+    if made is None or theta is None:  # residuals from before compare recorded its point
+        return
+    other = sorted(k for k in set(made) | set(theta)
+                   if k not in made or k not in theta or not np.isclose(made[k], theta[k], rtol=1e-12, atol=0))
+    if other:
+        said = ", ".join(f"{k} {made.get(k, '-')} against {theta.get(k, '-')}" for k in other)
+        raise CalibError(f"{path} holds residuals at another point than this one ({said}): run `calib compare "
+                         f"--run {run}` with the same --set first")
 
 
 def _ranges(run: Path, model: Model) -> dict[str, tuple[float, float]]:
@@ -214,7 +234,7 @@ def diagnose(run: Path, set_: Pairs = None, preset: Optional[str] = None, repeat
     preset, shear_modulus = heap_setup(resolve_settings(run, None, None), preset, shear_modulus)
     model, theta = model_and_theta(run, set_)
     conds = measured_conditions(run)
-    res = current_residuals(run, model, conds)
+    res = current_residuals(run, model, conds, theta)
     seeds = check_seeding(seeds or run_seeding(run))
     warn_other_modulus(run, shear_modulus, "the diagnosis's", say)
     prior = _posterior_ranges(run, model)  # in the lock only where they set the ranges: older locks stay valid

@@ -79,9 +79,9 @@ def _fits(run: Path) -> dict[str, tuple]:
     m = _read(run, "surrogate/metrics.parquet")
     try:
         best = json.loads((run / "surrogate" / "best.json").read_text())["best"]
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, TypeError):  # TypeError: a JSON list, not the object calib writes
         best = None
-    if m is not None and best is not None:
+    if m is not None and isinstance(best, str):  # a model's name; anything else is a file edited by hand
         loo = m[(m["model"] == best) & (m["split"] == "loo")]["r2"]
         out["surrogate chosen, its leave-one-out R2"] = (best, float(loo.iloc[0]) if len(loo) else np.nan)
     return out
