@@ -152,8 +152,8 @@ def check(name: str, value, where: str = "") -> float:
         raise CalibError(f"{name} must be a number{at}, got {value!r}")
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise CalibError(f"{name} must be a number{at}, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer of hundreds of digits
+        raise CalibError(f"{name} must be a number{at}, got {repr(value)[:40]}") from None
     unit = f" {q.unit}" if q.unit else ""
     if not math.isfinite(v):
         raise CalibError(f"{name} must be a finite number{at}, got {value!r}")

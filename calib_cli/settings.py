@@ -267,6 +267,9 @@ def parse_overrides(items) -> dict:
         if "=" not in item:
             raise CalibError(f"setting {item!r} is not KEY=VALUE")
         key, text = item.split("=", 1)
+        if "\n" in text or "\r" in text:  # "30\nheap.preset='smoke'": settings.toml would get a line nobody gave
+            raise CalibError(f"setting {key.strip()!r}: its value holds a line break; give one value, each setting "
+                             "as its own -s KEY=VALUE")
         _put(out, key, _parse_value(text.strip()))
     return out
 

@@ -354,8 +354,8 @@ def test_diagnose_end_to_end_on_tiny_heaps(tmp_path):
     r = runner.invoke(app, ["diagnose", "--run", str(run), *SIM])
     assert r.exit_code == 0, r.output
     rank = art.read_table(run / "diagnose" / "ranking.parquet")
-    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "signature_p", "verdict",
-                                  "evidence"]
+    assert list(rank.columns) == ["effect", "score", "p_value", "explained_fraction", "signature_p",
+                                  "confounded_with", "confound", "verdict", "evidence"]
     # one heap a step (SIM) leaves the scatter unknown: no signature counts as resolved, so no
     # candidate can be called significant
     assert rank["signature_p"].isna().all() and "not resolved" in r.output

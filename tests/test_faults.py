@@ -391,6 +391,30 @@ BAD: list[Bad] = [
     Bad("synth-lab-noise-negative", ["synth-lab", "--out", "{tmp}/lab", "--noise", "-6", "--repeats", "1"]),
     Bad("synth-lab-noise-nan", ["synth-lab", "--out", "{tmp}/lab", "--noise", "nan", "--repeats", "1"]),
     Bad("synth-lab-out-is-a-file", ["synth-lab", "--out", "{tmp}/f", "--repeats", "1"], {"f": "a file"}),
+    # ---- found by a probe of simulate-heap, synth-lab, suggest-conditions and init (2026-12-08): exit 70, or
+    # an input dropped or taken in silence (a photograph written twice after every heap, a rig in metres)
+    Bad("synth-lab-size-twice", ["synth-lab", "--out", "{tmp}/lab", "--sizes", "5-6,5-6", "--repeats", "1"]),
+    Bad("synth-lab-sizes-in-metres", ["synth-lab", "--out", "{tmp}/lab", "--sizes", "0.005-0.006", "--cylinders",
+                                      "0.05", "--repeats", "1"]),
+    Bad("synth-lab-floor-name-comma", ["synth-lab", "--out", "{tmp}/lab", "--floor", "st,eel:static_friction=0.3",
+                                       "--repeats", "1"]),
+    Bad("synth-lab-floor-friction-5", ["synth-lab", "--out", "{tmp}/lab", "--floor", "x:static_friction=5",
+                                       "--repeats", "1"]),
+    Bad("sim-measured-conditions-corrupt", [*SIM, *TRUTH], prep=_truncate("measure/conditions.parquet")),
+    Bad("sim-set-400-digits", [*SIM, "--set", "static_friction=1" + "0" * 400]),
+    Bad("sim-condition-400-digits", [*SIM, *TRUTH, "--condition", "lift_speed_mm_s=1" + "0" * 400]),
+    Bad("sim-condition-and-table-both", [*SIM, *TRUTH, "--condition", "lift_speed_mm_s=20", "--conditions",
+                                         "{tmp}/c.csv"], {"c.csv": COND_HEAD + "a.png,A,4,5,40,75,30\n"}),
+    Bad("sim-design-condition-column", [*SIM, "--design", "{tmp}/d.parquet"],
+        {"d.parquet": _parquet(pd.DataFrame({"static_friction": [0.3, 0.4], "fill_height_mm": [60.0, 150.0]}))}),
+    Bad("sim-set-what-the-design-gives", [*SIM, "--design", "{tmp}/d.parquet", "--set", "static_friction=0.9"],
+        {"d.parquet": _parquet(pd.DataFrame({"static_friction": [0.3, 0.4]}))}),
+    Bad("suggest-rig-piles-billion", ["suggest-conditions", "--run", "{run}", "--rig", "{tmp}/r.toml"],
+        {"r.toml": RIG + "piles = 1000000000\n"}),
+    Bad("suggest-rig-key-outside-table", ["suggest-conditions", "--run", "{run}", "--rig", "{tmp}/r.toml"],
+        {"r.toml": "piles = 3\n" + RIG}),
+    Bad("init-setting-line-break", ["init", "--run", "{tmp}/new", "-s", "target=30\nheap.preset='smoke'"]),
+    Bad("init-settings-file-a-folder", ["init", "--run", "{tmp}/new"], {"new/settings.toml/x": "x"}),
     Bad("sim-dask-no-port", [*SIM, "--set", "static_friction=0.3", "--dask", "notanaddress"]),
     Bad("calibrate-dask-no-port", ["calibrate", "--run", "{run}", "--dask", "tcp://somewhere"]),
     Bad("diagnose-alpha-zero", ["diagnose", "--run", "{run}", "--alpha", "0"]),
@@ -416,6 +440,7 @@ def test_bad_input_is_one_line_and_leaves_the_run_as_it_was(case, prepared, tmp_
     shutil.copytree(prepared, run)
     inputs.mkdir()
     for name, data in case.files.items():
+        (inputs / name).parent.mkdir(parents=True, exist_ok=True)  # "new/settings.toml/x": a folder where a file goes
         (inputs / name).write_bytes(data if isinstance(data, bytes) else data.encode())
     if case.prep:
         case.prep(run)

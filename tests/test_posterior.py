@@ -1135,3 +1135,20 @@ def test_the_surrogate_and_the_sampler_say_what_they_lack_in_one_line():
         calibrate_posterior(gp, measured, {"static_friction": (0, 1), "rolling_friction": (0, 1)})
     with pytest.raises(CalibError, match="bounds as"):
         calibrate_posterior(gp, measured.assign(sd=1.0), [("static_friction", 0, 1)])
+
+
+def test_predict_joint_in_chunks_is_the_same_prediction(monkeypatch):
+    """Many groups at once (--walkers 10000's start, 9 GB as one product) are predicted in chunks: the same
+    means and covariances."""
+    from calib_cli.posterior import gp as gp_mod
+
+    rng = np.random.default_rng(3)
+    rows = pd.DataFrame({"static_friction": rng.uniform(0.2, 0.8, 40), "rolling_friction": rng.uniform(0.05, 0.3, 40)})
+    y = 20 + 20 * rows["static_friction"] + 30 * rows["rolling_friction"] + rng.normal(0, 1, 40)
+    g = gp_mod.GPSurrogate(["static_friction", "rolling_friction"]).fit(rows, y)
+    X = rng.uniform([0.2, 0.05], [0.8, 0.3], (50, 3, 2))
+    whole = g.predict_joint(X)
+    monkeypatch.setattr(gp_mod, "JOINT_CHUNK", 3 * 40 * 7)  # seven groups a product
+    chunked = g.predict_joint(X)
+    assert chunked[0].shape == (50, 3) and chunked[1].shape == (50, 3, 3)
+    assert np.allclose(whole[0], chunked[0], rtol=0, atol=1e-10) and np.allclose(whole[1], chunked[1], rtol=0, atol=1e-10)

@@ -128,7 +128,11 @@ def heap_setup(cfg: dict, preset: Optional[str], shear_modulus: Optional[float])
     """
     name = preset if preset is not None else cfg["heap"]["preset"]
     g = shear_modulus if shear_modulus is not None else cfg["heap"]["shear_modulus"]
-    g = None if g is None else float(g)
+    try:
+        g = None if g is None else float(g)
+    except (TypeError, ValueError, OverflowError):  # a 400-digit integer is a number float() cannot hold
+        raise CalibError(f"the shear modulus (--shear-modulus or heap.shear_modulus) must be a number in Pa, got "
+                         f"{str(g)[:40]}") from None
     try:
         heap_preset(name, g)
     except CalibError as e:
@@ -191,7 +195,7 @@ def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:
             raise CalibError(f"parameter {k} must be a number, got {v!r}")
         try:
             f = float(v)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise CalibError(f"parameter {k} must be a number, got {v!r}") from None
         if not np.isfinite(f):
             raise CalibError(f"parameter {k} must be finite, got {v!r}")
@@ -226,7 +230,7 @@ def make_condition(base: HeapCondition, overrides: Mapping) -> HeapCondition:
                          f"{', '.join(sorted(fields))}")
     try:
         c = dataclasses.replace(base, **{k: (str(v) if k == "floor" else float(v)) for k, v in overrides.items()})
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CalibError(f"condition values must be numbers: {dict(overrides)}") from None
     c.validate()
     return c

@@ -214,6 +214,10 @@ def view_share(Xs: np.ndarray, y: np.ndarray, v: np.ndarray) -> float:
     return float(min(within(v) / one, 1.0)) if one > 0 else 1.0
 
 
+#: the most cross-kernel entries (groups x points x heaps) one :meth:`GPSurrogate.predict_joint` product holds
+JOINT_CHUNK = 5e7
+
+
 class GPSurrogate:
     """The angle's Gaussian process over ``parameters`` (scaled by ``bounds``: name -> (low, high);
     a parameter without bounds by its training range) and the ``conditions`` among the candidates
@@ -387,6 +391,12 @@ class GPSurrogate:
                              "predict(X) takes a frame")
         X = np.asarray(X, float)
         b, m, k = X.shape
+        # in chunks of groups where the cross-kernel, (b m) x heaps, would pass 400 MB (9 GB for --walkers 10000's
+        # start): a calibration's own calls (50 x 32 walkers' start) stay one product, so their bits do not move
+        step = max(1, int(JOINT_CHUNK // max(m * len(self.gp_.X_train_), 1)))
+        if b > step:
+            parts = [self.predict_joint(X[i:i + step]) for i in range(0, b, step)]
+            return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
         Xs = self._scale(X.reshape(-1, k))
         Ks = self.latent_(Xs, self.gp_.X_train_)
         mean = (self.y_mean_ + self.y_sd_ * (Ks @ self.gp_.alpha_)).reshape(b, m)

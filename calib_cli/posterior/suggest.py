@@ -83,6 +83,9 @@ def parse_rig(d: dict, where: str = "rig file") -> Rig:
     """A rig from its TOML table (docs/cli.md): ``particle_sizes_mm = [[4, 5], [5, 6]]``, lists of
     ``cylinder_diameter_mm``, ``fill_height_mm``, ``lift_speed_mm_s``, and ``piles``."""
     rig = d.get("rig", d)
+    if "rig" in d and set(d) - {"rig"}:  # beside [rig], a key or table no rig reads would be dropped in silence
+        raise CalibError(f"{where}: {', '.join(sorted(set(d) - {'rig'}))} outside the [rig] table: put every key "
+                         "under [rig]")
     if not isinstance(rig, dict):
         raise CalibError(f"{where}: 'rig' must be a table ([rig] with particle_sizes_mm, ...), got {rig!r}")
     unknown = sorted(set(rig) - {*RIG_VARIABLES, "particle_sizes_mm", "piles"})
@@ -99,8 +102,8 @@ def parse_rig(d: dict, where: str = "rig file") -> Rig:
         if len(set(values[k])) < len(values[k]):
             raise CalibError(f"{where}: {k} lists a value twice ({', '.join(f'{v:g}' for v in values[k])})")
     piles = rig.get("piles", 10)
-    if isinstance(piles, bool) or not isinstance(piles, int) or piles < 1:
-        raise CalibError(f"{where}: piles must be a whole number of at least 1, got {piles!r}")
+    if isinstance(piles, bool) or not isinstance(piles, int) or not 1 <= piles <= 10_000:  # as --piles
+        raise CalibError(f"{where}: piles must be a whole number from 1 to 10000, got {piles!r}")
     return Rig(values, sizes, piles)
 
 

@@ -65,7 +65,7 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame, theta: dict 
     (where compare recorded it) another point ``theta`` made them: the sensitivities simulated now would
     be set against another model's, measurement's or point's misfit."""
     path = run / "compare" / "residuals.parquet"
-    res = art.read_table(path, columns=["condition_id", "residual", "uncertainty", "measured"],
+    res = art.read_table(path, columns=["condition_id", "residual", "uncertainty"],
                          what="comparison (run `calib compare` first)")
     prov = art.read_provenance(path)
     _same_point(path, prov.get("theta"), theta, run)
@@ -82,12 +82,12 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame, theta: dict 
         raise CalibError(f"{path} holds residuals of condition(s) {', '.join(have)}, but the measured conditions are "
                          f"{', '.join(ids)}: run `calib compare --run {run}` first")
     res = res.set_index("condition_id").loc[ids].reset_index()
-    moved = [c for c, a, b in zip(ids, res["measured"].to_numpy(float), conds["mean"].to_numpy(float))
-             if not np.isclose(a, b, rtol=1e-9, atol=1e-9)]
+    was = res["measured"].to_numpy(float) if "measured" in res.columns else conds["mean"].to_numpy(float)
+    moved = [c for c, a, b in zip(ids, was, conds["mean"].to_numpy(float)) if not np.isclose(a, b, rtol=1e-9, atol=1e-9)]
     if moved:  # measured again under the same names
         raise CalibError(f"{path} holds residuals against other measured means than RUN/measure's at "
                          f"{', '.join(moved)}: run `calib compare --run {run}` first")
-    return res.drop(columns="measured")
+    return res.drop(columns=["measured"], errors="ignore")
 
 
 def _same_point(path: Path, made: dict | None, theta: dict | None, run: Path) -> None:

@@ -18,6 +18,7 @@ from ..errors import CalibError
 from ..heaps.inputs import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
                             parse_params)
 from ..heaps.inputs import Pairs, given_pairs as pairs
+from ..parameters import check
 from ..heaps.keys import RUNS
 from ..heaps.runner import run_campaign
 from ..model import EFFECTS
@@ -32,6 +33,11 @@ def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:
     vals = {f"floor_{k}": v for k, v in pairs(rest.split(","), f"--floor {name}:").items()}
     if set(vals) - set(FLOOR_VARIABLES):
         raise CalibError(f"--floor {spec!r}: the keys are {', '.join(k.removeprefix('floor_') for k in FLOOR_VARIABLES)}")
+    if not all(ch.isalnum() or ch in "-_." for ch in name.strip()):  # it names condition ids and photographs
+        raise CalibError(f"--floor {spec!r}: a floor's name is letters, digits, '-', '_' and '.' (it goes into "
+                         "each condition's id and photograph's file name)")
+    for k, v in vals.items():
+        check(k, v, f"--floor {name.strip()}")
     return make_condition(base, {"floor": name.strip(), **vals})
 
 
@@ -53,6 +59,14 @@ def _lab_conditions(floors: list[HeapCondition], sizes: str, cylinders: str, fil
                                                                fill_height_mm=D * fill_ratio if H is None else H)))
     except ValueError as e:
         raise CalibError(f"--sizes, --cylinders, --fills: expected numbers like 5-6,6-7 / 40,48 / 50,100 ({e})")
+    for cid, c in conds:  # a rig's plausible ranges, as --condition checks them: millimetres, not metres
+        for v in ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm"):
+            check(v, getattr(c, v), f"condition {cid} of --sizes, --cylinders, --fills, --fill-ratio")
+    ids = [cid for cid, _ in conds]
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:  # two conditions under one id would write one photograph twice, after every heap
+        raise CalibError(f"--sizes, --cylinders, --fills or --floor give condition {twice[0]} twice: give each "
+                         "value once")
     return conds
 
 

@@ -39,6 +39,9 @@ def init_run(run: Path, settings: Optional[Path] = None, setting: Optional[list[
     run = check_run_dir(run)
     target = run / SETTINGS_FILE
     settings = Path(settings) if settings is not None else None
+    for p in (target, run / INITIALISED):  # a folder there: said before anything is written
+        if p.exists() and not p.is_file():
+            raise CalibError(f"{p} is a folder, not a file: move it aside")
     load_settings([settings] if settings is not None else [])  # validate before touching the run dir
     if settings is not None:
         text = settings.read_text()

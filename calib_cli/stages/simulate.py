@@ -122,6 +122,15 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
                              "elsewhere (--responses)")
         if not cols:
             raise CalibError(f"design {design} has no parameter columns ({', '.join(PARAMETERS)})")
+        rig = [c for c in df.columns if c in CONDITION_VARIABLES or str(c).startswith("floor")]
+        if rig:  # a design row sets parameters only: these values would be dropped and every heap take the rig's
+            raise CalibError(f"design {design}: column(s) {', '.join(map(str, rig))} are condition variables, which "
+                             "a design does not set: give them as a conditions table (--conditions FILE), crossed "
+                             "with the design")
+        twice = sorted(set(fixed) & set(cols))
+        if twice:  # --set is for what the design lacks; the design's value would win in silence
+            raise CalibError(f"--set {', '.join(twice)}: the design {design} gives {'it' if len(twice) == 1 else 'them'} "
+                             "per run; --set only what the design lacks")
         _misspelt(df, design)
         dname = Path(design).parent.name
         ids = _run_ids(df, design) if "run_id" in df.columns else np.arange(1, len(df) + 1)
@@ -159,14 +168,12 @@ PRESET_RIG = "preset"
 
 def _measured_rigs(run: Path) -> Optional[pd.DataFrame]:
     """The run's measured conditions where they give a rig (a condition variable's column), else None
-    (none measured, none with a rig, or a table that does not read: then the preset's rig)."""
+    (none measured or none with a rig: then the preset's rig). A table that does not read is an error:
+    heaps of the preset's rig in its place would answer another question in silence."""
     path = Path(run) / CONDITIONS
     if not path.is_file():
         return None
-    try:
-        table = art.read_table(path, what="measured conditions")
-    except CalibError:
-        return None
+    table = art.read_table(path, what="measured conditions")
     return table if any(c in table.columns for c in CONDITION_VARIABLES) else None
 
 
@@ -243,14 +250,20 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     shapes = check_engine(engine, mpi, shape)
     preset, shear_modulus = heap_setup(cfg, preset, shear_modulus)
     pre = heap_preset(preset, shear_modulus, precision)
-    cond = make_condition(pre.condition, checked_condition(condition))
+    changes = checked_condition(condition)
+    cond = make_condition(pre.condition, changes)
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
-    measured = _measured_rigs(run)
+    measured = _measured_rigs(run) if conditions is None else None  # --conditions given: not read
     conditions = _which_conditions(run, conditions, bool(condition), measured)
     if conditions is not None:
         conditions = Path(conditions)
-        crossed = table_conditions(cond, read_conditions_table(conditions))
+        ctab = read_conditions_table(conditions)
+        both = sorted(set(changes) & set(ctab.columns))
+        if both:  # the table's value would win in silence
+            raise CalibError(f"{', '.join(both)} given by --condition and by the conditions table {conditions}: "
+                             "give each variable once (the table's column, or --condition for every row)")
+        crossed = table_conditions(cond, ctab)
     requests = build_requests(points, crossed, pre.numerics, seed=seed, repeats=repeats, from_table=conditions is not None,
                               preset=preset, design=dname, model=mhash, engine=engine, mpi=mpi, shapes=shapes)
     if not requests:  # an empty design: nothing to run, and an empty campaign's summary failed (exit 70)

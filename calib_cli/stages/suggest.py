@@ -18,6 +18,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..heaps.index import RESULTS, load_results
 from ..errors import CalibError
+from ..parameters import check_rig
 from ..model import EFFECTS, MODEL_FILE, Model, load_model
 from ..posterior.gp import GPSurrogate, informative_conditions
 from ..posterior.suggest import (Evidence, Rig, any_ranked, best_per_effect, explain, heaps_for, parse_rig,
@@ -73,6 +74,7 @@ def _candidates(rig: Rig, measured: pd.DataFrame) -> pd.DataFrame:
                 raise CalibError(f"the rig file lists no {v}, and the measured conditions "
                                  f"{'differ in it' if len(vals) else 'do not say it'}: list its values in the rig file")
             cand[v] = float(vals[0])
+    cand = _buildable(cand)
     same = [v for v in SUGGEST_VARS if v in measured]  # the variables a measured condition states
     # as numbers: a conditions table of whole numbers reads as integers, and "50" is not "50.0"
     key = lambda df: df[same].astype(float).round(6).astype(str).agg("|".join, axis=1)  # noqa: E731
@@ -83,6 +85,27 @@ def _candidates(rig: Rig, measured: pd.DataFrame) -> pd.DataFrame:
                          "other values (the name leaves out what the rig holds at one value): rename the measured "
                          "condition in measure-angle's conditions table, or list that variable's values in the rig file")
     return cand
+
+
+def _buildable(cand: pd.DataFrame) -> pd.DataFrame:
+    """The rig's combinations a heap test can make (:func:`~calib_cli.parameters.check_rig`: a cylinder at least
+    4, a fill at least 2 of the largest grains): a 20 mm cylinder is for the fine fractions only. The others are
+    left out (``attrs["unbuildable"]`` names them); none left is the rig file's error."""
+    ok = []
+    for r in cand.itertuples(index=False):
+        try:
+            check_rig(r.particle_d_min_mm, r.particle_d_max_mm, getattr(r, "cylinder_diameter_mm", None),
+                      getattr(r, "fill_height_mm", None))
+            ok.append(True)
+        except CalibError:
+            ok.append(False)
+    ok = np.asarray(ok, dtype=bool)
+    if len(ok) and not ok.any():
+        raise CalibError("no combination of the rig file's values makes a heap test (a cylinder at least 4 and a "
+                         "fill at least 2 of the largest grains): list wider cylinders or finer grains")
+    out = cand[ok].reset_index(drop=True)
+    out.attrs["unbuildable"] = cand.loc[~ok, "condition_id"].astype(str).tolist()
+    return out
 
 
 def _complete(cand: pd.DataFrame, measured: pd.DataFrame, learnt: list[str]) -> pd.DataFrame:
@@ -588,6 +611,10 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     # the responses the posterior weighed: with the heap profile, a new condition's profile counts too
     profile = bool(art.read_provenance(run / "posterior" / "summary.parquet").get("profile", False))
     cand = _candidates(the_rig, measured)
+    gone = cand.attrs.get("unbuildable", [])
+    if gone:
+        say(f"[yellow]note:[/] {len(gone)} of the rig's combinations make no heap test (a cylinder under 4 or a fill "
+            f"under 2 of the largest grains) and are not ranked: {', '.join(gone[:4])}{', ...' if len(gone) > 4 else ''}")
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
