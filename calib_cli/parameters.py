@@ -148,7 +148,8 @@ def check(name: str, value, where: str = "") -> float:
     or rig plausibly has, with the likely mistake. ``where``: where the value came from, for the message."""
     q = QUANTITIES[name]
     at = f" ({where})" if where else ""
-    if isinstance(value, bool) or type(value).__name__ == "bool_":  # `--set restitution=true` would be 1.0: a slip, not a value
+    # `--set restitution=true` would be 1.0: a slip, not a value
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
         raise CalibError(f"{name} must be a number{at}, got {value!r}")
     try:
         v = float(value)

@@ -163,8 +163,8 @@ def suggest_conditions(
     run: RunOpt,
     rig: Annotated[Path, typer.Option(help="TOML file of the conditions the rig can make: particle_sizes_mm = "
                                       "[[4, 5], [5, 6]], lists of cylinder_diameter_mm, fill_height_mm, "
-                                      "lift_speed_mm_s, and piles (per condition, at most 10000), all under "
-                                      "[rig]. Combinations no heap test can make (a cylinder under 4, a fill "
+                                      "lift_speed_mm_s, and piles (per condition, at most 10000), all in the "
+                                      "rig table. Combinations no heap test can make (a cylinder under 4, a fill "
                                       "under 2 of the largest grains) are left out, and said.")],
     piles: Annotated[Optional[int], typer.Option(min=1, help="Piles to measure a condition with (default: the "
                                                  "rig file's piles, else 10).")] = None,

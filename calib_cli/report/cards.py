@@ -143,7 +143,8 @@ def _fixed_and_validation(f: RunFiles, params: dict) -> str:
         rounds = int(val["round"].max()) + 1 if "round" in val.columns else 1
         chosen = f.prov("invert/solution.parquet").get("refine_round", 0)
         acc = f.prov("invert/refinement.parquet").get("accepted") if f.path("invert/refinement.parquet") else None
-        out += note(f"Validated by {len(val)} heaps simulated at this solution over {rounds} round{'s' * (rounds != 1)}; "
+        out += note(f"Validated by {len(val)} heaps simulated at this solution over {rounds} "
+                    f"round{'s' * (rounds != 1)}; "
                     f"the solution is round {esc(chosen)}'s"
                     + ("" if acc is None else (" (accepted)" if acc else " (closest; no round met the targets)"))
                     + ".", "prov")

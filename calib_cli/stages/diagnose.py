@@ -83,7 +83,8 @@ def current_residuals(run: Path, model: Model, conds: pd.DataFrame, theta: dict 
                          f"{', '.join(ids)}: run `calib compare --run {run}` first")
     res = res.set_index("condition_id").loc[ids].reset_index()
     was = res["measured"].to_numpy(float) if "measured" in res.columns else conds["mean"].to_numpy(float)
-    moved = [c for c, a, b in zip(ids, was, conds["mean"].to_numpy(float)) if not np.isclose(a, b, rtol=1e-9, atol=1e-9)]
+    moved = [c for c, a, b in zip(ids, was, conds["mean"].to_numpy(float))
+             if not np.isclose(a, b, rtol=1e-9, atol=1e-9)]
     if moved:  # measured again under the same names
         raise CalibError(f"{path} holds residuals against other measured means than RUN/measure's at "
                          f"{', '.join(moved)}: run `calib compare --run {run}` first")

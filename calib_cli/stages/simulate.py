@@ -129,8 +129,9 @@ def _points(run: Path, design: Optional[Path], fixed: dict) -> tuple[list[tuple[
                              "with the design")
         twice = sorted(set(fixed) & set(cols))
         if twice:  # --set is for what the design lacks; the design's value would win in silence
-            raise CalibError(f"--set {', '.join(twice)}: the design {design} gives {'it' if len(twice) == 1 else 'them'} "
-                             "per run; --set only what the design lacks")
+            it = "it" if len(twice) == 1 else "them"
+            raise CalibError(f"--set {', '.join(twice)}: the design {design} gives {it} per run; --set only what "
+                             "the design lacks")
         _misspelt(df, design)
         dname = Path(design).parent.name
         ids = _run_ids(df, design) if "run_id" in df.columns else np.arange(1, len(df) + 1)
@@ -166,14 +167,20 @@ def _misspelt(df: pd.DataFrame, design: Path) -> None:
 PRESET_RIG = "preset"
 
 
-def _measured_rigs(run: Path) -> Optional[pd.DataFrame]:
+def _measured_rigs(run: Path, quiet: bool = False) -> Optional[pd.DataFrame]:
     """The run's measured conditions where they give a rig (a condition variable's column), else None
-    (none measured or none with a rig: then the preset's rig). A table that does not read is an error:
-    heaps of the preset's rig in its place would answer another question in silence."""
+    (none measured or none with a rig: then the preset's rig). A table that does not read is an error, unless
+    ``quiet`` (the preset's rig asked for): heaps of the preset's rig in its place would answer another
+    question in silence."""
     path = Path(run) / CONDITIONS
     if not path.is_file():
         return None
-    table = art.read_table(path, what="measured conditions")
+    try:
+        table = art.read_table(path, what="measured conditions")
+    except CalibError:
+        if quiet:
+            return None
+        raise
     return table if any(c in table.columns for c in CONDITION_VARIABLES) else None
 
 
@@ -254,7 +261,9 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     cond = make_condition(pre.condition, changes)
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
-    measured = _measured_rigs(run) if conditions is None else None  # --conditions given: not read
+    # --conditions preset: read for the note only, a table that does not read is then no matter
+    measured = (_measured_rigs(run) if conditions is None else
+                _measured_rigs(run, quiet=True) if str(conditions) == PRESET_RIG else None)
     conditions = _which_conditions(run, conditions, bool(condition), measured)
     if conditions is not None:
         conditions = Path(conditions)

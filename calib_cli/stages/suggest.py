@@ -614,7 +614,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     gone = cand.attrs.get("unbuildable", [])
     if gone:
         say(f"[yellow]note:[/] {len(gone)} of the rig's combinations make no heap test (a cylinder under 4 or a fill "
-            f"under 2 of the largest grains) and are not ranked: {', '.join(gone[:4])}{', ...' if len(gone) > 4 else ''}")
+            f"under 2 of the largest grains) and are not ranked: {', '.join(gone[:4])}"
+            + (", ..." if len(gone) > 4 else ""))
     if cand.empty:
         raise CalibError(f"every condition the rig file {rig} lists is measured already: list others")
     simulate = sorted(set(simulate))
