@@ -267,22 +267,25 @@ ANGLES = ("repose_angle", "angle_coords", "angle_image")
 
 
 def _copies(out: pd.DataFrame, path: Path, response: str, warn: Optional[Callable[[str], None]]) -> None:
-    """Rows that repeat an earlier row in every column. A copy counts as a run of its own (more residual
-    dof, a kinder held-out R2) but adds nothing: two or more are a paste, an error; one may be two
-    repeats' chance equality at the printed digits (a few % of 5 centre points at 0.01 deg), a warning.
-    A response of one value everywhere is left to the fit's own message (an insensitive model)."""
-    copies = np.flatnonzero(out.duplicated(keep="first").to_numpy())
-    if not len(copies) or out[response].nunique() == 1:
+    """Rows that repeat an earlier row in every column. Where every row has a copy the table was pasted
+    twice (or more): an error, as each copy would count as a run (more residual dof; the paper's Table 7
+    doubled reads a predicted R2 of 0.96 for 0.79). Some copies are warned of only: repeated centre points
+    agree to the digits a paper prints (whole degrees) or an engine that gives one answer per input,
+    and they are runs of the design. A response of one value everywhere is left to the fit's own message."""
+    dup = out.duplicated(keep=False).to_numpy()
+    if not dup.any() or out[response].nunique() == 1:
         return
+    copies = np.flatnonzero(out.duplicated(keep="first").to_numpy())
     i = int(copies[0])
     j = int(np.flatnonzero((out.iloc[:i] == out.iloc[i]).all(axis=1).to_numpy())[0])
     said = f"responses file {path}: row {i + 1} repeats row {j + 1} in every column"
-    if len(copies) > 1:
-        raise CalibError(f"{said}, and {len(copies) - 1} more row(s) repeat others (pasted twice?): drop the "
-                         f"copies; an identical repeat adds no information but would be counted as a run")
+    if dup.all():
+        raise CalibError(f"{said}, and every other row repeats one too (the table pasted twice?): give each run "
+                         "once; a copy would be counted as a run of its own")
     if warn is not None:
-        warn(f"[yellow]warning:[/] {said}: it is counted as a run of its own (two repeats alike to the "
-             f"digits given, or a row pasted twice?)")
+        more = f", and {len(copies) - 1} more row(s) repeat others" if len(copies) > 1 else ""
+        warn(f"[yellow]warning:[/] {said}{more}: each is counted as a run of its own (repeats alike to the "
+             f"digits given, or rows pasted twice?)")
 
 
 def read_responses(path: Path, factors: Sequence[str], response: str,

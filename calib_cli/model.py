@@ -117,7 +117,8 @@ def load_model(run: Path) -> Model:
         kept = _archived(run)
         if kept:  # read as the default model, revision 0, it would be compared and calibrated as one
             last = Path(run) / "model" / f"rev-{kept[-1]:04d}.toml"
-            raise CalibError(f"{p} is missing, but {p.parent / 'model'} keeps revisions {kept[0]}-{kept[-1]}: "
+            which = f"revision {kept[0]}" if len(kept) == 1 else f"revisions {kept[0]}-{kept[-1]}"
+            raise CalibError(f"{p} is missing, but {p.parent / 'model'} keeps {which}: "
                              f"restore the current one (cp {last} {p})")
         return Model(tuple(DEFAULT_EFFECTS), 0, "default model (no model.toml yet)")
     try:

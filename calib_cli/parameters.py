@@ -17,6 +17,8 @@ import math
 import os
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import CalibError
 
 #: the heap presets' names (calib_cli.dem.heap.PRESETS holds them; here for checks that import nothing heavy)
@@ -149,7 +151,7 @@ def check(name: str, value, where: str = "") -> float:
     q = QUANTITIES[name]
     at = f" ({where})" if where else ""
     # `--set restitution=true` would be 1.0: a slip, not a value
-    if isinstance(value, bool) or type(value).__name__ == "bool_":
+    if isinstance(value, (bool, np.bool_)):
         raise CalibError(f"{name} must be a number{at}, got {value!r}")
     try:
         v = float(value)

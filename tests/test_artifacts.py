@@ -148,12 +148,12 @@ def test_read_responses_validation(tmp_path):
         with pytest.raises(CalibError, match=r"must lie in \(0, 90\) deg \(row 2"):
             art.read_responses(p, ["a"], "repose_angle")
     p.write_text("a,repose_angle\n1,30\n2,31\n1,30\n2,31\n")  # pasted twice: no information, but runs counted
-    with pytest.raises(CalibError, match="row 3 repeats row 1 in every column, and 1 more"):
+    with pytest.raises(CalibError, match="row 3 repeats row 1 in every column, and every other row repeats one"):
         art.read_responses(p, ["a"], "repose_angle")
-    said = []  # one copy may be two repeats alike to the digits given: said, kept
-    p.write_text("a,repose_angle\n1,30\n2,31\n1,30\n")
-    assert len(art.read_responses(p, ["a"], "repose_angle", warn=said.append)) == 3
-    assert len(said) == 1 and "row 3 repeats row 1" in said[0]
+    said = []  # centre points alike to the digits given (whole degrees) are runs of the design: said, kept
+    p.write_text("a,repose_angle\n1,30\n2,31\n1,30\n1,30\n3,33\n")
+    assert len(art.read_responses(p, ["a"], "repose_angle", warn=said.append)) == 5
+    assert len(said) == 1 and "row 3 repeats row 1 in every column, and 1 more row(s)" in said[0]
     p.write_text("a,repose_angle\n1,30\n2,31\n1,30.5\n")  # a repeat with its own angle is a replicate
     assert len(art.read_responses(p, ["a"], "repose_angle")) == 3
     p.write_text("static_friction,repose_angle\n0.4,30\n-3,31\n")  # a factor's value as --set takes it

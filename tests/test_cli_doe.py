@@ -117,7 +117,7 @@ def test_a_responses_table_is_checked_against_the_runs_design(run, tmp_path):
     pd.concat([table, table]).to_csv(doubled, index=False)
     before = snapshot(run)
     r = calib("bbd", "analyze", "--run", run, "--responses", doubled)
-    assert r.exit_code == 2 and "row 18 repeats row 1 in every column, and 16 more" in " ".join(r.output.split()), r.output
+    assert r.exit_code == 2 and "row 18 repeats row 1 in every column, and every other row repeats one" in " ".join(r.output.split()), r.output
     assert snapshot(run) == before
     r = calib("bbd", "analyze", "--run", run, "--responses", PAPER / "table7_bbd.csv")
     assert r.exit_code == 0 and "warning: responses file" not in r.output, r.output  # Table 7 is the design
@@ -130,13 +130,21 @@ def test_a_responses_table_is_checked_against_the_runs_design(run, tmp_path):
     out = " ".join(calib("bbd", "analyze", "--run", run, "--responses", off).output.split())
     assert "4 of its 17 rows are at no run of" in out and "(row 1: static_friction 0.45," in out, out
     assert "4 design run(s) have no row (3, 4, 7, 8)" in out
+    whole = tmp_path / "whole.csv"  # a paper printing whole degrees: three centre points at 34, runs all the same
+    table.assign(repose_angle=table["repose_angle"].round()).to_csv(whole, index=False)
+    r = calib("bbd", "analyze", "--run", run, "--responses", whole)
+    out = " ".join(r.output.split())
+    assert r.exit_code == 0 and "warning: responses file" in out and "row 13 repeats row 12 in every column" in out
 
 
 def test_a_paper_table_of_its_own_design_is_said_to_be(run):
     assert calib("pb", "design", "--run", run).exit_code == 0
     r = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv")
     out = " ".join(r.output.split())
-    assert r.exit_code == 0 and "4 of its 12 rows are at no run of" in out and "the table's own points" in out
+    assert r.exit_code == 0 and "3 of its 12 rows are at no run of" in out and "the table's own points" in out
+    assert "1 row(s) are at a run's point that other rows already give (row 8)" in out
+    again = calib("pb", "analyze", "--run", run, "--responses", PAPER / "table3_pb.csv")
+    assert "nothing to do" in again.output and "warning" not in again.output  # said once, when analysed
 
 
 def test_an_ascent_step_given_twice_is_an_error(run, tmp_path):

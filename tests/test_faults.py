@@ -296,7 +296,7 @@ BAD: list[Bad] = [
     Bad("fit-responses-and-simulations", ["fit-surrogate", "--run", "{run}", "--responses", "{tmp}/r.csv",
                                           "--from-simulations", "bbd"], {"r.csv": HEAD + "\n".join(BBD_ROWS) + "\n"}),
     Bad("fit-responses-rows-twice", ["fit-surrogate", "--run", "{run}", "--responses", "{tmp}/r.csv"],
-        {"r.csv": HEAD + "\n".join(BBD_ROWS + BBD_ROWS[:2]) + "\n"}),
+        {"r.csv": HEAD + "\n".join(BBD_ROWS + BBD_ROWS) + "\n"}),
     Bad("fit-unknown-model", ["fit-surrogate", "--run", "{run}", "--force", "-s", "surrogate.models=['svm']"]),
     Bad("fit-corrupt-data", ["fit-surrogate", "--run", "{run}", "--force"], prep=_truncate("bbd/data.parquet", 0.9)),
     Bad("invert-unknown-model", ["invert", "--run", "{run}", "--model", "svm"]),

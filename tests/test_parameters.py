@@ -8,6 +8,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
@@ -90,6 +91,8 @@ def test_set_and_condition_values_are_checked_where_they_enter():
     # `--set restitution=true` read 1.0; a contact law's switch takes true as on
     with pytest.raises(CalibError, match="restitution must be a number .*got True"):
         parse_params(parse_pairs(["restitution=true"], "--set"))
+    with pytest.raises(CalibError, match="restitution must be a number .*got np.True_"):
+        parse_params({"restitution": np.True_})
     with pytest.raises(CalibError, match="surface_tension must be a number, got True"):
         parse_params({"surface_tension": True})
     assert parse_params(parse_pairs(["rolling_spring=true"], "--set")) == {"rolling_spring": 1.0}
@@ -182,6 +185,14 @@ def test_simulate_heap_simulates_the_photographed_rigs_unless_told_otherwise(tmp
         plan = plan_simulation(run, ["static_friction=0.3"], preset="smoke", say=said.append, **how)
         assert plan.requests[0].condition.cylinder_diameter_mm == 50.0  # the preset's rig
         assert any("measured rig(s)" in s and "--conditions preset" in s and "6-8 mm grains" in s for s in said), said
+    # a measured table that does not read: the photographed rigs cannot be simulated, an error; the preset's
+    # rig, as asked or as --condition changes it, needs the table for a note only
+    (run / "measure" / "conditions.parquet").write_bytes(b"garbage")
+    with pytest.raises(CalibError, match="measured conditions .* not a readable Parquet file"):
+        plan_simulation(run, ["static_friction=0.3"], preset="smoke")
+    for how in ({"conditions": "preset"}, {"condition": ["fill_height_mm=60"]}):
+        assert plan_simulation(run, ["static_friction=0.3"], preset="smoke", **how).requests[0].condition.\
+            cylinder_diameter_mm == 50.0
 
 
 def test_simulate_heap_names_the_rig_a_condition_made_not_the_presets(tmp_path):

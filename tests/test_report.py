@@ -226,6 +226,18 @@ def test_a_heap_folder_calib_did_not_write_is_passed_over(tmp_path):
     assert "Photographs" in summary_of(build_report(run))
 
 
+@pytest.mark.parametrize("best", ["[]", '{"best": "rsm", "inputs": ["static_friction"], "lows": null}'])
+def test_a_best_json_of_another_shape_leaves_the_ga_cards_edges_unsaid(tmp_path, best):
+    run = tmp_path / "run"
+    shutil.copytree(RUNS / "hidden-capillary", run, ignore=shutil.ignore_patterns("runs"))
+    for lock in (run / "surrogate").glob("*.lock.json"):  # the edit stands in for another version's file
+        lock.unlink()
+    (run / "surrogate" / "best.json").write_text(best)
+    top = summary_of(build_report(run))
+    assert "The surrogate&#x27;s best fit (GA)" in top or "best fit (GA)" in top
+    assert "at upper edge" not in top
+
+
 def test_a_run_with_only_a_measurement(tmp_path):
     run = tmp_path / "run"
     shutil.copytree(RUNS / "hidden-effect" / "measure", run / "measure")

@@ -110,7 +110,11 @@ def _search_edges(f: RunFiles, params: dict) -> dict[str, str]:
 
     best = f.path("surrogate/best.json")
     pick = art.read_json(best) if best else {}
-    box = {n: (lo, hi) for n, lo, hi in zip(pick.get("inputs", []), pick.get("lows", []), pick.get("highs", []))}
+    lists = [pick.get(k) if isinstance(pick, dict) else None for k in ("inputs", "lows", "highs")]
+    if not all(isinstance(x, list) for x in lists):  # written by another version, or by hand: no box to say
+        return {}
+    box = {n: (lo, hi) for n, lo, hi in zip(*lists)
+           if isinstance(n, str) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (lo, hi))}
     return at_bounds({p: v for p, v in params.items() if p in box}, box)
 
 

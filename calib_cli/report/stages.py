@@ -3,6 +3,7 @@ discrepancy loop and the heaps, each a short summary with its figures, or a line
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 
 from .. import artifacts as art
@@ -132,7 +133,8 @@ def inversion(f: RunFiles) -> str:
     pc = f.table("invert/predicted_conditions.parquet")
     if pc is not None:
         cond = f.table("measure/conditions.parquet")  # the targets are its means, in its order
-        if cond is not None and len(cond) == len(pc) and "condition_id" in cond.columns:
+        if (cond is not None and len(cond) == len(pc) and "condition_id" in cond.columns and "target" in pc.columns
+                and np.allclose(pc["target"].to_numpy(float), cond["mean"].to_numpy(float), rtol=0, atol=1e-9)):
             pc = pc.assign(condition_id=cond["condition_id"].astype(str).to_numpy())
         pc = pc[[c for c in ("condition_id", "target", "predicted_angle") if c in pc.columns]]
         body += note("Surrogate prediction at the solution, per target (deg):") + table(

@@ -123,48 +123,47 @@ def _fixed_values(cfg: dict, section: str, names: list[str]) -> dict[str, float]
     return {n: float(given.get(n, space[n].center)) for n in names}
 
 
-def off_design(design: pd.DataFrame, data: pd.DataFrame, space: ParameterSpace) -> tuple[list[int], list]:
-    """The rows of ``data`` (0-based) at no point of ``design``, each design run taking one row within 1 %
-    of every factor's range (a paper prints three digits), and the ``run_id`` of the design runs left
-    without a row."""
+def off_design(design: pd.DataFrame, data: pd.DataFrame, space: ParameterSpace) -> tuple[list[int], list[int], list]:
+    """The rows of ``data`` (0-based) at no point of ``design``, those at a point whose runs other rows
+    already took (more rows there than the design has runs), each design run taking one row within 1 %
+    of every factor's range (a paper prints three digits), and the ``run_id`` of the runs left without one."""
     X = space.to_coded(design[space.names].to_numpy(dtype=float))
-    free, off = np.ones(len(X), dtype=bool), []
+    free, off, more = np.ones(len(X), dtype=bool), [], []
     for i, r in enumerate(space.to_coded(data[space.names].to_numpy(dtype=float))):
-        near = np.flatnonzero(free & (np.abs(X - r).max(axis=1) <= 0.02))
-        if len(near):
-            free[near[0]] = False
+        at = np.abs(X - r).max(axis=1) <= 0.02
+        if (at & free).any():
+            free[np.flatnonzero(at & free)[0]] = False
         else:
-            off.append(i)
+            (more if at.any() else off).append(i)
     ids = design["run_id"].tolist() if "run_id" in design.columns else list(range(1, len(design) + 1))
-    return off, [ids[k] for k in np.flatnonzero(free)]
+    return off, more, [ids[k] for k in np.flatnonzero(free)]
 
 
-def _say_off_design(responses: Path, design_path: Path, data: pd.DataFrame, say: Say) -> None:
+def say_off_design(responses: Optional[Path], design_path: Path, data: pd.DataFrame, say: Say) -> None:
     """Warn where a responses table's points are not its run's design: a table of its own design (a
     paper's) is analysed as it is, but a row missing or doubled from the run's design is a slip."""
     space = space_from_design(design_path)
-    if space is None or not set(space.names) <= set(data.columns):
+    if responses is None or space is None or not set(space.names) <= set(data.columns):
         return
-    off, unmet = off_design(art.read_table(design_path, what="design"), data, space)
-    if not off and not unmet:
-        return
+    off, more, unmet = off_design(art.read_table(design_path, what="design"), data, space)
     parts = []
     if off:
         first = ", ".join(f"{n} {data[n].iloc[off[0]]:g}" for n in space.names)
         parts.append(f"{len(off)} of its {len(data)} rows are at no run of {design_path} (row {off[0] + 1}: {first})")
+    if more:
+        parts.append(f"{len(more)} row(s) are at a run's point that other rows already give (row {more[0] + 1})")
     if unmet:
         ids = ", ".join(map(str, unmet[:8])) + (", ..." if len(unmet) > 8 else "")
         parts.append(f"{len(unmet)} design run(s) have no row ({ids})")
-    say(f"[yellow]warning:[/] responses file {responses}: {' and '.join(parts)}; the analysis is of the "
-        f"table's own points")
+    if parts:
+        say(f"[yellow]warning:[/] responses file {responses}: {'; '.join(parts)}; the analysis is of the table's "
+            "own points")
 
 
 def load_responses(run: Path, responses: Optional[Path], design_path: Path, factors: list[str],
                    response: str, say: Say = plain) -> tuple[pd.DataFrame, dict]:
     if responses is not None:
-        data = art.read_responses(responses, factors, response, warn=say)
-        _say_off_design(responses, design_path, data, say)
-        return data, {"responses": responses}
+        return art.read_responses(responses, factors, response, warn=say), {"responses": responses}
     data = simulated_responses(run, design_path, factors, response)
     return data, {"design": design_path, "results": art.Rows(Path(run) / "simulate" / "results.parquet", data)}
 
@@ -202,6 +201,7 @@ def pb_analyze(run: Path, responses: Optional[Path] = None, settings: Settings =
     res = pb_mod.analyze(data, space, response, float(cfg["pb"]["alpha"]))
     if st.up_to_date() and not force:
         return PBResult(st, True, res)
+    say_off_design(responses, design_path, data, say or plain)  # once, when analysed: not on every skip
     fit = pd.DataFrame([{**{k: res.fit.stats[k] for k in ("r2", "r2_adj", "r2_pred", "adeq_precision",
                                                            "cv_percent", "std_dev", "mean", "model_F", "model_p")},
                          "intercept": float(res.fit.coef["Intercept"]), "n_runs": len(data),
@@ -398,6 +398,7 @@ def bbd_analyze(run: Path, responses: Optional[Path] = None, settings: Settings 
     rsm = bbd_mod.QuadraticRSM(space).fit(data[space.names], data[response])
     if st.up_to_date() and not force:  # the same surface fitted again (as pb_analyze), not written
         return BBDResult(st, True, rsm, rsm.fit_.coefficient_table(), float(cfg["bbd"]["alpha"]))
+    say_off_design(responses, design_path, data, say or plain)
     s = rsm.stats_
     fit = pd.DataFrame([{k: s[k] for k in ("r2", "r2_adj", "r2_pred", "adeq_precision", "cv_percent",
                                              "lack_of_fit_F", "lack_of_fit_p", "std_dev", "mean", "press",

@@ -262,7 +262,9 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
     # --conditions preset: read for the note only, a table that does not read is then no matter
-    measured = (_measured_rigs(run) if conditions is None else
+    # read for the note only where the heaps take the preset's rig, as asked (--conditions preset) or as
+    # --condition changes it: a table that does not read is then no matter
+    measured = (_measured_rigs(run, quiet=bool(condition)) if conditions is None else
                 _measured_rigs(run, quiet=True) if str(conditions) == PRESET_RIG else None)
     conditions = _which_conditions(run, conditions, bool(condition), measured)
     if conditions is not None:
