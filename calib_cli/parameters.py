@@ -17,8 +17,6 @@ import math
 import os
 from dataclasses import dataclass
 
-import numpy as np
-
 from .errors import CalibError
 
 #: the heap presets' names (calib_cli.dem.heap.PRESETS holds them; here for checks that import nothing heavy)
@@ -151,7 +149,8 @@ def check(name: str, value, where: str = "") -> float:
     q = QUANTITIES[name]
     at = f" ({where})" if where else ""
     # `--set restitution=true` would be 1.0: a slip, not a value
-    if isinstance(value, (bool, np.bool_)):
+    kind = type(value)  # numpy's bool by name: this module imports no numpy (the CLI's start stays light)
+    if isinstance(value, bool) or (kind.__module__ == "numpy" and kind.__name__ in ("bool", "bool_")):
         raise CalibError(f"{name} must be a number{at}, got {value!r}")
     try:
         v = float(value)
