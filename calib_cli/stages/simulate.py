@@ -170,7 +170,7 @@ PRESET_RIG = "preset"
 def _measured_rigs(run: Path, quiet: bool = False) -> Optional[pd.DataFrame]:
     """The run's measured conditions where they give a rig (a condition variable's column), else None
     (none measured or none with a rig: then the preset's rig). A table that does not read is an error, unless
-    ``quiet`` (the preset's rig asked for): heaps of the preset's rig in its place would answer another
+    ``quiet`` (the preset's rig asked for, or changed by --condition: the table is read for a note): heaps of the preset's rig in its place would answer another
     question in silence."""
     path = Path(run) / CONDITIONS
     if not path.is_file():
@@ -261,7 +261,6 @@ def plan_simulation(run: Path, params: Pairs = None, design: Optional[Path] = No
     cond = make_condition(pre.condition, changes)
     points, dname, mhash = _points(run, design, parse_params(given_pairs(params, "--set")))
     crossed = [("", cond)]
-    # --conditions preset: read for the note only, a table that does not read is then no matter
     # read for the note only where the heaps take the preset's rig, as asked (--conditions preset) or as
     # --condition changes it: a table that does not read is then no matter
     measured = (_measured_rigs(run, quiet=bool(condition)) if conditions is None else
