@@ -142,15 +142,20 @@ def check_rig(d_min: float, d_max: float, cylinder: float | None = None, fill: f
         raise CalibError(f"fill height {fill} mm must be at least 2 particle diameters{at}")
 
 
+def is_bool(value) -> bool:
+    """True and False, Python's or numpy's (known by its type's name: this module imports no numpy, so that
+    the CLI's start stays light): a number's place where `--set restitution=true` would read 1.0."""
+    kind = type(value)
+    return isinstance(value, bool) or (kind.__module__ == "numpy" and kind.__name__ in ("bool", "bool_"))
+
+
 def check(name: str, value, where: str = "") -> float:
     """``value`` of quantity ``name`` as a float, or a one-line :class:`CalibError`: not a number,
     outside what the model accepts, or (unless ``CALIB_ALLOW_EXTREME=1``) outside what a real material
     or rig plausibly has, with the likely mistake. ``where``: where the value came from, for the message."""
     q = QUANTITIES[name]
     at = f" ({where})" if where else ""
-    # `--set restitution=true` would be 1.0: a slip, not a value
-    kind = type(value)  # numpy's bool by name: this module imports no numpy (the CLI's start stays light)
-    if isinstance(value, bool) or (kind.__module__ == "numpy" and kind.__name__ in ("bool", "bool_")):
+    if is_bool(value):
         raise CalibError(f"{name} must be a number{at}, got {value!r}")
     try:
         v = float(value)

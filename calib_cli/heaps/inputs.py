@@ -25,7 +25,7 @@ from ..dem.materials import LAW_SWITCHES
 from ..engines.clumps import SPHERES
 from ..errors import CalibError
 from ..parameters import CONDITION_VARIABLES as CONDITION_QUANTITIES
-from ..parameters import PRECISION_NAMES, QUANTITIES, check
+from ..parameters import PRECISION_NAMES, QUANTITIES, check, is_bool
 from ..settings import _parse_value
 from .keys import Request, derive_seed
 
@@ -191,7 +191,7 @@ def parse_params(values: Mapping, where: str = "--set") -> dict[str, float]:
         if k in QUANTITIES:
             out[k] = check(k, v, where)
             continue
-        if isinstance(v, (bool, np.bool_)) and k not in LAW_SWITCHES:  # true is a law switched on, not a liquid's value
+        if is_bool(v) and k not in LAW_SWITCHES:  # true is a law switched on, not a liquid's value
             raise CalibError(f"parameter {k} must be a number, got {v!r}")
         try:
             f = float(v)
@@ -210,13 +210,14 @@ def _did_you_mean(name: str, known) -> str:
     return f" (did you mean {close[0]}?)" if close else ""
 
 
-def checked_condition(items) -> dict:
+def checked_condition(items, where: str = "--condition") -> dict:
     """``--condition`` values (KEY=VALUE strings, or a mapping from Python), checked against the rig's
-    plausible ranges (:mod:`calib_cli.parameters`); unknown names are :func:`make_condition`'s to refuse."""
-    given = given_pairs(items, "--condition")
+    plausible ranges (:mod:`calib_cli.parameters`); unknown names are :func:`make_condition`'s to refuse.
+    ``where`` names their source in a message (synth-lab's --sizes, --floor)."""
+    given = given_pairs(items, where)
     for k, v in given.items():
         if k in CONDITION_QUANTITIES and not (isinstance(v, float) and math.isnan(v)):
-            check(k, v, "--condition")
+            check(k, v, where)
     return given
 
 

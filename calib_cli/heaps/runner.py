@@ -85,9 +85,10 @@ def _row(req: Request, res, img, views: list | None = None) -> dict:
     }
 
 
-def cached_result(path: Path, run_hash: str) -> dict:
+def cached_result(run_dir: Path, run_hash: str) -> dict:
     """A finished heap's result.json, checked to be that heap's row: a file edited or written by hand (``{}``,
     a list) would enter the results index as a row of NaN, or stop the campaign with a traceback."""
+    path = Path(run_dir) / RUNS / run_hash / "result.json"
     row = art.read_json(path)
     if not isinstance(row, dict) or row.get("run_hash") != run_hash or "status" not in row:
         raise CalibError(f"{path} is not the result of heap {run_hash} (a file calib did not write, or one "
@@ -102,7 +103,7 @@ def execute(req: Request, run_dir: str, progress: Callable | None = None, force:
     _restore(out)
     done = out / "result.json"
     if done.is_file() and not force:
-        return cached_result(done, req.hash)
+        return cached_result(Path(run_dir), req.hash)
     ck = checkpoint_path(Path(run_dir), req, fresh=force)
     if req.engine == "lammps":
         from ..engines.lammps import run_heap_lammps
@@ -248,7 +249,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
 
     todo, cached, twins = _plan(requests, run_dir, force, reuse)
     for i in cached:
-        label(i, cached_result(run_dir / RUNS / requests[i].hash / "result.json", requests[i].hash))
+        label(i, cached_result(run_dir, requests[i].hash))
     indexed = _indexed_rows(run_dir, [requests[i] for i in todo]) if rows_suffice and not force else {}
     for i in [i for i in todo + twins if requests[i].hash in indexed]:
         label(i, indexed[requests[i].hash])
@@ -271,7 +272,7 @@ def run_campaign(requests: Iterable[Request], run_dir: Path, workers: int = 1,
     else:
         _run_on_pool([(i, requests[i]) for i in todo], run_dir, workers, force, finish)
     for i in twins:  # computed once, above, under its first request's labels
-        finish(i, cached_result(run_dir / RUNS / requests[i].hash / "result.json", requests[i].hash))
+        finish(i, cached_result(run_dir, requests[i].hash))
     return pd.DataFrame([r for r in rows if r is not None])
 
 

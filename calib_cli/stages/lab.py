@@ -17,8 +17,7 @@ from ..dem.heap import FLOOR_VARIABLES, HeapCondition
 from ..errors import CalibError
 from ..heaps.inputs import (COND_VARS, RUN_ENGINES, build_requests, heap_preset, make_condition, modulus_settings,
                             parse_params)
-from ..heaps.inputs import Pairs, given_pairs as pairs
-from ..parameters import check
+from ..heaps.inputs import Pairs, checked_condition, given_pairs as pairs
 from ..heaps.keys import RUNS
 from ..heaps.runner import run_campaign
 from ..model import EFFECTS
@@ -36,9 +35,7 @@ def floor_condition(base: HeapCondition, spec: str) -> HeapCondition:
     if not all(ch.isalnum() or ch in "-_." for ch in name.strip()):  # it names condition ids and photographs
         raise CalibError(f"--floor {spec!r}: a floor's name is letters, digits, '-', '_' and '.' (it goes into "
                          "each condition's id and photograph's file name)")
-    for k, v in vals.items():
-        check(k, v, f"--floor {name.strip()}")
-    return make_condition(base, {"floor": name.strip(), **vals})
+    return make_condition(base, {"floor": name.strip(), **checked_condition(vals, f"--floor {name.strip()}")})
 
 
 def _lab_conditions(floors: list[HeapCondition], sizes: str, cylinders: str, fills: Optional[str], fill_ratio: float,
@@ -60,8 +57,9 @@ def _lab_conditions(floors: list[HeapCondition], sizes: str, cylinders: str, fil
     except ValueError as e:
         raise CalibError(f"--sizes, --cylinders, --fills: expected numbers like 5-6,6-7 / 40,48 / 50,100 ({e})")
     for cid, c in conds:  # a rig's plausible ranges, as --condition checks them: millimetres, not metres
-        for v in ("particle_d_min_mm", "particle_d_max_mm", "cylinder_diameter_mm", "fill_height_mm"):
-            check(v, getattr(c, v), f"condition {cid} of --sizes, --cylinders, --fills, --fill-ratio")
+        checked_condition({v: getattr(c, v) for v in ("particle_d_min_mm", "particle_d_max_mm",
+                                                       "cylinder_diameter_mm", "fill_height_mm")},
+                          f"condition {cid} of --sizes, --cylinders, --fills, --fill-ratio")
     ids = [cid for cid, _ in conds]
     twice = sorted({i for i in ids if ids.count(i) > 1})
     if twice:  # two conditions under one id would write one photograph twice, after every heap

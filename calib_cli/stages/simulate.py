@@ -169,9 +169,9 @@ PRESET_RIG = "preset"
 
 def _measured_rigs(run: Path, quiet: bool = False) -> Optional[pd.DataFrame]:
     """The run's measured conditions where they give a rig (a condition variable's column), else None
-    (none measured or none with a rig: then the preset's rig). A table that does not read is an error, unless
-    ``quiet`` (the preset's rig asked for, or changed by --condition: the table is read for a note): heaps of the preset's rig in its place would answer another
-    question in silence."""
+    (none measured or none with a rig: then the preset's rig). A table that does not read is an error: heaps
+    of the preset's rig in its place would answer another question in silence. Unless ``quiet``: where the
+    preset's rig is asked for, or changed by --condition, the table is read for a note only."""
     path = Path(run) / CONDITIONS
     if not path.is_file():
         return None
