@@ -33,6 +33,12 @@ class Effect:
         either way from where the model stands."""
         return math.isnan(self.neutral)
 
+    @property
+    def tied(self) -> str | None:
+        """The grains' parameter a two-sided (wall) effect's value defaults to while it is absent; None for
+        an effect with a neutral value."""
+        return self.parameter.replace("wall_", "") if self.two_sided else None
+
     def probe(self, theta: dict[str, float]) -> tuple[float, float]:
         """The two values of the parameter whose simulations give diagnose's sensitivity
         g = (angle(b) - angle(a)) / (b - a).
@@ -51,4 +57,4 @@ class Effect:
         """The value the model implies while the effect is absent: neutral, or the grains' own."""
         if not self.two_sided:
             return self.neutral
-        return float(theta.get(self.parameter.replace("wall_", ""), 0.5))
+        return float(theta.get(self.tied, 0.5))

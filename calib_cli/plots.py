@@ -135,7 +135,7 @@ def rounds_figure(rounds, answer=None):
             if len(fin) and np.isfinite(fin["bf_off"].iloc[0]):
                 upper = bool(fin["bf_upper"].iloc[0]) if "bf_upper" in fin.columns else False
                 ax.semilogy([r["heaps"].iloc[-1]], [max(float(fin["bf_off"].iloc[0]), 1e-4)], "D", ms=6, color="k",
-                            mfc="white" if upper else "k", label="  the answer (sampled longer)")
+                            mfc="white" if upper else "k", label="  its Bayes factor in the answer")
     ax.axhline(1.0, color="k", lw=0.6)
     ax.axhline(0.1, color="tab:red", lw=0.6, ls="--")
     ax.axhline(3.0, color="tab:green", lw=0.6, ls="--")

@@ -4,6 +4,7 @@ known (calib_cli.posterior.adaptive, calib_cli.stages.calibrate)."""
 
 from __future__ import annotations
 
+import io
 import shutil
 
 import numpy as np
@@ -341,6 +342,44 @@ def test_a_calibration_designed_anew_leaves_no_later_round_of_the_one_before(lab
     assert len(cal._until_round(run, model_rows(run, model), model, None)) == 80
 
 
+def test_a_calibration_with_other_options_stopped_on_the_way_leaves_the_answer_before_it(lab, monkeypatch):
+    """Another --seed, killed at its round 1: the first calibration's answer (posterior/, rounds, point) is as it
+    was and its round 2 is still on disk; its options given again find it, simulate no new heap and answer
+    as before."""
+    from calib_cli.stages import calibrate as cal
+
+    run, calls = lab
+    opts = dict(budget=100, first=60, batch=20, walkers=16, steps=300, **QUIET)
+    cal.calibrate(run, **opts)
+    answer = ["posterior/summary.parquet", "posterior/samples.parquet", "calibrate/rounds.parquet",
+              "calibrate/point.parquet"]
+    before = {f: (run / f).read_bytes() for f in answer}
+    round_2 = run / "calibrate" / "rev0" / "round-02" / "design.parquet"
+    made = round_2.stat().st_mtime_ns
+    real = cal._round_posterior
+
+    def dies_at_round_1(run_, model, k, *a, **kw):
+        if k == 1:
+            raise KeyboardInterrupt
+        return real(run_, model, k, *a, **kw)
+
+    monkeypatch.setattr(cal, "_round_posterior", dies_at_round_1)
+    with pytest.raises(KeyboardInterrupt):
+        cal.calibrate(run, seed=1, **opts)
+    assert {f: (run / f).read_bytes() for f in answer} == before and round_2.is_file()
+    monkeypatch.setattr(cal, "_round_posterior", real)
+    had = set(pd.read_parquet(run / "simulate" / "results.parquet")["run_hash"])
+    asked = []
+    monkeypatch.setattr(cal, "run_campaign", lambda requests, *a, **kw: (asked.extend(q.hash for q in requests),
+                                                                          _fake_campaign(calls)(requests, *a, **kw))[1])
+    again = cal.calibrate(run, **opts)
+    assert set(asked) <= had
+    assert round_2.stat().st_mtime_ns == made
+    pd.testing.assert_frame_equal(again.rounds, art.read_table(run / "calibrate" / "rounds.parquet"))
+    for f in answer[:1] + answer[2:]:
+        pd.testing.assert_frame_equal(pd.read_parquet(run / f), pd.read_parquet(io.BytesIO(before[f])), obj=f)
+
+
 def test_heaps_of_another_preset_are_refused_before_any_runs(lab):
     """The model's heaps at hand were simulated at the default preset: a calibration at another one would mix
     two setups in one surrogate, refused before round 0 spends its heaps (not after them)."""
@@ -479,6 +518,37 @@ def test_a_bayes_factor_only_bounded_is_resolved_by_sampling_the_final_posterior
     se = r.table.set_index("parameter").loc["surface_energy"]
     assert last["bf_upper"] and any("the answer: the last round's posterior sampled" in m for m in said)
     assert se["q05"] > 0.5 and se["bf_off"] < last["bf_off"]
+
+
+def test_a_wall_effect_is_weighed_round_by_round_against_the_grains_own_value(lab, monkeypatch):
+    """A lab whose wall is 0.2 less frictional than its grains, calibrated with the wall's friction free: each
+    round records the wall effect's Bayes factor of off (the wall at the grains' value) and its word, and
+    the answer leans to the effect (on these 120 heaps, 0.049: "the data call for it")."""
+    from calib_cli.model import Model, load_model, save_model
+    from calib_cli.stages import calibrate as cal
+
+    run, calls = lab
+    save_model(run, Model(("sliding_friction", "rolling_friction", "restitution", "wall_friction")))
+    truth = {**TRUTH, "wall_static_friction": 0.25}
+
+    def with_wall(p, fill):
+        return stand_in(p, fill) + 12.0 * (p["wall_static_friction"] - p["static_friction"]) * (fill / 75) ** 2
+
+    meas = pd.read_parquet(run / "measure" / "conditions.parquet")
+    art.write_table(run / "measure" / "conditions.parquet", meas.assign(mean=[with_wall(truth, h) for h in FILLS]))
+    monkeypatch.setattr(cal, "run_campaign", _fake_campaign(calls, angle=with_wall))
+    r = cal.calibrate(run, budget=120, first=60, batch=20, walkers=16, steps=400, **QUIET)
+    wall = r.rounds[r.rounds["parameter"] == "wall_static_friction"]
+    assert wall["bf_off"].notna().all() and (wall["effect"] != "").all()
+    assert (r.rounds.loc[r.rounds["parameter"] != "wall_static_friction", "effect"] == "").all()  # no effect of theirs
+    answer = r.table.set_index("parameter").loc["wall_static_friction"]
+    assert answer["bf_off"] < 1 and "(wall_static_friction = static_friction) against on" in answer["verdict"]
+    # its locks name the wall's Bayes factor: a wall's posterior locked before it had one is stale; no other is
+    from calib_cli.posterior.evidence import evidence_lock
+    rows = pd.read_parquet(run / "simulate" / "results.parquet")
+    assert evidence_lock(run, load_model(run), rows, None)[1]["wall_bayes_factor"] == 1
+    assert "wall_bayes_factor" not in evidence_lock(run, Model(("sliding_friction", "rolling_friction", "restitution")),
+                                                    rows, None)[1]
 
 
 @pytest.mark.parametrize("argv", [["compare"], ["diagnose"], ["model", "add", "cohesion"]])

@@ -7,6 +7,8 @@ import json
 import shutil
 from pathlib import Path
 
+import types
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -756,6 +758,53 @@ def test_a_bayes_factor_with_no_draw_near_the_value_is_an_upper_bound_not_zero()
     assert upper and bf == pytest.approx(3 / 4000 / 0.01) and bf_text(bf, upper) == "< 0.075"
     bf, upper = bayes_factor_off(rng.uniform(0.0, 3.0, 20000), 0.0, 0.0, 3.0, n_eff=4000)
     assert not upper and bf == pytest.approx(1.0, abs=0.25)
+
+
+def test_a_walls_bayes_factor_weighs_it_equal_to_the_grains_own():
+    """A wall effect is off where its value is the grains' (no neutral value of its own): B01 is the
+    Savage-Dickey ratio on their difference. Prior draws give 1 (the boxes nested, or only overlapping: the
+    prior density of the difference at 0 is their overlap over the product of their ranges); a wall tied to
+    the grains favours off; a wall plainly slipperier calls for the effect, as a bound where no draw is near."""
+    from calib_cli.posterior.calibrate import bayes_factor_equal
+
+    rng = np.random.default_rng(3)
+    n = 400000
+    grains = rng.uniform(0.3, 0.7, n)
+    bf, upper = bayes_factor_equal(rng.uniform(0.0, 1.0, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=n)
+    assert not upper and bf == pytest.approx(1.0, abs=0.05)
+    bf, _ = bayes_factor_equal(rng.uniform(0.5, 1.0, n), grains, (0.5, 1.0), (0.3, 0.7), n_eff=n)
+    assert bf == pytest.approx(1.0, abs=0.05)  # overlapping boxes: f(0) = 0.2 / (0.5 * 0.4)
+    bf, upper = bayes_factor_equal(grains + rng.normal(0, 0.005, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=n)
+    assert not upper and bf > 3
+    bf, upper = bayes_factor_equal(grains - 0.2 + rng.normal(0, 0.01, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=4000)
+    assert upper and bf == pytest.approx(3 / 4000 / 0.02) and bf < 0.1  # f(0) = 1 over a window of 0.02
+    assert np.isnan(bayes_factor_equal(grains + 1, grains, (1.0, 2.0), (0.0, 0.5), n_eff=n)[0])
+
+
+def test_a_wall_effect_gets_its_bayes_factor_and_words_but_no_averaging():
+    """verdicts gives an added wall effect its Bayes factor of off (the wall at the grains' value) and says
+    so in its words; without the grains' value calibrated beside it, none. The answer is not averaged over
+    it: its off is a line in the box, not a value to hold the parameter at."""
+    from calib_cli.posterior.evidence import averaged, effect_verdict, verdicts
+
+    rng = np.random.default_rng(4)
+    grains = rng.uniform(0.4, 0.5, 5000)
+    table = pd.DataFrame({"parameter": ["static_friction", "wall_static_friction"], "median": [0.45, 0.25],
+                          "q05": [0.41, 0.21], "q95": [0.49, 0.29], "low": [0.3, 0.0], "high": [0.7, 1.0],
+                          "rel_width": [0.2, 0.08], "identified": [True, True], "n_eff": [4000.0] * 2})
+    slippery = pd.DataFrame({"static_friction": grains, "wall_static_friction": grains - 0.2 + rng.normal(0, 0.01, 5000)})
+    t = verdicts(table, slippery, ratio=0.3)
+    wall = t.set_index("parameter").loc["wall_static_friction"]
+    assert wall["bf_upper"] and effect_verdict(wall["bf_off"], wall["bf_upper"], wall["decided"]) == "on"
+    assert "wall_friction off (wall_static_friction = static_friction) against on: Bayes factor <" in wall["verdict"]
+    assert np.isnan(t.set_index("parameter").loc["static_friction", "bf_off"])
+    same = verdicts(table, slippery.assign(wall_static_friction=grains + rng.normal(0, 0.005, 5000)), ratio=0.3)
+    assert effect_verdict(*same.set_index("parameter").loc["wall_static_friction", ["bf_off", "bf_upper",
+                                                                                     "decided"]]) == "off"
+    alone = verdicts(table.iloc[1:], slippery, ratio=0.3)
+    assert np.isnan(alone["bf_off"].iloc[0]) and "Bayes factor" not in alone["verdict"].iloc[0]
+    fit = types.SimpleNamespace(table=same)
+    assert averaged(fit, None, {}, None, walkers=8, steps=10, seed=0) is fit
 
 
 def _table(rel, bf_param="surface_energy"):

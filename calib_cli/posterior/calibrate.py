@@ -22,6 +22,7 @@ stretch move three- to fourfold (hidden-effect: 24-35 steps against 113-158).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping, Optional
 
@@ -185,6 +186,34 @@ def bayes_factor_off(draws, value: float, low: float, high: float, n_eff: float,
     half = width * (high - low) / 2
     share = (min(high, value + half) - max(low, value - half)) / (high - low)
     return float(3.0 / n_eff / share), True
+
+
+def bayes_factor_equal(draws, tied, box: tuple[float, float], tied_box: tuple[float, float], n_eff: float,
+                       width: float = SD_WINDOW) -> tuple[float, bool]:
+    """The Bayes factor of theta = theta_t (a wall's value the grains' own: the effect off) against the two
+    free, by the Savage-Dickey ratio on their difference d = theta - theta_t: the posterior density at d = 0
+    over the prior's,
+
+        B01 = p(d = 0 | data) / p(d = 0),   p(d = 0) = |box n tied_box| / (|box| |tied_box|),
+
+    the posterior's the share of draws with |d| within ``width`` times ``box``'s range about 0 over that
+    window's prior probability (the two uniform priors' convolution over it). Exact where ``box`` holds
+    ``tied_box`` (the grains' prior given d = 0 is then their own); and, as :func:`bayes_factor_off`, an upper
+    bound from the effective draws where none falls in the window."""
+    d = np.asarray(draws, float) - np.asarray(tied, float)
+    (a, b), (c, e) = box, tied_box
+    half = width * (b - a) / 2
+    grid = np.linspace(-half, half, 201)
+    density = np.clip(np.minimum(b, e + grid) - np.maximum(a, c + grid), 0, None) / ((b - a) * (e - c))
+    prior = float(np.sum((density[1:] + density[:-1]) / 2 * np.diff(grid)))
+    if prior <= 0:  # the boxes do not meet: "equal" is outside the prior
+        return math.nan, False
+    share = float(np.mean(np.abs(d) <= half))
+    if share > 0:
+        return share / prior, False
+    if not np.isfinite(n_eff) or n_eff <= 0:
+        n_eff = max(1.0, d.size / 50.0)
+    return float(3.0 / n_eff / prior), True
 
 
 def mvn_logpdf(r: np.ndarray, V: np.ndarray) -> np.ndarray:

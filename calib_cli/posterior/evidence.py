@@ -24,8 +24,8 @@ from ..errors import CalibError
 from ..measurements import photo_piles
 from ..model import DEFAULT_EFFECTS, EFFECTS, Model
 from ..heaps.inputs import COND_VARS
-from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_off,
-                        calibrate_posterior, response_variances, summarise)
+from .calibrate import (ColumnShare, PosteriorResult, SecondResponse, _inputs, averaged_draws, bayes_factor_equal,
+                        bayes_factor_off, calibrate_posterior, response_variances, summarise)
 from .gp import VIEWS_OF, ColumnModel, GPSurrogate, holdout_rmse, informative_conditions, views_of
 from .profiles import FULLNESS, asked_for, measured_fullness, profile_inputs, profiles_at_hand, simulated_fullness
 
@@ -92,7 +92,7 @@ def model_rows(run: Path, model: Model, judged: bool = False, views: bool = Fals
     rows = rows.copy()
     for name in model.effects:
         eff = EFFECTS[name]
-        tied = eff.parameter.replace("wall_", "") if eff.two_sided else None
+        tied = eff.tied
         col = rows[eff.parameter] if eff.parameter in rows.columns else pd.Series(np.nan, index=rows.index)
         rows[eff.parameter] = col.fillna(rows[tied] if tied in rows.columns else eff.neutral)
     setups = heap_setups(rows)
@@ -335,7 +335,8 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
              off: Optional[dict] = None) -> pd.DataFrame:
     """Each parameter's verdict in words, and for an effect the model gained (not a default one) the
     Bayes factor of "off" against the posterior (``bf_off``; ``bf_upper`` where no draw fell near
-    the neutral value and it is an upper bound from the effective draws). Where the surrogate is
+    the neutral value and it is an upper bound from the effective draws; a wall's off is the grains' own
+    value, :func:`_bf_off`). Where the surrogate is
     unsure (``ratio`` above SURROGATE_RATIO_MAX) nothing is called identified, for or against; a
     posterior pressed against a bound of its box that could be wider (``edge``: low/high, see
     :func:`pressed_edge`) is not called identified: its width is the box's, not the data's, and the verdict
@@ -349,11 +350,10 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
     the averaged interval is the neutral value's: the verdict says so rather than "90 % between 0 and 0",
     and the parameter is not called identified."""
     owner = {e.parameter: e for e in EFFECTS.values()}
-    added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS and not owner[p].two_sided else None
-             for p in table["parameter"]]
+    added = [owner[p] if owner[p].name not in DEFAULT_EFFECTS else None for p in table["parameter"]]
     table = table.assign(neutral=[e.neutral if e else math.nan for e in added])
-    bfs = [bayes_factor_off(samples[r.parameter], r.neutral, r.low, r.high, r.n_eff)
-           if e and r.low <= r.neutral <= r.high else (math.nan, False) for r, e in zip(table.itertuples(), added)]
+    rows = table.set_index("parameter")
+    bfs = [_bf_off(r, e, samples, rows) for r, e in zip(table.itertuples(), added)]
     unsure = bool(ratio > SURROGATE_RATIO_MAX)
     table["bf_off"], table["bf_upper"] = [b for b, _ in bfs], [u for _, u in bfs]
     table["surrogate_ratio"], table["decided"] = float(ratio), not unsure
@@ -367,6 +367,22 @@ def verdicts(table: pd.DataFrame, samples: pd.DataFrame, ratio: float = 0.0, pri
         table.loc[table["parameter"] == off["parameter"], "identified"] = False
     table["verdict"] = [_words(r, owner, unsure, prior, _off_words(r, off, unsure)) for r in table.itertuples()]
     return table
+
+
+def _bf_off(r, eff, samples: pd.DataFrame, rows: pd.DataFrame) -> tuple[float, bool]:
+    """The Bayes factor of the added effect ``eff`` off and whether it is a bound: its parameter at its neutral
+    value, or a wall's at the grains' own value calibrated beside it (:func:`bayes_factor_equal`); NaN where
+    off lies outside the box, or the grains' value is not calibrated."""
+    if eff is None:
+        return math.nan, False
+    if not eff.two_sided:
+        return (bayes_factor_off(samples[r.parameter], r.neutral, r.low, r.high, r.n_eff)
+                if r.low <= r.neutral <= r.high else (math.nan, False))
+    if eff.tied not in rows.index:
+        return math.nan, False
+    t = rows.loc[eff.tied]
+    return bayes_factor_equal(samples[r.parameter], samples[eff.tied], (r.low, r.high), (t.low, t.high),
+                              min(r.n_eff, t.n_eff))
 
 
 def _off_words(r, off: Optional[dict], unsure: bool) -> str:
@@ -462,7 +478,8 @@ def _words(r, owner, unsure: bool, prior: str = "settings", off: str = "") -> st
                else "the data do not decide")  # a bound above BF_OFF: no draw near off, nothing favours it
         if r.box_cut and not unsure:
             say = f"no verdict while the box cuts the posterior (inside it: {say})"
-        w += (f"; {name} off ({r.parameter} = {r.neutral:g}) against on: Bayes factor "
+        at = owner[r.parameter].tied or f"{r.neutral:g}"
+        w += (f"; {name} off ({r.parameter} = {at}) against on: Bayes factor "
               f"{bf_text(r.bf_off, r.bf_upper)}, {say}")
     return w
 
@@ -490,9 +507,12 @@ def widen_advice(table: pd.DataFrame) -> str:
 
 def effect_verdict(bf: float, upper: bool, decided: bool, cut: str = "") -> str:
     """A switchable effect's verdict in one word: on, off, undecided, open (the data do not decide) or cut
-    (the box cuts the posterior: ``cut`` is :func:`verdicts`' ``box_cut``)."""
-    if not decided or not np.isfinite(bf):
-        return "undecided" if not decided else ""
+    (the box cuts the posterior: ``cut`` is :func:`verdicts`' ``box_cut``); "" without a Bayes factor (no
+    effect the model gained)."""
+    if not np.isfinite(bf):
+        return ""
+    if not decided:
+        return "undecided"
     if cut:
         return "cut"
     return "on" if bf < BF_NEEDED else "off" if bf > BF_OFF and not upper else "open"
@@ -676,7 +696,9 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
     a Bayes factor the box cuts (:func:`verdicts`: it gives no verdict, so it weighs nothing either)."""
     t = fit.table
     eff = t[np.isfinite(t["bf_off"].to_numpy(float))]
-    if len(eff) != 1 or bool(eff["bf_upper"].iloc[0]) or str(box_cuts(t).iloc[0]):
+    # a wall's "off" is its grains' value, a line in the box, not a value to hold it at
+    if (len(eff) != 1 or bool(eff["bf_upper"].iloc[0]) or str(box_cuts(t).iloc[0])
+            or not np.isfinite(eff["neutral"].iloc[0])):
         return fit
     r = eff.iloc[0]
     p_off = float(r.bf_off / (1.0 + r.bf_off))
@@ -735,8 +757,11 @@ def evidence_lock(run: Path, model: Model, rows: pd.DataFrame, profile: Optional
     """The lock inputs and settings of a stage that may weigh the heap profile and the column share: the
     measured files they read, how many heaps have a profile (heaps whose side views arrive later rerun
     the stage) and how many stood as columns (of ``judged``, else of every heap of the model). With
-    ``profile`` / ``columns`` None, wherever they can be."""
+    ``profile`` / ``columns`` None, wherever they can be. A model with a wall effect names the version of its
+    Bayes factor (:func:`_bf_off`): its locks from before walls had one are stale, every other lock stays."""
     inputs, settings = {}, {"profile": profile, "columns": columns}
+    if any(EFFECTS[e].two_sided for e in model.effects):
+        settings["wall_bayes_factor"] = 1
     angles = run / "measure" / "angles.parquet"
     if profile is not False:
         try:

@@ -190,13 +190,14 @@ def _round_design(run: Path, model: Model, k: int, pairs: int, prev: Optional[Ro
             at_hand = _reused(run, model)
             out.table((path.parent / "reused.parquet").relative_to(st.dir).as_posix(),
                       _at_hand(run, model) if at_hand is None else at_hand, model_revision=model.revision)
-    _drop_after(run, model, k)
     return design
 
 
 def _drop_after(run: Path, model: Model, k: int) -> None:
-    """The rounds after k on disk, with their locks: round k designed anew, they are another calibration's (another
-    --seed or budget), whose designs the whole calibration's heaps would count (:func:`_designed`)."""
+    """The rounds after k on disk, with their locks, once this calibration's last round k stands: they are another
+    calibration's (another --seed or budget), whose designs the whole calibration's heaps would count
+    (:func:`_designed`). Kept until then, so a calibration stopped on the way leaves the one before it
+    whole but for the rounds it redesigned, and that one's options, given again, find its later rounds."""
     j = k + 1
     while (d := _dir(run, model, j)).is_dir():
         shutil.rmtree(d)
@@ -488,8 +489,8 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
         + precision_note(precision))
     if force:  # begin again from every heap at hand now: compare's and diagnose's join
         (_dir(run, model, 0) / "reused.parquet").unlink(missing_ok=True)
-    rounds, spent, stop = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
-    return _finish(run, model, conds, plan, setup, rounds, spent, stop, say)
+    rounds, spent, stop, designed = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
+    return _finish(run, model, conds, plan, setup, rounds, spent, stop, designed, say)
 
 
 def _check_setup(run: Path, model: Model, setup: dict) -> None:
@@ -517,9 +518,9 @@ def _next_pairs(plan: Plan, k: int, spent: int, short: int = 0) -> int:
     return min(want, plan.budget - spent) // plan.repeats
 
 
-def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) -> tuple[list[Round], int, str]:
+def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) -> tuple[list[Round], int, str, int]:
     """Round after round until the stop rule or the budget; returns the rounds that fitted a posterior,
-    the heaps they simulated and why they stopped."""
+    the heaps they simulated, why they stopped and the last round designed."""
     rounds: list[Round] = []
     spent, k, short = 0, 0, 0
     need = heaps_needed(model, informative_conditions(conds, COND_VARS))
@@ -530,7 +531,7 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
                 raise CalibError(f"only {need - short} heaps of the model formed a heap ({spent} simulated by this "
                                  f"calibration); the surrogate needs {need}: raise --budget")
             return rounds, spent, (f"budget: {spent} of the {plan.budget} heaps simulated, too few left for "
-                                   f"another round")
+                                   f"another round"), k - 1
         prev = rounds[-1] if rounds else None
         rule = "space-filling" if prev is None else plan.rule
         design = _round_design(run, model, k, pairs, prev, conds, plan, say)
@@ -550,7 +551,7 @@ def _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap) 
         _say_round(rnd, spent, say)
         stop = _stop(rounds, plan, rnd)
         if stop:
-            return rounds, spent, stop
+            return rounds, spent, stop, k
         k += 1
 
 
@@ -605,9 +606,10 @@ def _write_final_posterior(run: Path, model: Model, conds: pd.DataFrame, plan: P
 
 
 def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dict, rounds: list[Round],
-            spent: int, stop: str, say: Say) -> CalibrateResult:
+            spent: int, stop: str, designed: int, say: Say) -> CalibrateResult:
     """RUN/posterior/ from the last round, then RUN/calibrate/'s rounds, figure and point (the final
-    posterior's most probable draw) under the calibration's lock."""
+    posterior's most probable draw) under the calibration's lock; the rounds on disk after the last one
+    ``designed`` go (:func:`_drop_after`)."""
     from ..plots import rounds_figure
 
     last = rounds[-1]
@@ -620,6 +622,7 @@ def _finish(run: Path, model: Model, conds: pd.DataFrame, plan: Plan, setup: dic
         prev = art.read_table(old)
         table = pd.concat([prev[prev["revision"] != model.revision], table], ignore_index=True)
     best = most_probable(samples, model.parameters)
+    _drop_after(run, model, designed)
     final = _final_stage(run, model, plan, setup, _current_rows(run, model))
     with final.commit() as out:
         out.table("rounds.parquet", table, model_revision=model.revision, stop=stop)
