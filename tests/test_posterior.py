@@ -772,8 +772,23 @@ def test_a_walls_bayes_factor_weighs_it_equal_to_the_grains_own():
     grains = rng.uniform(0.3, 0.7, n)
     bf, upper = bayes_factor_equal(rng.uniform(0.0, 1.0, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=n)
     assert not upper and bf == pytest.approx(1.0, abs=0.05)
-    bf, _ = bayes_factor_equal(rng.uniform(0.5, 1.0, n), grains, (0.5, 1.0), (0.3, 0.7), n_eff=n)
-    assert bf == pytest.approx(1.0, abs=0.05)  # overlapping boxes: f(0) = 0.2 / (0.5 * 0.4)
+    # boxes only overlapping (a wall's box of 0.2-0.6 beside the grains' 0.05-0.5): against the marginal
+    # likelihoods' own ratio, of data that favour the two equal near 0.4
+    box, tied_box = (0.2, 0.6), (0.05, 0.5)
+    w, g = np.meshgrid(np.linspace(*box, 801), np.linspace(*tied_box, 901), indexing="ij")
+
+    def like(w, g):
+        return np.exp(-0.5 * ((w - g) / 0.03) ** 2 - 0.5 * ((g - 0.4) / 0.05) ** 2)
+
+    free = np.trapezoid(np.trapezoid(like(w, g), g[0], axis=1), w[:, 0]) / (0.4 * 0.45)
+    gg = np.linspace(*tied_box, 901)
+    truth = np.trapezoid(like(gg, gg), gg) / 0.45 / free
+    gd = rng.uniform(*tied_box, 4 * n)
+    wd = rng.uniform(*box, 4 * n)
+    keep = rng.uniform(size=4 * n) < like(wd, gd)
+    bf, upper = bayes_factor_equal(wd[keep], gd[keep], box, tied_box, n_eff=keep.sum())
+    assert not upper and truth > 3 and bf == pytest.approx(truth, rel=0.08)
+    assert np.isnan(bayes_factor_equal(wd, gd, (0.0, 1.0), (1.0, 2.0), n_eff=n)[0])  # touching: no overlap
     bf, upper = bayes_factor_equal(grains + rng.normal(0, 0.005, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=n)
     assert not upper and bf > 3
     bf, upper = bayes_factor_equal(grains - 0.2 + rng.normal(0, 0.01, n), grains, (0.0, 1.0), (0.3, 0.7), n_eff=4000)
@@ -781,10 +796,11 @@ def test_a_walls_bayes_factor_weighs_it_equal_to_the_grains_own():
     assert np.isnan(bayes_factor_equal(grains + 1, grains, (1.0, 2.0), (0.0, 0.5), n_eff=n)[0])
 
 
-def test_a_wall_effect_gets_its_bayes_factor_and_words_but_no_averaging():
+def test_a_wall_effect_gets_its_bayes_factor_and_words_but_no_averaging(monkeypatch):
     """verdicts gives an added wall effect its Bayes factor of off (the wall at the grains' value) and says
     so in its words; without the grains' value calibrated beside it, none. The answer is not averaged over
-    it: its off is a line in the box, not a value to hold the parameter at."""
+    it (its off is a line in the box, not a value to hold the parameter at), nor does it stop the answer
+    averaging cohesion beside it."""
     from calib_cli.posterior.evidence import averaged, effect_verdict, verdicts
 
     rng = np.random.default_rng(4)
@@ -805,6 +821,21 @@ def test_a_wall_effect_gets_its_bayes_factor_and_words_but_no_averaging():
     assert np.isnan(alone["bf_off"].iloc[0]) and "Bayes factor" not in alone["verdict"].iloc[0]
     fit = types.SimpleNamespace(table=same)
     assert averaged(fit, None, {}, None, walkers=8, steps=10, seed=0) is fit
+    # beside cohesion, favoured off, the answer still averages cohesion on and off, the wall free in both
+    both = pd.concat([table, pd.DataFrame({"parameter": ["surface_energy"], "median": [0.02], "q05": [0.0],
+                                           "q95": [0.1], "low": [0.0], "high": [2.0], "rel_width": [0.05],
+                                           "identified": [True], "n_eff": [4000.0]})], ignore_index=True)
+    draws = slippery.assign(wall_static_friction=grains, surface_energy=rng.uniform(0, 0.1, 5000))
+
+    def off_posterior(*a, fixed: dict, **kw):
+        raise StopIteration(fixed)
+
+    monkeypatch.setattr("calib_cli.posterior.evidence.calibrate_posterior", off_posterior)
+    fit = types.SimpleNamespace(table=verdicts(both, draws, ratio=0.3), result=None, gp=None, second=None,
+                                evidence={"scatter": False})
+    with pytest.raises(StopIteration) as held:
+        averaged(fit, None, {}, None, walkers=8, steps=10, seed=0)
+    assert held.value.value == {"surface_energy": 0.0}
 
 
 def _table(rel, bf_param="surface_energy"):

@@ -190,24 +190,28 @@ def bayes_factor_off(draws, value: float, low: float, high: float, n_eff: float,
 
 def bayes_factor_equal(draws, tied, box: tuple[float, float], tied_box: tuple[float, float], n_eff: float,
                        width: float = SD_WINDOW) -> tuple[float, bool]:
-    """The Bayes factor of theta = theta_t (a wall's value the grains' own: the effect off) against the two
-    free, by the Savage-Dickey ratio on their difference d = theta - theta_t: the posterior density at d = 0
-    over the prior's,
+    """The Bayes factor of theta = theta_t (a wall's value the grains' own: the effect off, theta_t uniform on
+    ``tied_box``) against the two free and uniform, by the generalised Savage-Dickey ratio on their
+    difference d = theta - theta_t (Verdinelli and Wasserman 1995):
 
-        B01 = p(d = 0 | data) / p(d = 0),   p(d = 0) = |box n tied_box| / (|box| |tied_box|),
+        B01 = p(d = 0 | data) / p(d = 0) * |box n tied_box| / |tied_box|,
+        p(d = 0) = |box n tied_box| / (|box| |tied_box|),
 
-    the posterior's the share of draws with |d| within ``width`` times ``box``'s range about 0 over that
-    window's prior probability (the two uniform priors' convolution over it). Exact where ``box`` holds
-    ``tied_box`` (the grains' prior given d = 0 is then their own); and, as :func:`bayes_factor_off`, an upper
-    bound from the effective draws where none falls in the window."""
+    the posterior density the share of draws with |d| within ``width`` times ``box``'s range about 0 over that
+    window's prior probability (the two uniform priors' convolution over it). The last factor is the grains'
+    prior under "off" over theirs given d = 0 (uniform on the overlap): 1 where ``box`` holds ``tied_box``;
+    where it does not, B01 is exact as long as the data leave no weight on the grains' values beyond
+    ``box``. NaN where the boxes do not overlap; an upper bound from the effective draws (as
+    :func:`bayes_factor_off`) where no draw falls in the window."""
     d = np.asarray(draws, float) - np.asarray(tied, float)
     (a, b), (c, e) = box, tied_box
+    overlap = min(b, e) - max(a, c)
+    if not (b > a and e > c and overlap > 0):  # "equal" lies outside the prior
+        return math.nan, False
     half = width * (b - a) / 2
     grid = np.linspace(-half, half, 201)
     density = np.clip(np.minimum(b, e + grid) - np.maximum(a, c + grid), 0, None) / ((b - a) * (e - c))
-    prior = float(np.sum((density[1:] + density[:-1]) / 2 * np.diff(grid)))
-    if prior <= 0:  # the boxes do not meet: "equal" is outside the prior
-        return math.nan, False
+    prior = float(np.sum((density[1:] + density[:-1]) / 2 * np.diff(grid))) * (e - c) / overlap
     share = float(np.mean(np.abs(d) <= half))
     if share > 0:
         return share / prior, False

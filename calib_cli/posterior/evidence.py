@@ -381,8 +381,9 @@ def _bf_off(r, eff, samples: pd.DataFrame, rows: pd.DataFrame) -> tuple[float, b
     if eff.tied not in rows.index:
         return math.nan, False
     t = rows.loc[eff.tied]
+    n_eff = [n for n in (r.n_eff, t.n_eff) if np.isfinite(n)]
     return bayes_factor_equal(samples[r.parameter], samples[eff.tied], (r.low, r.high), (t.low, t.high),
-                              min(r.n_eff, t.n_eff))
+                              min(n_eff) if n_eff else math.nan)
 
 
 def _off_words(r, off: Optional[dict], unsure: bool) -> str:
@@ -687,7 +688,8 @@ def fit_posterior(run: Path, model: Model, conds: pd.DataFrame, *, walkers: int 
 
 def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Optional[ColumnShare], *,
              walkers: int, steps: int, seed: int, say: Say = _quiet) -> PosteriorFit:
-    """The posterior averaged over the one effect the model gained, on and off (Bayesian model averaging,
+    """The posterior averaged over the one effect with a neutral value the model gained (a wall effect stays
+    free in both), on and off (Bayesian model averaging,
     even prior odds): P(off | data) = B / (1 + B) with B the Savage-Dickey Bayes factor of "off", and that
     share of the draws from the posterior with the effect's parameter held at its neutral value. Without it,
     a free effect's boundary (surface energy >= 0) pulls the other parameters (rolling friction trades for a
@@ -695,10 +697,9 @@ def averaged(fit: PosteriorFit, conds: pd.DataFrame, bounds: dict, share: Option
     model with the effect free; a bound (no draw near neutral) averages nothing: P(off) < B / (1 + B), nor does
     a Bayes factor the box cuts (:func:`verdicts`: it gives no verdict, so it weighs nothing either)."""
     t = fit.table
-    eff = t[np.isfinite(t["bf_off"].to_numpy(float))]
-    # a wall's "off" is its grains' value, a line in the box, not a value to hold it at
-    if (len(eff) != 1 or bool(eff["bf_upper"].iloc[0]) or str(box_cuts(t).iloc[0])
-            or not np.isfinite(eff["neutral"].iloc[0])):
+    # a wall's "off" is its grains' value, a line in the box, not a value to hold it at: it stays free in both
+    eff = t[np.isfinite(t["bf_off"].to_numpy(float)) & np.isfinite(t["neutral"].to_numpy(float))]
+    if len(eff) != 1 or bool(eff["bf_upper"].iloc[0]) or str(box_cuts(t).iloc[0]):
         return fit
     r = eff.iloc[0]
     p_off = float(r.bf_off / (1.0 + r.bf_off))
