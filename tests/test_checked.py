@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from calib_cli.errors import CalibError
@@ -15,7 +16,9 @@ from calib_cli.stages.calibrate import calibrate
 from calib_cli.stages.common import checked
 from calib_cli.stages.compare import compare
 from calib_cli.stages.load import load
-from calib_cli.stages.simulate import simulate_heap
+from calib_cli.stages.measure import measure_angle
+from calib_cli.stages.simulate import run_simulation, simulate_heap
+from calib_cli.stages.suggest import suggest_conditions
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +33,16 @@ ROOT = Path(__file__).resolve().parents[1]
     (lambda run: compare(run, preset=3), r"preset takes a string or None$"),
     (lambda run: simulate_heap(run, repeats=1.5), r"plan_simulation\(repeats=1.5\): repeats takes an integer$"),
     (lambda run: calibrate(42), r"calibrate\(run=42\): run takes a path"),
+    (lambda run: load(123, "posterior"), r"load\(run=123\): run takes a path"),
+    (lambda run: suggest_conditions(run, ROOT / "sample_data" / "rig.toml", simulate=[1.5]),
+     r"simulate takes a list of names \(strings\)$"),
+    (lambda run: suggest_conditions(run, ROOT / "sample_data" / "rig.toml", simulate="H50"),
+     r"suggest_conditions\(simulate='H50'\): simulate takes a list of names"),
+    (lambda run: measure_angle(run, band="x"), r"measure_angle\(band='x'\): band takes two numbers$"),
+    (lambda run: measure_angle(run, band=(0.1, 0.5, 0.9)), r"band takes two numbers$"),
+    (lambda run: measure_angle(run, conditions=pd.DataFrame({"a": range(30)})),
+     r"^measure_angle\(conditions=<DataFrame>\): conditions takes a path \(str or Path\) or None$"),
+    (lambda run: run_simulation(str(run)), r"run_simulation\(plan='.*'\): plan takes a Plan$"),
 ])
 def test_a_wrong_type_is_one_line_and_touches_nothing(tmp_path, call, message):
     run = tmp_path / "run"

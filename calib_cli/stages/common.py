@@ -79,10 +79,10 @@ def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwa
     return art.Stage(run, group, name, code=CODE_VERSIONS[version or group], **kwargs)
 
 
-#: what an argument of each simple annotation must be, and how a message names it
+#: what an argument of each simple annotation must be, and how a message names it; "pair" is
+#: ``tuple[float, float]`` (measure's band), "names" ``tuple[str, ...]`` (suggest's effects to simulate)
 _KINDS = {int: "an integer", float: "a number", bool: "True or False", str: "a string",
-          Path: "a path (str or Path)"}
-
+          Path: "a path (str or Path)", "pair": "two numbers", "names": "a list of names (strings)"}
 
 #: the range of the library's count and seed arguments, by name (where the argument is an integer): the
 #: command line's options take the same (a seed is numpy's, a count beyond these runs out of memory or time)
@@ -92,15 +92,24 @@ ARG_RANGES = {"seed": (0, 2 ** 32 - 1), "repeats": (1, 1000), "workers": (1, 102
               "piles": (1, 10_000), "at_revision": (0, 1_000_000), "revision": (0, 1_000_000)}
 
 
-def _kind(hint) -> Optional[tuple[type, bool]]:
-    """The simple type an annotation asks for (:data:`_KINDS`) and whether None is allowed; None where the
-    annotation is anything else (a list, a callable, a union of types), which is not checked here."""
-    if hint in _KINDS:
-        return hint, False
+def _kind(hint) -> Optional[tuple]:
+    """The simple type an annotation asks for (:data:`_KINDS`, or a class of calib's own, a :class:`Plan`
+    say) and whether None is allowed; None where the annotation is anything else (a dict, a callable, a
+    union of types), which is not checked here."""
     if typing.get_origin(hint) in (Union, types.UnionType):
         rest = [a for a in typing.get_args(hint) if a is not type(None)]
-        if len(rest) == 1 and rest[0] in _KINDS:
-            return rest[0], len(rest) < len(typing.get_args(hint))
+        one = _kind(rest[0]) if len(rest) == 1 else None
+        return (one[0], len(rest) < len(typing.get_args(hint))) if one else None
+    if hint in _KINDS:
+        return hint, False
+    if typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        if args == (float, float):
+            return "pair", False
+        if args == (str, ...):
+            return "names", False
+    if isinstance(hint, type) and hint.__module__.startswith("calib_cli.") and not issubclass(hint, Protocol):
+        return hint, False
     return None
 
 
@@ -115,7 +124,16 @@ def _fits(value, kind: type) -> bool:
         return isinstance(value, (int, float, np.integer, np.floating))  # NaN and range: the stage's own checks
     if kind is Path:
         return isinstance(value, (str, os.PathLike))
+    if kind == "pair":
+        return (isinstance(value, (tuple, list)) and len(value) == 2
+                and all(_fits(v, float) for v in value))
+    if kind == "names":
+        return isinstance(value, (tuple, list)) and all(isinstance(v, str) for v in value)
     return isinstance(value, kind)
+
+
+def _what(kind) -> str:
+    return _KINDS.get(kind) or f"a {kind.__name__}"
 
 
 def checked(fn: Callable[..., R]) -> Callable[..., R]:
@@ -143,7 +161,7 @@ def checked(fn: Callable[..., R]) -> Callable[..., R]:
             if not kind or (value is None and kind[1]):
                 continue
             if not _fits(value, kind[0]):
-                raise CalibError(f"{fn.__name__}({name}={value!r}): {name} takes {_KINDS[kind[0]]}"
+                raise CalibError(f"{fn.__name__}({name}={_short(value)}): {name} takes {_what(kind[0])}"
                                  + (" or None" if kind[1] else ""))
             lo, hi = ARG_RANGES.get(name, (None, None)) if kind[0] is int else (None, None)
             if lo is not None and not lo <= value <= hi:
@@ -151,6 +169,12 @@ def checked(fn: Callable[..., R]) -> Callable[..., R]:
         return fn(*args, **kwargs)
 
     return call
+
+
+def _short(value) -> str:
+    """An argument as a one-line message shows it: a DataFrame's or an array's repr runs to many lines."""
+    text = repr(value)
+    return text if "\n" not in text and len(text) <= 80 else f"<{type(value).__name__}>"
 
 
 def writes_run(fn: Callable[..., R]) -> Callable[..., R]:

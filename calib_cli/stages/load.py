@@ -45,7 +45,7 @@ KINDS: dict[str, _Kind] = {
 
 
 @checked
-def load(run, stage: str, revision: Optional[int] = None) -> Result:
+def load(run: Path, stage: str, revision: Optional[int] = None) -> Result:
     """The result ``stage`` (a key of :data:`KINDS`) wrote in ``run``, as its function returns it (its
     ``summary()``, ``warnings()`` and tables), read from the files alone; ``skipped`` is True, since nothing
     ran. ``revision``: for ``calibrate``, an earlier model revision's rounds and last posterior. Raises

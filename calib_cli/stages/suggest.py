@@ -586,9 +586,9 @@ def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: boo
 
 @writes_run
 def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: int = 5, force: bool = False,
-                       say: Optional[Say] = None, simulate=(), set_: Pairs = None, preset: Optional[str] = None,
-                       repeats: int = 3, workers: int = 1, shear_modulus: Optional[float] = None,
-                       heaps: int = 0) -> SuggestResult:
+                       say: Optional[Say] = None, simulate: tuple[str, ...] = (), set_: Pairs = None,
+                       preset: Optional[str] = None, repeats: int = 3, workers: int = 1,
+                       shear_modulus: Optional[float] = None, heaps: int = 0) -> SuggestResult:
     """Rank the conditions a rig can make (``rig``: a TOML file) by the expected information about the
     current model's parameters and the expected separation of each missing effect; writes
     RUN/suggest/ranking.parquet and conditions.csv (the ``top`` ones, ``piles`` rows each). The
