@@ -598,6 +598,7 @@ class Stage:
     @contextlib.contextmanager
     def commit(self):
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        _check_folder(self.dir, self.run_dir)
         self.dir.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(dir=self.dir, prefix=f".{self.name}.staging-"))
         writer = _StagingWriter(staging, self.provenance())
@@ -620,6 +621,8 @@ class Stage:
         not written now) go before that rename: once the new lock stands no lock lists them, so one left by a
         kill after it would pass for a committed output."""
         old = (self.read_lock() or {}).get("outputs", {})
+        for rel in [*written, *(r for r in set(old) - set(written) if _inside(self.dir, r))]:
+            _check_file(self.dir / rel, self.dir)  # before anything moves: a folder there would stop it half-way
         hashes = {rel: file_hash(staging / rel) for rel in written}
         lock = {"stage": f"{self.group}.{self.name}", "fingerprint": self.fingerprint,
                 "version": __version__, "code": self.code, "command": command_line(),
@@ -638,6 +641,22 @@ class Stage:
             with contextlib.suppress(FileNotFoundError):
                 (self.dir / rel).unlink()
         os.replace(self.pending_path, self.lock_path)
+
+
+def _check_folder(folder: Path, top: Path) -> None:
+    """Refuse, in one line, a file where ``folder`` or a folder between it and ``top`` should be."""
+    for p in [folder, *folder.parents]:
+        if p == top or top not in p.parents:
+            return
+        if p.exists() and not p.is_dir():
+            raise CalibError(f"{p} is a file where calib keeps a folder of outputs: move it aside and run again")
+
+
+def _check_file(path: Path, top: Path) -> None:
+    """Refuse, in one line, a folder where the output ``path`` goes (or a file where a folder above it does)."""
+    if path.is_dir():
+        raise CalibError(f"{path} is a folder where calib writes a file: move it aside and run again")
+    _check_folder(path.parent, top)
 
 
 def _inside(folder: Path, rel: str) -> bool:

@@ -45,6 +45,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
 #: wall_* effects are neutral when they equal the particles' own value (NaN marks "tied")
 
 DEFAULT_EFFECTS = ["sliding_friction", "rolling_friction", "restitution"]
+#: the highest model revision a run can hold (`--at-revision`'s range too)
+MAX_REVISION = 1_000_000
 MODEL_FILE = "model.toml"
 
 
@@ -130,16 +132,31 @@ def load_model(run: Path) -> Model:
         raise CalibError(f"{p} is not a valid model file: it needs effects = [\"name\", ...] (`calib model add` "
                          f"writes it), got {effects!r}")
     revision = d.get("revision", 1)
-    if isinstance(revision, bool) or not isinstance(revision, int) or revision < 0:  # 1.5 is no revision
-        raise CalibError(f"{p} is not a valid model file: revision must be a whole number of at least 0, got "
-                         f"{revision!r}")
+    if isinstance(revision, bool) or not isinstance(revision, int) or not 0 <= revision <= MAX_REVISION:
+        raise CalibError(f"{p} is not a valid model file: revision must be a whole number from 0 to {MAX_REVISION}, "
+                         f"got {revision!r}")  # 1.5 is no revision, and a table cannot hold 10^23
     if not effects or len(set(effects)) < len(effects):
         raise CalibError(f"{p} is not a valid model file: effects must name each effect once, got {effects!r} "
                          "(`calib model add` and `model remove` write it)")
+    _check_kept(p, revision, effects)
     try:
         return Model(tuple(effects), revision, str(d.get("note", "")))
     except (TypeError, ValueError) as e:
         raise CalibError(f"{p} is not a valid model file ({e})") from None
+
+
+def _check_kept(p: Path, revision: int, effects: list) -> None:
+    """Refuse a model.toml whose effects are not those of the revision it names as kept in RUN/model/: edited
+    by hand, its calibration would be filed, and its earlier folders replaced, under the other model's number."""
+    kept = p.parent / "model" / f"rev-{revision:04d}.toml"
+    try:
+        other = tomllib.loads(kept.read_text()).get("effects") if kept.is_file() else None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError):
+        return  # a damaged copy: the current file is the one read
+    if isinstance(other, list) and set(map(str, other)) != set(effects):
+        raise CalibError(f"{p} names revision {revision} with effects {', '.join(effects)}, but {kept} keeps that "
+                         f"revision with {', '.join(map(str, other))}: change the model with `calib model add` or "
+                         f"`model remove` (they number a new revision), or restore it (cp {kept} {p})")
 
 
 def save_model(run: Path, model: Model) -> Model:

@@ -387,6 +387,21 @@ def factor_space(settings: Mapping, names: Iterable[str] | None = None) -> Param
     return ParameterSpace(tuple(facs))
 
 
+def _check_factor_names(table: Mapping) -> None:
+    """Refuse a factor named like a parameter but misspelt (``static_fricton``): its range would be taken for
+    a factor of its own while the parameter kept the default range. A name like no parameter (a paper's
+    factor of its own) stands."""
+    import difflib
+
+    from .parameters import PARAMETERS
+
+    for n in table:
+        close = difflib.get_close_matches(n, list(PARAMETERS), n=1, cutoff=0.85) if n not in PARAMETERS else []
+        if close:
+            raise CalibError(f"setting factors.{n} names no parameter: did you mean factors.{close[0]}? (as it is, "
+                             f"{close[0]} keeps its default range)")
+
+
 def validate(s: Mapping) -> None:
     """Resolved settings, checked as a whole: each value's kind (as :func:`check_types`, which
     load_settings calls per source first, to name a file) and how settings relate."""
@@ -395,6 +410,7 @@ def validate(s: Mapping) -> None:
         if isinstance(v, Mapping) and not isinstance(s[k], Mapping):
             raise CalibError(f"setting {k!r} must be a table, got {s[k]!r}")
     factor_space(s)  # every factor well-formed
+    _check_factor_names(s["factors"])
     for stage in ("pb", "bbd"):
         for n in s[stage].get("factors", []):
             if n not in s["factors"]:

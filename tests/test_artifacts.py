@@ -68,6 +68,32 @@ def test_failed_stage_leaves_run_dir_unchanged(tmp_path):
     after = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     assert before == after
 
+def test_a_folder_where_an_output_goes_or_a_file_where_the_stage_folder_goes_is_one_line(tmp_path):
+    """A later output that is a folder (posterior/corner.png made a folder) stopped the commit half-way, after
+    the earlier outputs were replaced and with a pending lock left that every reader then refused; a file
+    where the stage's folder goes was exit 70. Both are refused before anything moves."""
+    st = _stage(tmp_path, {"k": 1})
+    with st.commit() as out:
+        out.table("a.parquet", pd.DataFrame({"a": [1]}))
+        out.text("b.txt", "one")
+    (tmp_path / "g" / "b.txt").unlink()
+    (tmp_path / "g" / "b.txt").mkdir()
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    with pytest.raises(CalibError, match=r"g/b.txt is a folder where calib writes a file: move it aside"):
+        with _stage(tmp_path, {"k": 2}).commit() as out:
+            out.table("a.parquet", pd.DataFrame({"a": [2]}))
+            out.text("b.txt", "two")
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    assert not list((tmp_path / "g").glob("*pending*")) and not list((tmp_path / "g").glob(".s.staging-*"))
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "g").write_text("x")
+    with pytest.raises(CalibError, match=r"other/g is a file where calib keeps a folder of outputs"):
+        with _stage(other, {"k": 1}).commit() as out:
+            out.table("a.parquet", pd.DataFrame({"a": [1]}))
+    assert (other / "g").read_text() == "x"
+
+
 
 @pytest.mark.parametrize("text", ["[1]", '"str"', "5", '{"outputs": 5}', "{not json"])
 def test_a_lock_of_another_shape_is_out_of_date_and_replaced(tmp_path, text):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 from pathlib import Path
 from typing import Optional
 
@@ -128,10 +129,11 @@ def test_an_ascent_target_beyond_any_angle_is_one_line(tmp_path):
 
 
 @pytest.mark.parametrize("text, words", [
-    ('revision = 1.5\neffects = ["sliding_friction"]\n', "revision must be a whole number of at least 0, got 1.5"),
-    ('revision = -3\neffects = ["sliding_friction"]\n', "revision must be a whole number of at least 0, got -3"),
+    ('revision = 1.5\neffects = ["sliding_friction"]\n', "revision must be a whole number from 0 to 1000000, got 1.5"),
+    ('revision = -3\neffects = ["sliding_friction"]\n', "revision must be a whole number from 0 to 1000000, got -3"),
     ("revision = 1\neffects = []\n", "effects must name each effect once, got []"),
     ('revision = 1\neffects = ["restitution", "restitution"]\n', "effects must name each effect once"),
+    ('revision = 99999999999999999999999\neffects = ["sliding_friction"]\n', "from 0 to 1000000, got 99999"),
 ])
 def test_a_model_file_edited_out_of_shape_is_one_line(tmp_path, text, words):
     from calib_cli.model import load_model
@@ -201,3 +203,42 @@ def test_an_angles_files_rig_columns_are_named_as_not_read(tmp_path):
     p.write_text("image,repose_angle,condition_id,cylinder_diameter_mm\n1,30,A,40\n2,31,A,40\n")
     measure_angle(run, angles=p, say=lambda m, err=False: said.append(m))
     assert any("rig column(s) cylinder_diameter_mm, which are not read" in m for m in said), said
+
+
+def test_a_model_file_edited_against_its_kept_revision_is_refused(tmp_path):
+    """model.toml given an effect by hand under revision 1, which RUN/model/ keeps without it: its calibration
+    would be filed under revision 1's folders (replacing them); refused, naming both and the way back."""
+    from calib_cli.model import load_model
+
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "sample_runs" / "hidden-effect" / "model", run / "model")
+    shutil.copy(ROOT / "sample_runs" / "hidden-effect" / "model.toml", run / "model.toml")
+    assert load_model(run).revision == 1
+    (run / "model.toml").write_text('revision = 1\neffects = ["sliding_friction", "rolling_friction", "restitution", '
+                                    '"cohesion", "capillary"]\n')
+    with pytest.raises(CalibError, match=r"names revision 1 with effects .*capillary.* keeps that revision with .*"
+                                         r"`calib model add`.* or restore it \(cp "):
+        load_model(run)
+    # the same effects in another order are the same model
+    (run / "model.toml").write_text('revision = 1\neffects = ["cohesion", "restitution", "rolling_friction", '
+                                    '"sliding_friction"]\n')
+    assert load_model(run).revision == 1
+
+
+def test_a_misspelt_factor_table_and_a_settings_folder_are_refused(tmp_path):
+    """[factors.static_fricton] would have been a factor of its own, static friction keeping its default range
+    in the prior; a settings.toml that is a folder made every command take the built-in settings."""
+    from calib_cli.settings import load_settings
+    from calib_cli.stages.common import resolve_settings
+
+    bad = tmp_path / "s.toml"
+    bad.write_text("[factors.static_fricton]\nlow = 0.3\nhigh = 0.6\n")
+    with pytest.raises(CalibError, match=r"factors.static_fricton names no parameter: did you mean "
+                                         r"factors.static_friction\?"):
+        load_settings([bad])
+    own = tmp_path / "own.toml"
+    own.write_text('[factors.moisture]\nlow = 0.0\nhigh = 0.1\nunit = "-"\n')  # like no parameter: a factor
+    assert "moisture" in load_settings([own])["factors"]
+    (tmp_path / "run" / "settings.toml").mkdir(parents=True)
+    with pytest.raises(CalibError, match=r"settings.toml is not a file: move it aside"):
+        resolve_settings(tmp_path / "run", None, None)

@@ -752,3 +752,32 @@ def test_a_results_index_edited_into_another_shape_is_one_line(tmp_path, edit, w
         load_results(run)
     r = runner.invoke(app, ["diff-runs", str(run), str(run)])
     assert r.exit_code == 2 and words in " ".join(r.output.split()), r.output
+
+
+def test_a_dask_address_where_another_service_answers_is_one_line():
+    """An SSH server at --dask's address: its banner, read as a Dask frame's length, asked for exabytes
+    (MemoryError, exit 70); now one line saying the address did not answer as a scheduler."""
+    import socket
+    import threading
+
+    from calib_cli.errors import CalibError
+    from calib_cli.heaps.runner import _client
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+
+    def banner():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+
+    threading.Thread(target=banner, daemon=True).start()
+    try:
+        with pytest.raises(CalibError, match=r"did not answer as a Dask scheduler \(\w+\)"):
+            _client(f"tcp://127.0.0.1:{server.getsockname()[1]}", None)
+    finally:
+        server.close()

@@ -273,6 +273,18 @@ def test_the_same_seed_gives_the_same_draws_and_a_missing_prior_is_refused(gp):
         calibrate_posterior(gp, measured, {"a": (0.0, 1.0)}, n_walkers=8, n_steps=20)
 
 
+def test_a_chain_too_short_for_an_autocorrelation_time_is_not_trusted_but_summarised(gp, monkeypatch):
+    """At --steps 10 emcee can give no autocorrelation time (NaN): the sampler then took it as the chain's
+    length, so the chains are not trusted and the effective draws stay finite, instead of failing on NaN
+    (exit 70 from `calibrate-posterior --steps 10`)."""
+    import emcee
+
+    monkeypatch.setattr(emcee.EnsembleSampler, "get_autocorr_time", lambda self, **kw: np.full(2, np.nan))
+    measured = pd.DataFrame({"fill_height_mm": HEIGHTS, "mean": [30.0, 31.0, 32.0], "sd": 2.0, "n": 10})
+    t = calibrate_posterior(gp, measured, BOUNDS, n_walkers=8, n_steps=10, seed=1).summary()
+    assert (t["autocorr_time"] == 10).all() and not t["chain_ok"].any() and np.isfinite(t["n_eff"]).all()
+
+
 # ------------------------------------------------------------------ the piles' scatter as evidence
 def test_the_scatter_likelihood_is_the_chi_square_law_of_a_sample_variance():
     """log s^2 of n piles: its mean is log sigma^2 + psi(k/2) - log(k/2) and its variance psi'(k/2), k = n - 1

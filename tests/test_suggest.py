@@ -491,7 +491,8 @@ def test_suggest_heaps_spreads_more_heaps_at_the_candidates_over_the_posteriors_
     first = [theta for _, theta in asked["points"]]
     r = st.suggest_conditions(mine, rig, top=2, simulate=["d4-5_D60_H75"], heaps=6, **quiet)
     assert not r.skipped and len(asked["points"]) == 6 and [t for _, t in asked["points"][:4]] == first
-    for bad, match in (({"heaps": 4}, "--heaps choose the heaps --simulate makes"),
+    for bad, match in (({"heaps": 4}, "--heaps, --repeats and --workers choose the heaps --simulate makes"),
+                       ({"repeats": 7}, "--heaps, --repeats and --workers choose the heaps"),
                        ({"heaps": 1, "simulate": ["d4-5_D60_H75"]}, "--heaps must be 0 or at least 2")):
         with pytest.raises(CalibError, match=match):
             st.suggest_conditions(mine, rig, **bad, **quiet)

@@ -205,6 +205,8 @@ def suggest_conditions(
     from ..stages import suggest as suggest_stage
 
     ids = [i.strip() for s in simulate or [] for i in s.split(",") if i.strip()]
+    if simulate and not ids:
+        raise CalibError(f"--simulate {','.join(simulate)!r} names no candidate: give condition ids, comma-separated")
     r = suggest_stage.suggest_conditions(run, rig, piles, top, force, say=say, simulate=ids, set_=set_, preset=preset,
                                          repeats=repeats, workers=workers, shear_modulus=shear_modulus, heaps=heaps)
     if r.skipped:

@@ -316,6 +316,9 @@ def _client(dask: str, cluster):
     except (OSError, TimeoutError) as e:
         raise CalibError(f"no Dask scheduler answered at {dask} ({e}): start one (`dask scheduler`) and its "
                          "workers where they see the run directory, or use --dask local") from None
+    except Exception as e:  # another service there (an SSH banner read as a frame length: a MemoryError of EiB)
+        raise CalibError(f"{dask} did not answer as a Dask scheduler ({type(e).__name__}): is it the address "
+                         "`dask scheduler` printed?") from None
 
 
 def _run_on_dask(todo: list[tuple[int, Request]], run_dir: Path, dask: str, workers: int, force: bool,

@@ -423,7 +423,9 @@ def calibrate_posterior(gp, measured: pd.DataFrame, bounds: Mapping[str, tuple[f
     with threadpool_limits(1, user_api="blas"):
         p0 = _start(log_prob, lo, hi, n_walkers, np.random.default_rng(seed))
         sampler.run_mcmc(p0, n_steps, progress=False)
-    tau = np.maximum(sampler.get_autocorr_time(tol=0), 1.0)
+    tau = sampler.get_autocorr_time(tol=0)
+    # a chain too short to estimate it (NaN, at --steps 10): as long as the chain, so it is not trusted
+    tau = np.maximum(np.where(np.isfinite(tau), tau, n_steps), 1.0)
     discard = int(min(n_steps // 2, max(n_steps // 4, np.ceil(3 * tau.max()))))
     thin = max(1, int(tau.min() / 2))
     chain = sampler.get_chain(discard=discard, thin=thin, flat=True)

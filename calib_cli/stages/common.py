@@ -26,6 +26,7 @@ import pandas as pd
 from .. import artifacts as art
 from ..dem.heap import Numerics
 from ..errors import CalibError
+from ..model import MAX_REVISION
 from ..heaps.index import heap_setups, row_laws, row_moduli
 from ..settings import load_settings
 from ..space import ParameterSpace
@@ -89,7 +90,7 @@ _KINDS = {int: "an integer", float: "a number", bool: "True or False", str: "a s
 ARG_RANGES = {"seed": (0, 2 ** 32 - 1), "repeats": (1, 1000), "workers": (1, 1024), "budget": (1, 100_000),
               "first": (1, 100_000), "batch": (1, 100_000), "walkers": (2, 10_000), "steps": (10, 10_000_000),
               "design": (0, 1_000_000), "validate": (0, 1000), "refine": (0, 100), "top": (1, 10_000),
-              "piles": (1, 10_000), "at_revision": (0, 1_000_000), "revision": (0, 1_000_000)}
+              "piles": (1, 10_000), "at_revision": (0, MAX_REVISION), "revision": (0, MAX_REVISION), "heaps": (0, 10_000)}
 
 
 def _kind(hint) -> Optional[tuple]:
@@ -242,6 +243,9 @@ def resolve_settings(run: Path, settings: Optional[Path], overrides: Optional[It
         files.append(settings)
     elif (Path(run) / SETTINGS_FILE).is_file():
         files.append(Path(run) / SETTINGS_FILE)
+    elif (Path(run) / SETTINGS_FILE).exists():  # a folder there: the defaults would stand in for the user's
+        raise CalibError(f"{Path(run) / SETTINGS_FILE} is not a file: move it aside (calib init --run {run} "
+                         "--settings FILE writes it)")
     elif (Path(run) / INITIALISED).is_file():  # the built-in defaults would silently stand in for the user's
         raise CalibError(f"{Path(run) / SETTINGS_FILE} is missing (calib init wrote it): restore it, or write it "
                          f"again with calib init --run {run} --settings FILE")

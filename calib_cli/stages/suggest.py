@@ -571,7 +571,8 @@ def _rank_inputs(run: Path, rig: Path, model: Model, rows: pd.DataFrame, cond_va
 
 def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: bool, heap_options: bool) -> None:
     """Refuses counts out of range, and options that choose heaps (``heap_options``: --set, --preset,
-    --shear-modulus; and --heaps) without --simulate, which alone makes them."""
+    --shear-modulus, a --repeats or --workers not the default; and --heaps) without --simulate, which alone
+    makes them."""
     if piles < 1 or top < 1 or repeats < 1:
         raise CalibError("--piles, --top and --repeats must be at least 1")
     if simulate and repeats < 2:
@@ -580,8 +581,8 @@ def _check_options(piles: int, top: int, repeats: int, heaps: int, simulate: boo
     if heaps < 0 or heaps == 1:
         raise CalibError(f"--heaps must be 0 or at least 2 (a design over the posterior's intervals), got {heaps}")
     if not simulate and (heap_options or heaps):
-        raise CalibError("--set, --preset, --shear-modulus and --heaps choose the heaps --simulate makes: name the "
-                         "candidates to simulate (--simulate ID), or leave them out")
+        raise CalibError("--set, --preset, --shear-modulus, --heaps, --repeats and --workers choose the heaps "
+                         "--simulate makes: name the candidates to simulate (--simulate ID), or leave them out")
 
 
 @writes_run
@@ -602,7 +603,8 @@ def suggest_conditions(run: Path, rig: Path, piles: Optional[int] = None, top: i
     the_rig = load_rig(rig)
     piles = int(piles or the_rig.piles)
     simulate = [simulate] if isinstance(simulate, str) else list(simulate)  # one name, not its letters
-    _check_options(piles, top, repeats, heaps, bool(simulate), bool(set_ or preset or shear_modulus is not None))
+    _check_options(piles, top, repeats, heaps, bool(simulate),
+                   bool(set_ or preset or shear_modulus is not None or repeats != 3 or workers != 1))
     model = load_model(run)
     measured = measured_conditions(run)
     if measured.empty:
