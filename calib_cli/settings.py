@@ -388,18 +388,28 @@ def factor_space(settings: Mapping, names: Iterable[str] | None = None) -> Param
 
 
 def _check_factor_names(table: Mapping) -> None:
-    """Refuse a factor named like a parameter but misspelt (``static_fricton``): its range would be taken for
-    a factor of its own while the parameter kept the default range. A name like no parameter (a paper's
-    factor of its own) stands."""
-    import difflib
-
+    """Refuse a factor named like a parameter but misspelt (``static_fricton``: at most two letters off): its
+    range would be taken for a factor of its own while the parameter kept the default range. A name like no
+    parameter (a paper's factor of its own, ``restitution_pw``) stands."""
     from .parameters import PARAMETERS
 
     for n in table:
-        close = difflib.get_close_matches(n, list(PARAMETERS), n=1, cutoff=0.85) if n not in PARAMETERS else []
+        # two letters off, not a parameter's name with a suffix of its own (restitution_pw)
+        close = [] if n in PARAMETERS else [p for p in PARAMETERS if _edits(n, p) <= 2 and not n.startswith(p)
+                                            and not p.startswith(n)]
         if close:
             raise CalibError(f"setting factors.{n} names no parameter: did you mean factors.{close[0]}? (as it is, "
                              f"{close[0]} keeps its default range)")
+
+
+def _edits(a: str, b: str) -> int:
+    """The Levenshtein distance: letters inserted, deleted or changed to make ``a`` into ``b``."""
+    row = list(range(len(b) + 1))
+    for i, x in enumerate(a, 1):
+        prev, row[0] = row[0], i
+        for j, y in enumerate(b, 1):
+            prev, row[j] = row[j], min(row[j] + 1, row[j - 1] + 1, prev + (x != y))
+    return row[-1]
 
 
 def validate(s: Mapping) -> None:

@@ -36,9 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
     (lambda run: calibrate(42), r"calibrate\(run=42\): run takes a path"),
     (lambda run: load(123, "posterior"), r"load\(run=123\): run takes a path"),
     (lambda run: suggest_conditions(run, ROOT / "sample_data" / "rig.toml", simulate=[1.5]),
-     r"simulate takes a list of names \(strings\)$"),
-    (lambda run: suggest_conditions(run, ROOT / "sample_data" / "rig.toml", simulate="H50"),
-     r"suggest_conditions\(simulate='H50'\): simulate takes a list of names"),
+     r"simulate takes a name or a list of names \(strings\)$"),
     (lambda run: measure_angle(run, band="x"), r"measure_angle\(band='x'\): band takes two numbers$"),
     (lambda run: measure_angle(run, band=(0.1, 0.5, 0.9)), r"band takes two numbers$"),
     (lambda run: measure_angle(run, conditions=pd.DataFrame({"a": range(30)})),
@@ -77,6 +75,15 @@ def test_the_types_a_user_means_pass():
         stage("a", scale="1")
     with pytest.raises(CalibError, match=r"stage\(on=1\): on takes True or False$"):
         stage("a", on=1)
+
+    @checked
+    def pairs(band: tuple[float, float] = (0.1, 0.9), names: tuple[str, ...] = ()) -> tuple:
+        return band, names
+
+    # a band as numpy gives it, one name or a table's column of them
+    assert pairs(np.array([0.15, 0.85]), "H50")[1] == "H50"
+    assert list(pairs(names=pd.Series(["H50", "H75"]))[1]) == ["H50", "H75"]
+    assert pairs((np.float32(0.2), 1), {"H50"})[0][1] == 1
 
 
 def test_load_names_a_stage_by_its_name():
@@ -237,8 +244,9 @@ def test_a_misspelt_factor_table_and_a_settings_folder_are_refused(tmp_path):
                                          r"factors.static_friction\?"):
         load_settings([bad])
     own = tmp_path / "own.toml"
-    own.write_text('[factors.moisture]\nlow = 0.0\nhigh = 0.1\nunit = "-"\n')  # like no parameter: a factor
-    assert "moisture" in load_settings([own])["factors"]
+    own.write_text('[factors.moisture]\nlow = 0.0\nhigh = 0.1\nunit = "-"\n'  # like no parameter: a factor
+                   '[factors.restitution_pw]\nlow = 0.1\nhigh = 0.5\nunit = "-"\n')  # a parameter's, with a suffix
+    assert {"moisture", "restitution_pw"} <= set(load_settings([own])["factors"])
     (tmp_path / "run" / "settings.toml").mkdir(parents=True)
     with pytest.raises(CalibError, match=r"settings.toml is not a file: move it aside"):
         resolve_settings(tmp_path / "run", None, None)

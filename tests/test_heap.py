@@ -777,7 +777,7 @@ def test_a_dask_address_where_another_service_answers_is_one_line():
 
     threading.Thread(target=banner, daemon=True).start()
     try:
-        with pytest.raises(CalibError, match=r"did not answer as a Dask scheduler \(\w+\)"):
+        with pytest.raises(CalibError, match=r"did not answer as a Dask scheduler \(\w+"):
             _client(f"tcp://127.0.0.1:{server.getsockname()[1]}", None)
     finally:
         server.close()

@@ -83,7 +83,7 @@ def stage(run: Path, group: str, name: str, version: Optional[str] = None, **kwa
 #: what an argument of each simple annotation must be, and how a message names it; "pair" is
 #: ``tuple[float, float]`` (measure's band), "names" ``tuple[str, ...]`` (suggest's effects to simulate)
 _KINDS = {int: "an integer", float: "a number", bool: "True or False", str: "a string",
-          Path: "a path (str or Path)", "pair": "two numbers", "names": "a list of names (strings)"}
+          Path: "a path (str or Path)", "pair": "two numbers", "names": "a name or a list of names (strings)"}
 
 #: the range of the library's count and seed arguments, by name (where the argument is an integer): the
 #: command line's options take the same (a seed is numpy's, a count beyond these runs out of memory or time)
@@ -126,10 +126,12 @@ def _fits(value, kind: type) -> bool:
     if kind is Path:
         return isinstance(value, (str, os.PathLike))
     if kind == "pair":
-        return (isinstance(value, (tuple, list)) and len(value) == 2
+        return (isinstance(value, (tuple, list, np.ndarray, pd.Series)) and len(value) == 2
                 and all(_fits(v, float) for v in value))
-    if kind == "names":
-        return isinstance(value, (tuple, list)) and all(isinstance(v, str) for v in value)
+    if kind == "names":  # one name, or a collection of them (a column of a table)
+        return isinstance(value, str) or (isinstance(value, (tuple, list, set, frozenset, np.ndarray, pd.Series,
+                                                             pd.Index))
+                                          and all(isinstance(v, str) for v in value))
     return isinstance(value, kind)
 
 
