@@ -380,6 +380,17 @@ def test_a_calibration_with_other_options_stopped_on_the_way_leaves_the_answer_b
         pd.testing.assert_frame_equal(pd.read_parquet(run / f), pd.read_parquet(io.BytesIO(before[f])), obj=f)
 
 
+def test_a_round_of_an_odd_number_of_heaps_says_it_simulates_whole_points(lab):
+    """--first 61 with 2 piles a point makes 60 heaps (30 points): said, not done in silence."""
+    from calib_cli.stages import calibrate as cal
+
+    run, calls = lab
+    said = []
+    cal.calibrate(run, budget=81, first=61, batch=21, walkers=16, steps=300, say=lambda m, **k: said.append(m))
+    assert "note: --first 61 makes 60 and --batch 21 makes 20 heaps, whole points of 2 piles (--repeats)" in said
+    assert calls[0] == 60
+
+
 def test_heaps_of_another_preset_are_refused_before_any_runs(lab):
     """The model's heaps at hand were simulated at the default preset: a calibration at another one would mix
     two setups in one surrogate, refused before round 0 spends its heaps (not after them)."""

@@ -487,6 +487,11 @@ def calibrate(run: Path, budget: int = 250, first: Optional[int] = None, batch: 
         f"condition(s): round 0 {plan.first} heaps, then rounds of {plan.batch} ({plan.rule} rule, {plan.repeats} "
         f"piles a point) until stable or {plan.budget} heaps; preset {preset}, engine {setup['engine']}"
         + precision_note(precision))
+    odd = [f"{opt} {n} makes {n // plan.repeats * plan.repeats}" for opt, n in (("--first", plan.first),
+                                                                              ("--batch", plan.batch))
+           if n % plan.repeats]
+    if odd:  # a round simulates whole points of --repeats piles
+        say(f"note: {' and '.join(odd)} heaps, whole points of {plan.repeats} piles (--repeats)")
     if force:  # begin again from every heap at hand now: compare's and diagnose's join
         (_dir(run, model, 0) / "reused.parquet").unlink(missing_ok=True)
     rounds, spent, stop, designed = _rounds(run, model, conds, plan, setup, workers, dask, force, say, on_heap)
