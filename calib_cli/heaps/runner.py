@@ -309,23 +309,25 @@ def check_dask(dask: str | None) -> None:
 
 
 def _client(dask: str, cluster):
-    """A client of the scheduler at ``dask`` or of the local ``cluster`` (closed here where none comes of it)."""
+    """A client of the local ``cluster`` (closed where none comes of it, its own error raised) or of the
+    scheduler at ``dask``."""
     from distributed import Client
 
-    try:
-        return Client(cluster if cluster is not None else dask)
-    except BaseException as e:
-        if cluster is not None:
+    if cluster is not None:
+        try:
+            return Client(cluster)
+        except BaseException:
             cluster.close()
             raise
-        if isinstance(e, (OSError, TimeoutError)):
-            raise CalibError(f"no Dask scheduler answered at {dask} ({e}): start one (`dask scheduler`) and its "
-                             "workers where they see the run directory, or use --dask local") from None
-        if isinstance(e, Exception):  # another service there (an SSH banner read as a frame length: EiB asked for)
-            said = str(e).splitlines()[0][:120] if str(e) else ""
-            raise CalibError(f"{dask} did not answer as a Dask scheduler ({type(e).__name__}"
-                             f"{': ' + said if said else ''}): is it the address `dask scheduler` printed?") from None
-        raise
+    try:
+        return Client(dask)
+    except (OSError, TimeoutError) as e:
+        raise CalibError(f"no Dask scheduler answered at {dask} ({e}): start one (`dask scheduler`) and its "
+                         "workers where they see the run directory, or use --dask local") from None
+    except Exception as e:  # another service there (an SSH banner read as a frame length: EiB asked for)
+        said = str(e).splitlines()[0][:120] if str(e) else ""
+        raise CalibError(f"{dask} did not answer as a Dask scheduler ({type(e).__name__}"
+                         f"{': ' + said if said else ''}): is it the address `dask scheduler` printed?") from None
 
 
 def _run_on_dask(todo: list[tuple[int, Request]], run_dir: Path, dask: str, workers: int, force: bool,

@@ -181,11 +181,16 @@ def bayes_factor_off(draws, value: float, low: float, high: float, n_eff: float,
     bf = savage_dickey(draws, value, low, high, width)
     if bf > 0:
         return bf, False
-    if not np.isfinite(n_eff) or n_eff <= 0:  # no autocorrelation estimate: one draw in 50 (never 0, never
-        n_eff = max(1.0, np.size(draws) / 50.0)  # the all-draws bound, which would claim more than they hold)
     half = width * (high - low) / 2
-    share = (min(high, value + half) - max(low, value - half)) / (high - low)
-    return float(3.0 / n_eff / share), True
+    return _bound(n_eff, np.size(draws), (min(high, value + half) - max(low, value - half)) / (high - low)), True
+
+
+def _bound(n_eff: float, draws: int, prior: float) -> float:
+    """The rule of three's 95 % bound on a Bayes factor none of ``draws`` fell in the window of: 3 / n_eff over
+    the window's ``prior`` probability."""
+    if not np.isfinite(n_eff) or n_eff <= 0:  # no autocorrelation estimate: one draw in 50 (never 0, never
+        n_eff = max(1.0, draws / 50.0)  # the all-draws bound, which would claim more than they hold)
+    return float(3.0 / n_eff / prior)
 
 
 def bayes_factor_equal(draws, tied, box: tuple[float, float], tied_box: tuple[float, float], n_eff: float,
@@ -213,11 +218,7 @@ def bayes_factor_equal(draws, tied, box: tuple[float, float], tied_box: tuple[fl
     density = np.clip(np.minimum(b, e + grid) - np.maximum(a, c + grid), 0, None) / ((b - a) * (e - c))
     prior = float(np.sum((density[1:] + density[:-1]) / 2 * np.diff(grid))) * (e - c) / overlap
     share = float(np.mean(np.abs(d) <= half))
-    if share > 0:
-        return share / prior, False
-    if not np.isfinite(n_eff) or n_eff <= 0:
-        n_eff = max(1.0, d.size / 50.0)
-    return float(3.0 / n_eff / prior), True
+    return (share / prior, False) if share > 0 else (_bound(n_eff, d.size, prior), True)
 
 
 def mvn_logpdf(r: np.ndarray, V: np.ndarray) -> np.ndarray:
